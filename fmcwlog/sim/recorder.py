@@ -1,0 +1,172 @@
+"""Runs a simulation and writes it as a log (LOG_FORMAT.md).
+
+Messages go out in log-time order, a sweep period at a time: the sweep and
+its ground-truth labels at its first beam's stamp, then the encoder counts
+and ground-truth odometry falling in that period. A Ctrl-C (SIGINT) stops
+the loop between two periods, so the log is finished cleanly and is simply
+shorter. Randomness comes from two streams derived from the seed (encoders,
+LiDAR), so the same seed gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .. import __version__
+from ..mcap_io import (
+    CALIBRATION_KEY,
+    GT_LABELS_TOPIC,
+    GT_ODOM_TOPIC,
+    POINTS_TOPIC,
+    TICKS_TOPIC,
+    WORLD_KEY,
+    LogWriter,
+    odometry_message,
+    pointcloud_message,
+    stamp,
+)
+from .chassis import Chassis
+from .config import SimConfig
+from .lidar import FmcwLidar
+from .world import World
+
+SIM_KEY = "fmcwlog.sim"
+
+
+@dataclass(frozen=True)
+class RecordSummary:
+    path: Path
+    sweeps: int
+    seconds: float  # simulated time written
+    interrupted: bool
+    points: int
+    moving_points: int
+
+    @property
+    def moving_fraction(self) -> float:
+        return self.moving_points / self.points if self.points else 0.0
+
+
+def calibration_metadata(cfg: SimConfig) -> dict[str, str]:
+    """The ``fmcwlog.calibration`` record: what the robot *believes* (nominal radii)."""
+    s, r = cfg.sensor, cfg.robot
+    values = {
+        "wheel_radius_left": r.wheel_radius,
+        "wheel_radius_right": r.wheel_radius,
+        "track_width": r.track_width,
+        "ticks_per_revolution": r.ticks_per_revolution,
+        "lidar_x": s.mount_x,
+        "lidar_y": s.mount_y,
+        "lidar_yaw": math.radians(s.mount_yaw_deg),
+        "fov": math.radians(s.fov_deg),
+        "angular_resolution": math.radians(s.resolution_deg),
+        "max_range": s.max_range,
+        "range_sigma": s.range_sigma,
+        "doppler_resolution": s.doppler_resolution,
+        "wavelength": s.wavelength,
+        "scan_rate": s.scan_rate,
+    }
+    return {k: repr(v) if isinstance(v, float) else str(v) for k, v in values.items()}
+
+
+class _StopFlag:
+    """Turns SIGINT into a flag checked between sweep periods (main thread only)."""
+
+    def __init__(self) -> None:
+        self.set = False
+        self._old = None
+
+    def __enter__(self) -> "_StopFlag":
+        try:
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        except ValueError:  # not the main thread: leave SIGINT alone
+            self._old = None
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.set = True
+
+    def __exit__(self, *exc) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
+def _ns(start_ns: int, k: np.ndarray, rate: float) -> np.ndarray:
+    return start_ns + np.round(k * (1e9 / rate)).astype(np.int64)
+
+
+def record(
+    world: World,
+    cfg: SimConfig,
+    out: str | Path,
+    on_progress: Callable[[int], None] | None = None,
+) -> RecordSummary:
+    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``.
+
+    ``on_progress`` is called with the number of sweeps done after each one.
+    """
+    cfg.validate()
+    s_cfg, r_cfg, run = cfg.sensor, cfg.robot, cfg.run
+    chassis = Chassis(world.route.build(), r_cfg)
+    lidar = FmcwLidar(s_cfg, world.walls, world.movers)
+    rng_encoders = np.random.default_rng([run.seed, 1])
+    rng_lidar = np.random.default_rng([run.seed, 2])
+
+    n_ticks = int(math.floor(run.duration * r_cfg.encoder_rate + 1e-9))
+    k = np.arange(n_ticks)
+    t_ticks = k / r_cfg.encoder_rate
+    ns_ticks = _ns(run.start_time_ns, k, r_cfg.encoder_rate)
+    body = chassis.state(t_ticks)
+    left, right = chassis.encoder_counts(body, rng_encoders)
+
+    n_sweeps = int(math.floor(run.duration * s_cfg.scan_rate + 1e-9))
+    ns_sweeps = _ns(run.start_time_ns, np.arange(n_sweeps + 1), s_cfg.scan_rate)
+    tick_bounds = np.searchsorted(ns_ticks, ns_sweeps)
+
+    sim_meta = {
+        "generator": f"fmcwlog {__version__}",
+        "scenario": world.name,
+        "seed": str(run.seed),
+        "config": json.dumps(cfg.as_dict(), sort_keys=True),
+        "true_wheel_radius_left": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_left)),
+        "true_wheel_radius_right": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_right)),
+    }
+    done = points = moving = 0
+    with LogWriter(out, compression=run.compression) as writer, _StopFlag() as stop:
+        writer.add_metadata(CALIBRATION_KEY, calibration_metadata(cfg))
+        writer.add_metadata(WORLD_KEY, world.metadata())
+        writer.add_metadata(SIM_KEY, sim_meta)
+        for j in range(n_sweeps):
+            if stop.set:
+                break
+            t0 = j / s_cfg.scan_rate
+            t_beams = t0 + lidar.beam_time
+            sweep = lidar.sweep(chassis.state(t_beams), t_beams, rng_lidar)
+            ns = int(ns_sweeps[j])
+            cols = {"x": sweep.x, "y": sweep.y, "z": np.zeros_like(sweep.x), "intensity": sweep.intensity,
+                    "velocity": sweep.velocity, "t": sweep.t}
+            writer.write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", pointcloud_message(ns, "lidar", cols), ns)
+            writer.write(GT_LABELS_TOPIC, "fmcwlog_msgs/msg/PointLabels",
+                         {"header": {"stamp": stamp(ns), "frame_id": "lidar"}, "moving": sweep.moving.tobytes()}, ns)
+            for i in range(tick_bounds[j], tick_bounds[j + 1]):
+                tns = int(ns_ticks[i])
+                writer.write(TICKS_TOPIC, "fmcwlog_msgs/msg/WheelTicks",
+                             {"header": {"stamp": stamp(tns), "frame_id": "base_link"},
+                              "left": int(left[i]), "right": int(right[i])}, tns)
+                pose = np.array([body.x[i], body.y[i], body.yaw[i]])
+                twist = np.array([body.v[i], 0.0, body.omega[i]])
+                writer.write(GT_ODOM_TOPIC, "nav_msgs/msg/Odometry",
+                             odometry_message(tns, "map", "base_link", pose, twist), tns)
+            done += 1
+            points += len(sweep.x)
+            moving += int(sweep.moving.sum())
+            if on_progress:
+                on_progress(done)
+    return RecordSummary(Path(out), done, done / s_cfg.scan_rate, done < n_sweeps, points, moving)

@@ -1,0 +1,128 @@
+"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``long-corridor``.
+
+``corridor`` stands in for the paper's Figure 3: a floor of 26.681 m by
+25.534 m, a ring corridor 3 m wide around a hall, with the nine labelled
+features whose true lengths are those of the paper's Tables 2 and 3
+(2.344, 6.775, 6.686, 1.064, 8.094, 1.029, 7.901, 26.681, 25.534 m), each
+between corners or wall ends the scanner sees from the corridor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .movers import Mover
+from .world import Feature, RouteSpec, World
+
+
+def _polyline(*pts: tuple[float, float]) -> list[list[float]]:
+    return [[*pts[i], *pts[i + 1]] for i in range(len(pts) - 1)]
+
+
+def _box(x0: float, y0: float, x1: float, y1: float) -> list[list[float]]:
+    return _polyline((x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0))
+
+
+# The corridor floor: outer walls, inner hall, openings. Numbers are the features' ends.
+W, H, C = 26.681, 25.534, 3.0  # floor width, height, corridor width
+IX0, IY0, IX1, IY1 = C, C, W - C, H - C  # the hall inside the ring corridor
+
+
+def corridor() -> World:
+    walls: list[list[float]] = []
+    # Outer walls, a 0.6 m deep niche of 2.344 m in the north wall (feature 1) and two door recesses.
+    walls += _polyline((0, H), (0, 0), (W, 0), (W, H), (12.344, H), (12.344, H + 0.6), (10.0, H + 0.6), (10.0, H), (0, H))
+    walls += _polyline((7.0, 0.0), (7.0, -0.3), (8.0, -0.3), (8.0, 0.0))  # door recess, south wall
+    walls += _polyline((W, 17.0), (W + 0.3, 17.0), (W + 0.3, 18.0), (W, 18.0))  # door recess, east wall
+    # The hall: four walls, each with one opening.
+    walls += _polyline((IX0, IY0), (9.775, IY0))  # feature 2 = 6.775
+    walls += _polyline((10.839, IY0), (IX1, IY0), (IX1, 11.094))  # opening 9.775..10.839 = feature 4 = 1.064; feature 5 = 8.094
+    walls += _polyline((IX1, 12.123), (IX1, IY1), (15.780, IY1))  # opening = feature 6 = 1.029; feature 7 = 7.901
+    walls += _polyline((14.580, IY1), (IX0, IY1), (IX0, 15.848))  # feature 3 = 6.686
+    walls += _polyline((IX0, 14.648), (IX0, IY0))
+    # Furniture in the hall, seen through the openings.
+    walls += _box(8.0, 8.0, 9.0, 9.0) + _box(17.0, 15.0, 18.0, 16.0) + _box(12.0, 11.0, 14.0, 11.5)
+    features = [
+        Feature(1, "niche in the north outer wall (mouth)", (10.0, H), (12.344, H)),
+        Feature(2, "hall south wall, west part", (IX0, IY0), (9.775, IY0)),
+        Feature(3, "hall west wall, north part", (IX0, IY1), (IX0, 15.848)),
+        Feature(4, "opening in the hall south wall (jamb to jamb)", (9.775, IY0), (10.839, IY0)),
+        Feature(5, "hall east wall, south part", (IX1, IY0), (IX1, 11.094)),
+        Feature(6, "opening in the hall east wall (jamb to jamb)", (IX1, 11.094), (IX1, 12.123)),
+        Feature(7, "hall north wall, east part", (IX1, IY1), (15.780, IY1)),
+        Feature(8, "south outer wall", (0.0, 0.0), (W, 0.0)),
+        Feature(9, "west outer wall", (0.0, 0.0), (0.0, H)),
+    ]
+    route = RouteSpec(np.array([[1.5, 1.5], [W - 1.5, 1.5], [W - 1.5, H - 1.5], [1.5, H - 1.5]]), True, 1.2)
+    movers = [
+        Mover("person", [[4.0, 2.4], [22.0, 2.4]], 1.2, phase=6.0),
+        Mover("person", [[W - 2.3, 4.0], [W - 2.3, 21.0]], 1.0, phase=20.0),
+        Mover("person", [[22.0, H - 0.7], [5.0, H - 0.7]], 1.3, phase=10.0),
+        Mover("person", [[6.0, 6.0], [20.0, 6.0]], 1.1, phase=3.0),
+        Mover("cart", [[0.7, 4.0], [0.7, 21.0]], 0.8, phase=12.0),
+    ]
+    return World("corridor", np.array(walls, dtype=float), route, features, movers)
+
+
+def static() -> World:
+    return corridor().without_movers("static")
+
+
+def crowd() -> World:
+    """A 30 m x 20 m hall with pillars; a crowd walks along and across the robot's loop."""
+    walls = _polyline((0, 0), (30, 0), (30, 8), (32, 8), (32, 12), (30, 12), (30, 20), (0, 20), (0, 0))  # exit bay east
+    for x in (8.0, 15.0, 22.0):
+        walls += _box(x - 0.3, 9.7, x + 0.3, 10.3)
+    features = [
+        Feature(1, "hall south wall", (0.0, 0.0), (30.0, 0.0)),
+        Feature(2, "hall west wall", (0.0, 0.0), (0.0, 20.0)),
+        Feature(3, "exit bay mouth", (30.0, 8.0), (30.0, 12.0)),
+        Feature(4, "pillar 1 south face", (7.7, 9.7), (8.3, 9.7)),
+        Feature(5, "pillar 1 to pillar 3 (south-west corners)", (7.7, 9.7), (21.7, 9.7)),
+    ]
+    route = RouteSpec(np.array([[4.0, 4.0], [26.0, 4.0], [26.0, 16.0], [4.0, 16.0]]), True, 2.0)
+    rng = np.random.default_rng(2024)  # a fixed crowd: the scenario is data, not randomness
+    movers: list[Mover] = []
+    for i in range(18):  # walking along the loop's sides, both directions
+        lane = rng.uniform(-1.6, 1.6)
+        if i % 2:
+            y = (4.0 if i % 4 == 1 else 16.0) + lane
+            path = [[3.0, y], [27.0, y]]
+        else:
+            x = (4.0 if i % 4 == 0 else 26.0) + lane
+            path = [[x, 3.0], [x, 17.0]]
+        movers.append(Mover("person", path, rng.uniform(0.8, 1.5), phase=rng.uniform(0, 40)))
+    for i in range(10):  # crossing the hall
+        x0, x1 = rng.uniform(2, 28, size=2)
+        movers.append(Mover("person", [[x0, 1.0], [x1, 19.0]], rng.uniform(0.8, 1.4), phase=rng.uniform(0, 40)))
+    for i in range(4):
+        y = rng.uniform(6.5, 13.5)
+        movers.append(Mover("cart", [[5.0, y], [25.0, y]], rng.uniform(0.5, 1.0), phase=rng.uniform(0, 40)))
+    return World("crowd", np.array(walls, dtype=float), route, features, movers)
+
+
+def long_corridor() -> World:
+    """A 100 m corridor, 3 m wide, with a turning room at each end and bare walls between:
+    geometry alone cannot tell where along its axis the robot is."""
+    L, half, room = 100.0, 1.5, 8.0
+    walls = _polyline((0, half), (0, room / 2), (-room, room / 2), (-room, -room / 2), (0, -room / 2), (0, -half))
+    walls += _polyline((L, half), (L, room / 2), (L + room, room / 2), (L + room, -room / 2), (L, -room / 2), (L, -half))
+    walls += [[0, half, L, half], [0, -half, L, -half]]
+    features = [
+        Feature(1, "west mouth of the corridor", (0.0, -half), (0.0, half)),
+        Feature(2, "east mouth of the corridor", (L, -half), (L, half)),
+        Feature(3, "west room, far wall", (-room, -room / 2), (-room, room / 2)),
+        Feature(4, "east room, far wall", (L + room, -room / 2), (L + room, room / 2)),
+    ]
+    route = RouteSpec(
+        np.array([[2.0, -0.6], [L - 2.0, -0.6], [L + 4.0, -2.5], [L + 4.0, 2.5], [L - 2.0, 0.6],
+                  [2.0, 0.6], [-4.0, 2.5], [-4.0, -2.5]]),
+        True,
+        1.5,
+    )
+    movers = [Mover("person", [[10.0, 0.9], [90.0, 0.9]], 1.2, phase=30.0)]
+    return World("long-corridor", np.array(walls, dtype=float), route, features, movers)
+
+
+SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "long-corridor": long_corridor}
+DEFAULT_SCENARIO = "corridor"

@@ -1,0 +1,176 @@
+"""A planar world: walls, labelled features, movers and the robot's route.
+
+World files (``fmcwlog record --world FILE``) are YAML or JSON::
+
+    name: my-floor                       # optional
+    walls:                               # line segments [x1, y1, x2, y2], m, in map
+      - [0, 0, 20, 0]
+      - [20, 0, 20, 3]
+    features:                            # optional: lengths to check in the built map
+      - {id: 1, name: "corridor wall", a: [0, 0], b: [20, 0]}
+    route:                               # the path of base_link
+      waypoints: [[2, 1.5], [18, 1.5]]   # m
+      loop: false                        # open: the robot stops at the end
+      corner_radius: 1.0                 # m, arcs that round the corners
+    movers:                              # optional
+      - {kind: person, path: [[3, 2], [15, 2]], speed: 1.2, phase: 0, radius: 0.25}
+      - {kind: cart, path: [[15, 1], [3, 1]], speed: 0.8, length: 1.0, width: 0.6}
+
+Every wall is seen from both sides. A feature's ends should be corners or wall
+ends that the scanner sees, so that its length can be measured in a map.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .movers import Mover
+from .route import Route, build_route
+
+
+class WorldError(ValueError):
+    """A world description is invalid; the message says where and why."""
+
+
+@dataclass(frozen=True)
+class Feature:
+    """A length in the world, from corner ``a`` to corner ``b`` (m, map frame)."""
+
+    id: int
+    name: str
+    a: tuple[float, float]
+    b: tuple[float, float]
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(self.b[0] - self.a[0], self.b[1] - self.a[1]))
+
+
+@dataclass(frozen=True)
+class RouteSpec:
+    waypoints: np.ndarray
+    loop: bool = True
+    corner_radius: float = 1.0
+
+    def build(self) -> Route:
+        return build_route(self.waypoints, self.loop, self.corner_radius)
+
+
+@dataclass(frozen=True)
+class World:
+    name: str
+    walls: np.ndarray  # (M, 4) segments x1, y1, x2, y2
+    route: RouteSpec
+    features: list[Feature] = field(default_factory=list)
+    movers: list[Mover] = field(default_factory=list)
+
+    def metadata(self) -> dict[str, str]:
+        """The ``fmcwlog.world`` metadata record (LOG_FORMAT.md)."""
+        return {
+            "features": json.dumps(
+                [{"id": f.id, "name": f.name, "a": list(f.a), "b": list(f.b)} for f in self.features]
+            ),
+            "walls": json.dumps([[float(v) for v in w] for w in self.walls]),
+        }
+
+    def without_movers(self, name: str | None = None) -> "World":
+        return World(name or self.name, self.walls, self.route, self.features, [])
+
+
+def _num_list(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise WorldError(f"{where} must be numbers") from None
+    if arr.ndim != len(shape) or any(s != -1 and s != n for s, n in zip(shape, arr.shape)):
+        want = " x ".join("N" if s == -1 else str(s) for s in shape)
+        raise WorldError(f"{where} must be a list of shape {want}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise WorldError(f"{where} has a value that is not finite")
+    return arr
+
+
+def world_from_dict(data: Any, source: str = "world") -> World:
+    """Validate a parsed world description; errors name ``source`` and the bad entry."""
+    if not isinstance(data, dict):
+        raise WorldError(f"{source}: expected a mapping with walls, route (and optionally features, movers)")
+    unknown = set(data) - {"name", "walls", "features", "movers", "route"}
+    if unknown:
+        raise WorldError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+    if "walls" not in data or "route" not in data:
+        raise WorldError(f"{source}: needs 'walls' and 'route'")
+    walls = _num_list(data["walls"], (-1, 4), f"{source}: walls")
+    if len(walls) == 0:
+        raise WorldError(f"{source}: walls is empty")
+
+    r = data["route"]
+    if not isinstance(r, dict) or "waypoints" not in r:
+        raise WorldError(f"{source}: route needs 'waypoints'")
+    route = RouteSpec(
+        waypoints=_num_list(r["waypoints"], (-1, 2), f"{source}: route.waypoints"),
+        loop=bool(r.get("loop", True)),
+        corner_radius=float(r.get("corner_radius", 1.0)),
+    )
+    if route.corner_radius <= 0:
+        raise WorldError(f"{source}: route.corner_radius must be positive")
+    try:
+        route.build()
+    except ValueError as exc:
+        raise WorldError(f"{source}: route: {exc}") from None
+
+    features = []
+    for i, f in enumerate(data.get("features") or []):
+        where = f"{source}: features[{i}]"
+        if not isinstance(f, dict) or not {"a", "b"} <= set(f):
+            raise WorldError(f"{where} needs 'a' and 'b'")
+        a = _num_list(f["a"], (2,), f"{where}.a")
+        b = _num_list(f["b"], (2,), f"{where}.b")
+        features.append(Feature(int(f.get("id", i + 1)), str(f.get("name", f"feature {i + 1}")), tuple(a), tuple(b)))
+    if len({f.id for f in features}) != len(features):
+        raise WorldError(f"{source}: feature ids must be unique")
+
+    movers = []
+    for i, m in enumerate(data.get("movers") or []):
+        where = f"{source}: movers[{i}]"
+        if not isinstance(m, dict) or "path" not in m:
+            raise WorldError(f"{where} needs 'path'")
+        kind = m.get("kind", "person")
+        if kind not in ("person", "cart"):
+            raise WorldError(f"{where}.kind must be 'person' or 'cart', got {kind!r}")
+        path = _num_list(m["path"], (-1, 2), f"{where}.path")
+        try:
+            mover = Mover(
+                kind=kind,
+                path=path,
+                speed=float(m.get("speed", 1.2 if kind == "person" else 0.8)),
+                phase=float(m.get("phase", 0.0)),
+                radius=float(m.get("radius", 0.25)),
+                length=float(m.get("length", 1.0)),
+                width=float(m.get("width", 0.6)),
+            )
+        except (TypeError, ValueError):
+            raise WorldError(f"{where}: speed, phase, radius, length and width must be numbers") from None
+        if mover.speed < 0 or mover.radius <= 0 or mover.length <= 0 or mover.width <= 0:
+            raise WorldError(f"{where}: speed must be >= 0 and sizes positive")
+        movers.append(mover)
+    return World(str(data.get("name", source)), walls, route, features, movers)
+
+
+def load_world(path: str | Path) -> World:
+    """Read a YAML (.yaml/.yml) or JSON (.json) world file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise WorldError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise WorldError(f"{path}: malformed: {str(exc).splitlines()[0]}") from None
+    return world_from_dict(data, str(path))

@@ -66,7 +66,7 @@ class RobotConfig:
     wheel_radius: float = 0.1  # m, the calibrated (nominal) radius
     wheel_radius_error_left: float = 0.005  # true radius = nominal * (1 + error)
     wheel_radius_error_right: float = 0.003
-    slip_sigma: float = 0.01  # relative wheel slip per encoder interval (white)
+    slip_sigma: float = 0.002  # relative wheel slip per encoder interval (white)
     ticks_per_revolution: int = 4096
     encoder_rate: float = 50.0  # Hz, also the ground-truth odometry rate
 

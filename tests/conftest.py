@@ -1,0 +1,40 @@
+"""Shared fixtures: short recordings made once per test session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fmcwlog.sim import scenarios
+from fmcwlog.sim.config import SimConfig, apply_overrides
+from fmcwlog.sim.recorder import record
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+SAMPLE_LOGS = ROOT / "sample_logs"
+
+
+def _record(tmp_path_factory, scenario: str, duration: float, seed: int = 0, **overrides) -> Path:
+    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}, **overrides})
+    out = tmp_path_factory.mktemp(scenario) / f"{scenario}.mcap"
+    record(scenarios.SCENARIOS[scenario](), cfg, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def corridor_log(tmp_path_factory) -> Path:
+    """26 s of the default scenario: the robot accelerates, drives 22 m and takes a corner."""
+    return _record(tmp_path_factory, "corridor", 26.0)
+
+
+@pytest.fixture(scope="session")
+def crowd_log(tmp_path_factory) -> Path:
+    return _record(tmp_path_factory, "crowd", 6.0)
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    if not SHARED.is_dir():
+        pytest.skip(f"{SHARED} is absent: the shared conformance logs and datasets live there")
+    return SHARED

@@ -13,7 +13,8 @@ import click
 
 from . import __version__
 from .mcap_io import LogError
-from .sim.config import ConfigError, SimConfig, apply_overrides, parse_set_option, read_config_file
+from .config_files import ConfigError, parse_set_option, read_config_file
+from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import WorldError, load_world
 

@@ -8,18 +8,12 @@ Every field can be set from a TOML/YAML/JSON config file (``[sensor]``,
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-
-class ConfigError(ValueError):
-    """A parameter or config file is invalid; the message says which and why."""
+from ..config_files import ConfigError, apply_to_dataclass
 
 
 @dataclass(frozen=True)
@@ -111,28 +105,7 @@ class SimConfig:
         return self
 
 
-_SECTIONS = {"sensor": SensorConfig, "robot": RobotConfig, "run": RunConfig}
-
-
-def _coerce(section: str, name: str, value: Any) -> Any:
-    cls = _SECTIONS[section]
-    types = {f.name: f.type for f in fields(cls)}
-    if name not in types:
-        known = ", ".join(sorted(types))
-        raise ConfigError(f"unknown parameter {section}.{name} (known: {known})")
-    kind = types[name]
-    try:
-        if kind == "int":
-            if isinstance(value, str):
-                value = float(value)
-            if float(value) != int(value):
-                raise ValueError
-            return int(value)
-        if kind == "float":
-            return float(value)
-        return str(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{section}.{name} must be a {kind}, got {value!r}") from None
+_SECTIONS = ("sensor", "robot", "run")
 
 
 def apply_overrides(cfg: SimConfig, overrides: dict[str, dict[str, Any]]) -> SimConfig:
@@ -140,44 +113,8 @@ def apply_overrides(cfg: SimConfig, overrides: dict[str, dict[str, Any]]) -> Sim
     parts = {"sensor": cfg.sensor, "robot": cfg.robot, "run": cfg.run}
     for section, values in overrides.items():
         if section not in _SECTIONS:
-            raise ConfigError(f"unknown section [{section}] (known: sensor, robot, run)")
+            raise ConfigError(f"unknown section [{section}] (known: {', '.join(_SECTIONS)})")
         if not isinstance(values, dict):
             raise ConfigError(f"[{section}] must be a table of parameters")
-        parts[section] = replace(parts[section], **{k: _coerce(section, k, v) for k, v in values.items()})
+        parts[section] = apply_to_dataclass(parts[section], values, section)
     return SimConfig(**parts)
-
-
-def parse_set_option(items: tuple[str, ...]) -> dict[str, dict[str, str]]:
-    """``("sensor.range_sigma=0.03", ...)`` -> ``{"sensor": {"range_sigma": "0.03"}}``."""
-    out: dict[str, dict[str, str]] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        section, dot, name = key.strip().partition(".")
-        if not sep or not dot or not name:
-            raise ConfigError(f"--set expects SECTION.NAME=VALUE, got {item!r}")
-        out.setdefault(section, {})[name] = value.strip()
-    return out
-
-
-def read_config_file(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML (.toml), YAML (.yaml/.yml) or JSON (.json) config file into a dict."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        if path.suffix == ".toml":
-            data = tomllib.loads(text)
-        elif path.suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(text)
-        elif path.suffix == ".json":
-            data = json.loads(text)
-        else:
-            raise ConfigError(f"{path}: unknown config type (use .toml, .yaml or .json)")
-    except (tomllib.TOMLDecodeError, yaml.YAMLError, json.JSONDecodeError) as exc:
-        first = str(exc).splitlines()[0]
-        raise ConfigError(f"{path}: malformed: {first}") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a table of sections at the top level")
-    return data

@@ -1,0 +1,201 @@
+"""The sensor's own velocity from one sweep's Doppler field (NOTES.md).
+
+Frames and units: ``xy`` (N, 2) in the ``lidar`` frame (m); ``v_r`` (N,) radial
+Doppler velocity (m/s), positive when the range grows; ``v_sensor`` (2,) the
+velocity of the lidar's origin expressed in the lidar frame (m/s).
+
+A static point along the unit bearing ``u`` has ``v_r = -uᵀ v_s`` (NOTES
+"Doppler of a static point"; the sensor's rotation does not change a range).
+Moving points are outliers to that two-parameter linear model, so it is fit by
+RANSAC on pairs followed by least squares on the inliers. The compensated
+velocity ``ε = v_r + uᵀ v_s`` is then ~0 for static points and is what the
+segmentation thresholds (NOTES corrects eq. 18-19, which use the raw ``v_r``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class EgoMotion:
+    """Result of :func:`fit_sensor_velocity`.
+
+    v_sensor: (2,) lidar-origin velocity in the lidar frame, m/s (NaN if unfit).
+    covariance: (2, 2) covariance of ``v_sensor``, (m/s)².
+    inliers: (N,) bool, points consistent with a static world.
+    sigma: robust residual standard deviation of the inliers, m/s.
+    """
+
+    v_sensor: np.ndarray
+    covariance: np.ndarray
+    inliers: np.ndarray
+    sigma: float
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+@dataclass
+class BaseTwist:
+    """Robot twist from the sensor velocity (:func:`base_twist_from_sensor_velocity`).
+
+    v: forward speed of base_link (rear-axle midpoint), m/s.
+    omega: yaw rate, rad/s; NaN when the lever arm ``lidar_x`` is too small.
+    covariance: (2, 2) covariance of ``(v, omega)``; NaN entries when unobservable.
+    well_conditioned: False when ``|lidar_x| < min_lever`` (ω unobservable).
+    """
+
+    v: float
+    omega: float
+    covariance: np.ndarray
+    well_conditioned: bool
+
+
+def unit_bearings(xy: np.ndarray) -> np.ndarray:
+    """Unit bearing vectors (N, 2) of points (N, 2); zero-range points give (0, 0)."""
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = xy / r[:, None]
+    u[~(r > 0)] = 0.0
+    return u
+
+
+def compensated_velocity(xy: np.ndarray, v_r: np.ndarray, v_sensor: np.ndarray) -> np.ndarray:
+    """Ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (N,), m/s (NOTES)."""
+    u = unit_bearings(xy)
+    return v_r + u @ np.asarray(v_sensor, dtype=float)
+
+
+def _lstsq_2(u: np.ndarray, v_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares of ``v_r = -u v`` via 2x2 normal equations; returns (v, (AᵀA)⁻¹)."""
+    ata = u.T @ u  # A = -u, AᵀA = uᵀu
+    atb = -(u.T @ v_r)
+    ata_inv = np.linalg.inv(ata)
+    return ata_inv @ atb, ata_inv
+
+
+def fit_sensor_velocity(
+    xy: np.ndarray,
+    v_r: np.ndarray,
+    *,
+    inlier_threshold: float = 0.15,
+    n_hypotheses: int = 64,
+    min_pair_sine: float = 0.25,
+    refinements: int = 2,
+    score_points: int = 256,
+    random_state: int | np.random.Generator | None = 0,
+) -> EgoMotion:
+    """Robust fit of the lidar's velocity from static points' Doppler (NOTES).
+
+    1. RANSAC on pairs: ``n_hypotheses`` random pairs drawn at once; each pair's
+       2x2 system ``[-u_i; -u_j] v = [v_ri; v_rj]`` is solved in closed form
+       (Cramer), pairs whose bearings are within ``asin(min_pair_sine)`` of
+       (anti)parallel are dropped; every hypothesis is scored against all
+       points in one (H, N) array and the one with the most inliers
+       (``|residual| < inlier_threshold``, m/s) wins; hypotheses are scored
+       on a strided subset of ``score_points`` points (enough to rank them).
+    2. Least-squares refit on its inliers, re-selection of inliers with the
+       same threshold, repeated ``refinements`` times.
+
+    ``inlier_threshold`` should be several σ of the Doppler noise: with 0.1 m/s
+    quantisation σ ≈ 0.03 m/s, so 0.15 m/s. The covariance is ``σ² (AᵀA)⁻¹``
+    on the inliers. Deterministic for a fixed ``random_state``.
+    """
+    xy = np.asarray(xy, dtype=float)
+    v_r = np.asarray(v_r, dtype=float)
+    n = xy.shape[0]
+    nan2 = np.full(2, np.nan)
+    failed = EgoMotion(nan2, np.full((2, 2), np.nan), np.zeros(n, bool), float("nan"))
+    u = unit_bearings(xy)
+    valid = np.isfinite(v_r) & np.any(u != 0.0, axis=1)
+    if valid.sum() < 3:
+        return failed
+    rng = np.random.default_rng(random_state)
+    idx = np.flatnonzero(valid)
+    ij = idx[rng.integers(0, idx.size, size=(n_hypotheses, 2))]
+    ui, uj = u[ij[:, 0]], u[ij[:, 1]]
+    det = ui[:, 0] * uj[:, 1] - ui[:, 1] * uj[:, 0]  # = sin of the angle between bearings
+    ok = np.abs(det) > min_pair_sine
+    if not ok.any():
+        return failed
+    ui, uj, det = ui[ok], uj[ok], det[ok]
+    bi, bj = -v_r[ij[ok, 0]], -v_r[ij[ok, 1]]  # u·v = -v_r
+    # Cramer's rule on [[ui_x, ui_y], [uj_x, uj_y]] v = [bi, bj]
+    hyp = np.stack(
+        [(bi * uj[:, 1] - bj * ui[:, 1]) / det, (ui[:, 0] * bj - uj[:, 0] * bi) / det], -1
+    )
+    sc = idx[:: max(1, idx.size // score_points)]  # strided subset for scoring
+    res = v_r[sc][None, :] + hyp @ u[sc].T  # (H, n_score) residuals ε
+    best = int(np.argmax((np.abs(res) < inlier_threshold).sum(axis=1)))
+    v = hyp[best]
+    try:
+        for _ in range(max(1, refinements)):
+            eps = v_r + u @ v
+            inliers = valid & (np.abs(eps) < inlier_threshold)
+            if inliers.sum() < 3:
+                return failed
+            v, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+        eps = v_r + u @ v
+        inliers = valid & (np.abs(eps) < inlier_threshold)
+        if inliers.sum() < 3:
+            return failed
+        _, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+    except np.linalg.LinAlgError:  # inliers along a single bearing: v_s unobservable
+        return failed
+    dof = max(int(inliers.sum()) - 2, 1)
+    sigma = float(np.sqrt(np.sum(eps[inliers] ** 2) / dof))
+    return EgoMotion(v, sigma**2 * ata_inv, inliers, sigma)
+
+
+def sensor_velocity_from_base_twist(
+    v: float, omega: float, lidar_x: float, lidar_y: float, lidar_yaw: float
+) -> np.ndarray:
+    """Velocity (2,) of the lidar origin in the lidar frame for base twist (v, ω), v_by = 0.
+
+    NOTES: in base_link axes ``v_s = (v - ω l_y, ω l_x)``, then rotated by ``-l_yaw``.
+    """
+    vb = np.array([v - omega * lidar_y, omega * lidar_x])
+    c, s = np.cos(lidar_yaw), np.sin(lidar_yaw)
+    return np.array([c * vb[0] + s * vb[1], -s * vb[0] + c * vb[1]])
+
+
+def base_twist_from_sensor_velocity(
+    v_sensor: np.ndarray,
+    lidar_x: float,
+    lidar_y: float,
+    lidar_yaw: float,
+    covariance: np.ndarray | None = None,
+    min_lever: float = 0.05,
+) -> BaseTwist:
+    """Invert :func:`sensor_velocity_from_base_twist` using ``v_by = 0`` (NOTES).
+
+    ``v_sensor`` (2,) in the lidar frame (m/s); mounting in base_link (m, rad).
+    With ``w = R(l_yaw) v_s`` (base_link axes): ``ω = w_y / l_x``,
+    ``v = w_x + ω l_y``. Ill-conditioned as ``l_x → 0`` (ω ∝ 1/l_x): when
+    ``|l_x| < min_lever`` ω is NaN; ``v`` is then ``w_x`` if ``|l_y| < min_lever``
+    (error ``ω l_y``), else NaN. The covariance is propagated linearly from
+    ``covariance`` (2x2 of ``v_sensor``) if given, else NaN.
+    The constraint fails when the rear wheels slide sideways (NOTES): treat
+    the result as a measurement, not truth.
+    """
+    c, s = np.cos(lidar_yaw), np.sin(lidar_yaw)
+    rot = np.array([[c, -s], [s, c]])
+    w = rot @ np.asarray(v_sensor, dtype=float)
+    if abs(lidar_x) < min_lever:
+        v = float(w[0]) if abs(lidar_y) < min_lever else float("nan")
+        cov = np.full((2, 2), np.nan)
+        if covariance is not None and np.isfinite(v):
+            cov[0, 0] = (rot @ covariance @ rot.T)[0, 0]
+        return BaseTwist(v, float("nan"), cov, False)
+    omega = w[1] / lidar_x
+    v = w[0] + omega * lidar_y
+    if covariance is None:
+        cov = np.full((2, 2), np.nan)
+    else:
+        jac = np.array([[1.0, lidar_y / lidar_x], [0.0, 1.0 / lidar_x]]) @ rot
+        cov = jac @ np.asarray(covariance, dtype=float) @ jac.T
+    return BaseTwist(float(v), float(omega), cov, True)

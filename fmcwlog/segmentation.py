@@ -1,0 +1,105 @@
+"""Static / moving segmentation of one sweep by position and Doppler (paper §4.1).
+
+Frames and units: ``xy`` (N, 2) in the lidar frame (m); ``epsilon`` (N,) the
+ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (m/s) from
+:func:`fmcwlog.egomotion.compensated_velocity`.
+
+Eq. 17 clusters with DBSCAN under ``dist² = Δx² + Δy² + α Δv²``; embedding each
+point as ``(x, y, √α·v)`` makes that the plain Euclidean metric. Eq. 18-19
+threshold the raw Doppler ``v_r``, which only works while the robot stands
+still: a moving sensor sees every static point with ``v_r = -uᵀ v_s ≠ 0``.
+NOTES.md corrects this: cluster and threshold the compensated ``ε`` instead,
+and decide per cluster, so the clearly moving points of an object carry its
+points whose motion is perpendicular to the beam (``ε ≈ 0``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sklearn
+from sklearn.cluster import DBSCAN
+
+
+@dataclass(frozen=True)
+class SegmentationParams:
+    """Parameters of :func:`segment_moving`.
+
+    alpha: weight of the velocity difference in eq. 17, s² (so ``√α·ε`` is in m).
+        With α = 1 s², 1 m/s of velocity difference counts like 1 m of distance.
+    eps: DBSCAN neighbourhood radius in the (x, y, √α·ε) space, m.
+    min_samples: DBSCAN core-point size (the point itself included).
+    v_th: speed threshold on ``|ε|``, m/s (eq. 18-19). With 0.1 m/s Doppler
+        quantisation (σ ≈ 0.03 m/s) 0.3 m/s is ~10 σ.
+    min_moving_fraction: a cluster is moving when at least this fraction of its
+        points has ``|ε| ≥ v_th``. 0.5 is the "median |ε| ≥ v_th" rule; the
+        default 0.3 also catches objects moving mostly across the beams, whose
+        central points show no Doppler.
+    keep_strong_points: if True, a point with ``|ε| ≥ v_th`` is moving even when
+        its cluster is judged static (it cannot be static given the fitted
+        ego-motion; this only matters when DBSCAN chains a mover to static
+        structure). If False the cluster decision is final.
+    """
+
+    alpha: float = 1.0
+    eps: float = 0.3
+    min_samples: int = 5
+    v_th: float = 0.3
+    min_moving_fraction: float = 0.3
+    keep_strong_points: bool = True
+
+
+def cluster_points(
+    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
+) -> np.ndarray:
+    """DBSCAN labels (N,) over ``(x, y, √α·ε)`` (eq. 17); -1 marks noise."""
+    feats = np.column_stack([xy, np.sqrt(params.alpha) * np.asarray(epsilon, float)])
+    # ball_tree measured fastest for ~1000 points in 3-D; skipping sklearn's
+    # re-validation of our own arrays saves ~0.3 ms per sweep
+    with sklearn.config_context(assume_finite=True, skip_parameter_validation=True):
+        return DBSCAN(
+            eps=params.eps, min_samples=params.min_samples, algorithm="ball_tree"
+        ).fit_predict(feats)
+
+
+def moving_from_labels(
+    labels: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
+) -> np.ndarray:
+    """Moving mask (N,) from cluster labels and compensated velocities.
+
+    Per cluster: moving when the fraction of its points with ``|ε| ≥ v_th``
+    reaches ``min_moving_fraction`` (eq. 19 applied to a cluster).
+    DBSCAN noise points (label -1): judged individually, ``|ε| ≥ v_th``.
+    """
+    strong = np.abs(epsilon) >= params.v_th
+    moving = strong.copy() if params.keep_strong_points else np.zeros_like(strong)
+    clustered = labels >= 0
+    if clustered.any():
+        lab = labels[clustered]
+        n_lab = int(lab.max()) + 1
+        size = np.bincount(lab, minlength=n_lab)
+        n_strong = np.bincount(lab, weights=strong[clustered], minlength=n_lab)
+        cluster_moving = n_strong >= params.min_moving_fraction * size
+        moving[clustered] |= cluster_moving[lab]
+    noise = ~clustered
+    moving[noise] = strong[noise]
+    return moving
+
+
+def segment_moving(
+    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
+) -> np.ndarray:
+    """Boolean mask (N,), True where the point hit a moving object.
+
+    Pass the compensated velocity ``ε``, not the raw Doppler ``v_r`` (see the
+    module docstring: eq. 18 on ``v_r`` only holds for a standing robot).
+    Fast path: with no point above ``v_th`` no cluster can be moving, so DBSCAN
+    is skipped (identical result, no cost on scenes without movers).
+    """
+    epsilon = np.asarray(epsilon, dtype=float)
+    if xy.shape[0] == 0:
+        return np.zeros(0, bool)
+    if params.min_moving_fraction > 0 and not np.any(np.abs(epsilon) >= params.v_th):
+        return np.zeros(xy.shape[0], bool)
+    return moving_from_labels(cluster_points(xy, epsilon, params), epsilon, params)

@@ -1,0 +1,112 @@
+"""Wheel odometry checked against hand geometry (no values copied from the code)."""
+
+import numpy as np
+import pytest
+
+from fmcwlog.geometry import compose, wrap_angle
+from fmcwlog.odometry import (
+    WheelCalibration,
+    integrate_wheel_odometry,
+    wheel_speeds_from_ticks,
+)
+
+
+def test_straight_line_exact_distance():
+    # r = 0.1 m, k = 1000: one tick = 2π·0.1/1000 m. 5000 ticks = 5 revolutions = π m.
+    cal = WheelCalibration(0.1, 0.1, 0.5, 1000)
+    n = 51
+    stamps = np.linspace(0.0, 5.0, n)
+    left = -2_000_000 + np.arange(n, dtype=np.int64) * 100  # arbitrary negative start
+    right = 7 + np.arange(n, dtype=np.int64) * 100
+    poses = integrate_wheel_odometry(stamps, left, right, cal, initial_pose=(1.0, 2.0, np.pi / 2))
+    # heading +y: 5 revolutions of a 0.1 m wheel = π m straight along +y
+    np.testing.assert_allclose(poses[-1], [1.0, 2.0 + np.pi, np.pi / 2], atol=1e-12)
+    v, w = wheel_speeds_from_ticks(stamps, left, right, cal)
+    np.testing.assert_allclose(v, np.pi / 5.0, rtol=1e-12)
+    np.testing.assert_allclose(w, 0.0, atol=1e-15)
+
+
+def test_reverse_driving_negative_ticks():
+    cal = WheelCalibration(0.05, 0.05, 0.4, 200)
+    stamps = np.arange(11) * 0.1
+    ticks = -np.arange(11, dtype=np.int64) * 40  # 2 revolutions backwards in total
+    poses = integrate_wheel_odometry(stamps, ticks, ticks, cal)
+    np.testing.assert_allclose(poses[-1], [-2 * 2 * np.pi * 0.05, 0.0, 0.0], atol=1e-12)
+
+
+def test_circle_closes_and_stays_on_circle():
+    # Circle of radius R = 1 m turning left, track b = 0.5 m:
+    # left wheel on radius 0.75, right on 1.25. Tick length = 2π·0.05/1000 m.
+    # Full circle: left 2π·0.75 / tick = 15000 ticks, right 25000 ticks.
+    cal = WheelCalibration(0.05, 0.05, 0.5, 1000)
+    n = 101
+    stamps = np.linspace(0, 20, n)
+    left = 123 + np.arange(n, dtype=np.int64) * 150
+    right = -99 + np.arange(n, dtype=np.int64) * 250
+    poses = integrate_wheel_odometry(stamps, left, right, cal)
+    np.testing.assert_allclose(poses[-1, :2], [0.0, 0.0], atol=1e-9)
+    assert abs(wrap_angle(poses[-1, 2])) < 1e-9
+    # every sample on the circle centred (0, 1) with radius 1, heading tangent
+    r = np.hypot(poses[:, 0], poses[:, 1] - 1.0)
+    np.testing.assert_allclose(r, 1.0, atol=1e-12)
+    # half way round: the top of the circle, heading -x
+    np.testing.assert_allclose(poses[50, :2], [0.0, 2.0], atol=1e-12)
+    assert abs(wrap_angle(poses[50, 2] - np.pi)) < 1e-12
+    v, w = wheel_speeds_from_ticks(stamps, left, right, cal)
+    np.testing.assert_allclose(v, 2 * np.pi / 20, rtol=1e-12)  # circumference / time
+    np.testing.assert_allclose(w, 2 * np.pi / 20, rtol=1e-12)  # R = v/ω = 1
+
+
+def test_hand_computed_pivot_about_left_wheel():
+    # Left wheel still, right wheel rolls b·π/2: the robot pivots 90° about its left
+    # wheel at (0, b/2). The axle midpoint ends at (b/2, b/2) heading +y.
+    # b = 0.4, r = 0.1, k = 1000: s_R = 0.2π = 2π·0.1·n/1000  ->  n = 1000 ticks.
+    cal = WheelCalibration(0.1, 0.1, 0.4, 1000)
+    poses = integrate_wheel_odometry(
+        np.array([0.0, 1.0]), np.array([5000, 5000]), np.array([-123, 877]), cal
+    )
+    np.testing.assert_allclose(poses[-1], [0.2, 0.2, np.pi / 2], atol=1e-12)
+
+
+def test_unequal_radii_turns_towards_smaller_wheel():
+    # Equal ticks, right wheel 10% larger: right travels further -> turns left (ω>0).
+    cal = WheelCalibration(0.10, 0.11, 0.5, 100)
+    stamps = np.array([0.0, 1.0])
+    v, w = wheel_speeds_from_ticks(stamps, np.array([0, 100]), np.array([0, 100]), cal)
+    np.testing.assert_allclose(v, [2 * np.pi * 0.105])
+    np.testing.assert_allclose(w, [2 * np.pi * 0.01 / 0.5])
+
+
+def test_matches_loop_of_exact_arc_steps():
+    # Second implementation: a Python loop composing each interval's relative arc
+    # pose (R sinΔθ, R(1-cosΔθ), Δθ) with geometry.compose.
+    rng = np.random.default_rng(3)
+    cal = WheelCalibration(0.098, 0.102, 0.45, 512)
+    n = 200
+    left = np.cumsum(rng.integers(-5, 60, n)).astype(np.int64) - 10**6
+    right = np.cumsum(rng.integers(-5, 60, n)).astype(np.int64) + 10**9
+    stamps = np.arange(n) * 0.02
+    got = integrate_wheel_odometry(stamps, left, right, cal, initial_pose=(3.0, -1.0, 2.5))
+    pose = np.array([3.0, -1.0, 2.5])
+    tick = 2 * np.pi / cal.ticks_per_revolution
+    for i in range(n - 1):
+        sl = (left[i + 1] - left[i]) * tick * cal.wheel_radius_left
+        sr = (right[i + 1] - right[i]) * tick * cal.wheel_radius_right
+        s, dth = (sl + sr) / 2, (sr - sl) / cal.track_width
+        if abs(dth) < 1e-12:
+            rel = np.array([s, 0.0, 0.0])
+        else:
+            rad = s / dth
+            rel = np.array([rad * np.sin(dth), rad * (1 - np.cos(dth)), dth])
+        pose = compose(pose, rel)
+        np.testing.assert_allclose(got[i + 1, :2], pose[:2], atol=1e-9)
+        assert abs(wrap_angle(got[i + 1, 2] - pose[2])) < 1e-9
+
+
+def test_rejects_bad_input():
+    cal = WheelCalibration(0.1, 0.1, 0.5, 100)
+    with pytest.raises(ValueError):
+        wheel_speeds_from_ticks(np.array([0.0, 0.0]), np.array([0, 1]), np.array([0, 1]), cal)
+    with pytest.raises(ValueError):
+        integrate_wheel_odometry(np.array([0.0, 1.0]), np.array([0]), np.array([0, 1]), cal)
+    assert integrate_wheel_odometry(np.zeros(0), np.zeros(0), np.zeros(0), cal).shape == (0, 3)

@@ -283,6 +283,7 @@ class LogContents:
 
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     topics: dict[str, str] = field(default_factory=dict)  # topic -> schema name
+    counts: dict[str, int] = field(default_factory=dict)  # topic -> messages, when the summary says
     truncated: bool = False
 
 
@@ -322,6 +323,9 @@ class LogReader:
                 return False
             for ch in summary.channels.values():
                 self.contents.topics[ch.topic] = summary.schemas[ch.schema_id].name
+            if summary.statistics is not None:
+                self.contents.counts = {summary.channels[c].topic: n
+                                        for c, n in summary.statistics.channel_message_counts.items()}
             for md in reader.iter_metadata():
                 self.contents.metadata[md.name] = dict(md.metadata)
             return True
@@ -356,6 +360,10 @@ class LogReader:
     @property
     def topics(self) -> dict[str, str]:
         return self.contents.topics
+
+    def message_count(self, topic: str) -> int | None:
+        """Messages on ``topic`` by the summary's statistics; None for an unindexed file."""
+        return self.contents.counts.get(topic)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
         """Decoded messages on ``topics`` (all when None), in file order."""
@@ -400,3 +408,108 @@ class LogReader:
         except Exception as exc:  # the CDR decoder raises several unrelated types
             raise LogError(f"{self.path}: cannot decode a message on {channel.topic} ({exc})") from exc
         return LogMessage(channel.topic, schema.name, message.log_time, msg)
+
+
+# --------------------------------------------------------------------------- estimator inputs
+#
+# What ``fmcwlog process`` reads, as numpy records. Only the topics it is told
+# to use are decoded: estimation never touches /ground_truth/* or fmcwlog.world.
+
+
+@dataclass
+class SweepInput:
+    """One sweep in the sensor frame: points where the sensor saw them at their own time."""
+
+    stamp_ns: int  # first beam
+    xy: np.ndarray  # (N, 2) m, frame lidar
+    t: np.ndarray  # (N,) s after stamp_ns
+    velocity: np.ndarray | None  # (N,) m/s radial Doppler, None without Doppler
+    intensity: np.ndarray | None
+
+
+@dataclass
+class TicksInput:
+    stamp_ns: int
+    left: int
+    right: int
+
+
+@dataclass
+class OdomInput:
+    stamp_ns: int
+    pose: np.ndarray  # (3,) x, y, yaw in the odometry frame
+
+
+def _finite(path: Path, what: str, stamp_ns_: int, *arrays: np.ndarray | None) -> None:
+    for a in arrays:
+        if a is not None and not np.all(np.isfinite(a)):
+            raise LogError(f"{path}: {what} at stamp {stamp_ns_} holds NaN or infinite values")
+
+
+def sweep_from_pointcloud(path: Path, msg: Any) -> SweepInput:
+    """A PointCloud2 of the log format to a :class:`SweepInput` (fields by name and offset)."""
+    ns = stamp_ns(msg.header.stamp)
+    names = {f.name for f in msg.fields}
+    missing = {"x", "y"} - names
+    if missing:
+        raise LogError(f"{path}: PointCloud2 at stamp {ns} has no field {sorted(missing)[0]!r}")
+    wanted = [n for n in ("x", "y", "t", "velocity", "intensity") if n in names]
+    try:
+        cols = pointcloud_columns(msg, wanted)
+    except ValueError as exc:
+        raise LogError(f"{path}: PointCloud2 at stamp {ns}: {exc}") from None
+    n = len(cols["x"])
+    t = cols.get("t", np.zeros(n))
+    vel, inten = cols.get("velocity"), cols.get("intensity")
+    _finite(path, "PointCloud2", ns, cols["x"], cols["y"], t, vel)
+    return SweepInput(ns, np.column_stack([cols["x"], cols["y"]]), t, vel, inten)
+
+
+def sweep_from_laserscan(path: Path, msg: Any) -> SweepInput:
+    """A ``sensor_msgs/LaserScan`` to a :class:`SweepInput` without Doppler.
+
+    Ranges outside ``[range_min, range_max]`` or not finite are no return (REP-117).
+    """
+    ns = stamp_ns(msg.header.stamp)
+    r = np.asarray(msg.ranges, dtype=float)
+    i = np.arange(r.size)
+    ang = msg.angle_min + i * msg.angle_increment
+    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
+    inten = np.asarray(msg.intensities, dtype=float)[ok] if len(msg.intensities) == r.size else None
+    xy = np.column_stack([r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok])])
+    return SweepInput(ns, xy, (i * float(msg.time_increment))[ok], None, inten)
+
+
+def iter_inputs(
+    reader: LogReader, scan_topic: str, ticks_topic: str | None, odom_topic: str | None
+) -> Iterator[SweepInput | TicksInput | OdomInput]:
+    """The estimator's inputs in file order: sweeps, and ticks or odometry as the motion prior."""
+    topics = [t for t in (scan_topic, ticks_topic, odom_topic) if t]
+    for m in reader.messages(topics):
+        if m.topic == scan_topic:
+            if m.datatype.endswith("PointCloud2"):
+                yield sweep_from_pointcloud(reader.path, m.msg)
+            else:
+                yield sweep_from_laserscan(reader.path, m.msg)
+        elif m.topic == ticks_topic:
+            yield TicksInput(stamp_ns(m.msg.header.stamp), int(m.msg.left), int(m.msg.right))
+        else:
+            pose, _ = odometry_pose_twist(m.msg)
+            _finite(reader.path, "Odometry", m.log_time_ns, pose)
+            yield OdomInput(stamp_ns(m.msg.header.stamp), pose)
+
+
+def read_ground_truth(reader: LogReader, topic: str = GT_ODOM_TOPIC) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth stamps (ns) and poses (N, 3) of ``base_link`` in ``map`` (evaluation only)."""
+    stamps, poses = [], []
+    for m in reader.messages([topic]):
+        pose, _ = odometry_pose_twist(m.msg)
+        stamps.append(stamp_ns(m.msg.header.stamp))
+        poses.append(pose)
+    return np.asarray(stamps, dtype=np.int64), np.asarray(poses).reshape(-1, 3)
+
+
+def read_point_labels(reader: LogReader, topic: str = GT_LABELS_TOPIC) -> dict[int, np.ndarray]:
+    """Per-sweep moving labels (uint8) keyed by sweep stamp (ns) (evaluation only)."""
+    return {stamp_ns(m.msg.header.stamp): np.frombuffer(bytes(m.msg.moving), np.uint8)
+            for m in reader.messages([topic])}

@@ -88,6 +88,8 @@ def fit_sensor_velocity(
     refinements: int = 2,
     score_points: int = 256,
     random_state: int | np.random.Generator | None = 0,
+    prior: np.ndarray | None = None,
+    prior_gate: float = 0.3,
 ) -> EgoMotion:
     """Robust fit of the lidar's velocity from static points' Doppler (NOTES).
 
@@ -100,6 +102,11 @@ def fit_sensor_velocity(
        on a strided subset of ``score_points`` points (enough to rank them).
     2. Least-squares refit on its inliers, re-selection of inliers with the
        same threshold, repeated ``refinements`` times.
+
+    ``prior`` (2,), the sensor velocity predicted by odometry, guards against a
+    crowd moving together outvoting the static world: it is one more
+    hypothesis, and hypotheses farther than ``prior_gate`` (m/s) from it are
+    discarded. Without a prior the largest consensus wins, whatever it is.
 
     ``inlier_threshold`` should be several σ of the Doppler noise: with 0.1 m/s
     quantisation σ ≈ 0.03 m/s, so 0.15 m/s. The covariance is ``σ² (AᵀA)⁻¹``
@@ -128,6 +135,9 @@ def fit_sensor_velocity(
     hyp = np.stack(
         [(bi * uj[:, 1] - bj * ui[:, 1]) / det, (ui[:, 0] * bj - uj[:, 0] * bi) / det], -1
     )
+    if prior is not None and np.all(np.isfinite(prior)):
+        hyp = np.vstack([hyp, np.asarray(prior, dtype=float)[None, :]])
+        hyp = hyp[np.hypot(*(hyp - prior).T) <= prior_gate]  # the prior itself always survives
     sc = idx[:: max(1, idx.size // score_points)]  # strided subset for scoring
     res = v_r[sc][None, :] + hyp @ u[sc].T  # (H, n_score) residuals ε
     best = int(np.argmax((np.abs(res) < inlier_threshold).sum(axis=1)))

@@ -37,7 +37,12 @@ import numpy as np
 
 from .calibration import Calibration
 from .deskew import deskew, se2_exp
-from .egomotion import base_twist_from_sensor_velocity, compensated_velocity, fit_sensor_velocity
+from .egomotion import (
+    base_twist_from_sensor_velocity,
+    compensated_velocity,
+    fit_sensor_velocity,
+    sensor_velocity_from_base_twist,
+)
 from .geometry import between, compose, transform_points, wrap_angle
 from .local_map import VoxelMap, voxel_downsample
 from .mcap_io import SweepInput
@@ -66,6 +71,9 @@ class FrontEndParams:
         prior's standard deviation per sweep (m, m, rad), in the robot's frame.
     residual_sigma: scale of an ICP residual (m) that converts the prior's
         covariance into the units of the ICP's normal equations.
+    doppler_prior_gate: the Doppler ego-velocity may differ from the odometry's
+        prediction by at most this much (m/s; wheels slip and are miscalibrated
+        by far less); see :func:`doppler_stages`.
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
@@ -82,6 +90,7 @@ class FrontEndParams:
     prior_sigma_across: float = 0.005
     prior_sigma_yaw: float = 0.005
     residual_sigma: float = 0.03
+    doppler_prior_gate: float = 0.3
     seed: int = 0
 
 
@@ -216,15 +225,23 @@ class FrontEnd:
                            static_map, moving_map, moving, keyframe)
 
 
-def doppler_stages(sweep: SweepInput, cal: Calibration, params: FrontEndParams) -> tuple[Doppler | None, float]:
+def doppler_stages(
+    sweep: SweepInput, cal: Calibration, params: FrontEndParams, prior_twist: tuple[float, float] | None = None
+) -> tuple[Doppler | None, float]:
     """Ego-motion and segmentation of one sweep (improved method); (None, 0) without Doppler.
 
-    Returns the result and the milliseconds it took.
+    ``prior_twist``: the odometry's ``(v, ω)`` over the sweep; the Doppler fit
+    keeps within ``doppler_prior_gate`` of it, so that a crowd walking together
+    cannot pass for the static world. Returns the result and the milliseconds it took.
     """
     if sweep.velocity is None:
         return None, 0.0
     t0 = time.perf_counter()
-    ego = fit_sensor_velocity(sweep.xy, sweep.velocity, random_state=params.seed)
+    expected = None
+    if prior_twist is not None and all(np.isfinite(prior_twist)):
+        expected = sensor_velocity_from_base_twist(prior_twist[0], prior_twist[1], *cal.mount)
+    ego = fit_sensor_velocity(sweep.xy, sweep.velocity, random_state=params.seed, prior=expected,
+                              prior_gate=params.doppler_prior_gate)
     if not np.all(np.isfinite(ego.v_sensor)):
         return Doppler(float("nan"), float("nan"), float("nan"), float("nan"), np.zeros(len(sweep.xy), bool)), \
             (time.perf_counter() - t0) * 1e3

@@ -24,6 +24,7 @@ class PoseTrack:
         self._t: deque[float] = deque()
         self._p: deque[np.ndarray] = deque()
         self._ticks: tuple[int, int] | None = None
+        self._arrays: tuple[np.ndarray, np.ndarray] | None = None  # cached for pose_at
         self.repeated_stamps = 0
 
     @property
@@ -42,6 +43,7 @@ class PoseTrack:
             raise ValueError(f"motion prior stamps go backwards ({t:.9f} s after {self._t[-1]:.9f} s)")
         self._t.append(t)
         self._p.append(np.asarray(pose, dtype=float))
+        self._arrays = None
         while len(self._t) > 2 and self._t[-1] - self._t[1] > self.keep:
             self._t.popleft()
             self._p.popleft()
@@ -63,8 +65,9 @@ class PoseTrack:
 
     def pose_at(self, t: float | np.ndarray) -> np.ndarray:
         """Interpolated pose(s); clamped to the first/last pose outside the kept span."""
-        ts = np.fromiter(self._t, float, len(self._t))
-        return interpolate_poses(np.asarray(t, dtype=float), ts, np.stack(list(self._p)))
+        if self._arrays is None:
+            self._arrays = (np.fromiter(self._t, float, len(self._t)), np.stack(list(self._p)))
+        return interpolate_poses(np.asarray(t, dtype=float), *self._arrays)
 
     def delta(self, t0: float, t1: float) -> np.ndarray:
         """Motion of the body from ``t0`` to ``t1`` in its frame at ``t0``."""

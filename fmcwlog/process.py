@@ -199,7 +199,12 @@ def _run(reader, tmp, opts, cal, scan_topic, ticks_topic, odom_topic, total, on_
     def run_sweep(sweep: SweepInput) -> None:
         dop, dop_ms = (None, 0.0)
         if "improved" in fronts:
-            dop, dop_ms = doppler_stages(sweep, cal, params)
+            twist = None
+            if prior is not None and len(prior) >= 2:
+                span = max(float(sweep.t.max()), 1e-3)
+                d = prior.delta(sweep.stamp_ns * 1e-9, sweep.stamp_ns * 1e-9 + span)
+                twist = (d[0] / span, d[2] / span)
+            dop, dop_ms = doppler_stages(sweep, cal, params, twist)
         state["doppler"] = sweep.velocity is not None
         for m, fe in fronts.items():
             r = fe.step(sweep, prior, dop if m == "improved" else None)

@@ -23,6 +23,25 @@ class UserError(click.ClickException):
     exit_code = 2
 
 
+class _NoBar:
+    def update(self, n: int, current_item=None) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+
+def _progress(total: int | None, label: str, rate_label=None):
+    """A progress bar on stderr when it is a terminal; silent in pipes and CI logs."""
+    if not sys.stderr.isatty():
+        return _NoBar()
+    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True,
+                             item_show_func=rate_label or (lambda _: None))
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="fmcwlog")
 def cli() -> None:
@@ -113,8 +132,7 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
     output.parent.mkdir(parents=True, exist_ok=True)
 
     n = int(cfg.run.duration * cfg.sensor.scan_rate + 1e-9)
-    with click.progressbar(length=n, label=f"recording {world.name}", file=sys.stderr,
-                           show_pos=True, item_show_func=lambda _: None) as bar:
+    with _progress(n, f"recording {world.name}") as bar:
         last = [0]
 
         def step(done: int) -> None:
@@ -204,8 +222,8 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
     def on_sweep(done: int, total: int | None) -> None:
         nonlocal bar
         if bar is None:
-            bar = click.progressbar(length=total or 0, label="processing", file=sys.stderr, show_pos=True,
-                                    item_show_func=lambda _: f"{done / max(time.perf_counter() - started, 1e-9):.0f} sweeps/s")
+            bar = _progress(total, "processing",
+                            lambda d: f"{(d or 0) / max(time.perf_counter() - started, 1e-9):.0f} sweeps/s")
             bar.__enter__()
         bar.update(1, current_item=done)
 

@@ -167,6 +167,9 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
         if f.datatype not in _POINTFIELD_DTYPES:
             raise ValueError(f"field {name!r} has unknown datatype {f.datatype}")
         dt = np.dtype(_POINTFIELD_DTYPES[f.datatype])
+        if n == 0:
+            out[name] = np.zeros(0)
+            continue
         col = np.ndarray((n,), dtype=dt, buffer=data, offset=int(f.offset), strides=(step,))
         out[name] = col.astype(np.float64)
     return out

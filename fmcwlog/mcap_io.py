@@ -373,17 +373,9 @@ class LogReader:
         wanted = None if topics is None else set(topics)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
+        # Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
+        # indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
         with open(self.path, "rb") as fh:
-            if self._indexed:
-                reader = make_reader(fh)
-                try:
-                    for schema, channel, message in reader.iter_messages(
-                        topics=None if wanted is None else list(wanted), log_time_order=False
-                    ):
-                        yield self._decode(schema, channel, message)
-                except McapError as exc:
-                    raise LogError(f"{self.path}: corrupt MCAP ({exc})") from exc
-                return
             for rec in self._stream_records(fh):
                 if isinstance(rec, Schema):
                     schemas[rec.id] = rec

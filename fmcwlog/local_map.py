@@ -44,13 +44,11 @@ class VoxelMap:
             return 0
         keys = voxel_keys(xy, self.voxel_size)
         keys, first = np.unique(keys, return_index=True)
-        new = ~np.isin(keys, self._keys, assume_unique=True)
+        new = ~np.isin(keys, self._keys, assume_unique=True, kind="sort")
         if not new.any():
             return 0
         self.points = np.concatenate([self.points, xy[first[new]]])
         self._keys = np.concatenate([self._keys, keys[new]])
-        order = np.argsort(self._keys)
-        self._keys, self.points = self._keys[order], self.points[order]
         self.tree = cKDTree(self.points)
         return int(new.sum())
 

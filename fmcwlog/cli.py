@@ -50,6 +50,7 @@ def cli() -> None:
     \b
     fmcwlog record   simulate a robot with an FMCW LiDAR and wheel encoders -> log.mcap
     fmcwlog process  estimate trajectories and maps from a log, improved and baseline
+    fmcwlog report   measure them against ground truth: a page, Markdown and JSON
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
     """
@@ -242,6 +243,76 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
     for w in summary.warnings:
         click.echo(f"  warning: {w}")
     click.echo(f"wrote {summary.out_dir}/")
+
+
+_REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the
+log it came from (found through run.json, or --log), and write into OUT_DIR:
+
+\b
+  report.html   one self-contained page: trajectories over the walls, error along the
+                path, feature errors of both methods (the paper's Figure 4), tables, maps
+  report.md     the same tables for a pull request or a lab notebook
+  report.json   stable keys for scripts, e.g. methods.improved.ate_rmse_m (see the README)
+
+\b
+Measured for improved, baseline and wheel odometry: ATE (RMSE, mean, median, max; SE(2)-
+aligned and first-pose-aligned, as evo defines them), RPE over 1 m and 10 m (% of distance,
+deg/m), each labelled feature's length in the map each method built and its error (the
+paper's Tables 2 and 3, and the reduction of the average), precision/recall/F1 of the moving
+points, ms per sweep. What cannot be computed is left empty with the reason.
+
+With several OUT_DIRs, each gets its report and a comparison table is printed and
+written to comparison.md/.json in --output (default: the current folder).
+"""
+
+
+@cli.command("report", help=_REPORT_HELP)
+@click.argument("out_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--log", "log", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="The log the folder was processed from (default: the one run.json names).")
+@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Where comparison.md/.json go when several folders are given.  [default: .]")
+def report_cmd(out_dirs, log, comparison_dir):
+    import json
+    import os
+
+    from .evaluation import ReportError, evaluate
+    from .report_page import (
+        TRAJECTORY_HEADER,
+        comparison_rows,
+        markdown_table,
+        terminal_table,
+        trajectory_rows,
+        write_report,
+    )
+
+    if log is not None and len(out_dirs) > 1:
+        raise UserError("--log goes with a single output folder")
+    results = []
+    for out_dir in out_dirs:
+        try:
+            ev = evaluate(out_dir, log)
+        except (ReportError, LogError) as exc:
+            raise UserError(str(exc)) from None
+        paths = write_report(ev)
+        results.append(ev.result)
+        click.echo(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
+        click.echo(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+        red = ev.result["feature_avg_rel_error_reduction_pct"]
+        if red is not None:
+            click.echo(f"average feature error reduced by {red:.1f} % (the paper: 40.6 %)")
+        click.echo(f"wrote {paths[2]} (and report.md, report.json)")
+    if len(results) > 1:
+        header, rows = comparison_rows(results)
+        click.echo("\n" + terminal_table(header, rows))
+        target = comparison_dir or Path(".")
+        target.mkdir(parents=True, exist_ok=True)
+        for name, text in (("comparison.md", markdown_table(header, rows) + "\n"),
+                           ("comparison.json", json.dumps(results, indent=2) + "\n")):
+            tmp = target / f".{name}.partial"
+            tmp.write_text(text)
+            os.replace(tmp, target / name)
+        click.echo(f"wrote {target / 'comparison.md'} and comparison.json")
 
 
 def main() -> None:

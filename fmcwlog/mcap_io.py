@@ -387,6 +387,16 @@ class LogReader:
                         continue
                     yield self._decode(schemas.get(ch.schema_id), ch, rec)
 
+    def log_times(self, topic: str) -> Iterator[int]:
+        """``log_time`` (ns) of every message on ``topic``, without decoding them."""
+        channels: set[int] = set()
+        with open(self.path, "rb") as fh:
+            for rec in self._stream_records(fh):
+                if isinstance(rec, Channel) and rec.topic == topic:
+                    channels.add(rec.id)
+                elif isinstance(rec, Message) and rec.channel_id in channels:
+                    yield rec.log_time
+
     def _decode(self, schema: Schema | None, channel: Channel, message: Message) -> LogMessage:
         if schema is None:
             raise LogError(f"{self.path}: topic {channel.topic} has no schema")

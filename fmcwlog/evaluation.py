@@ -1,0 +1,273 @@
+"""``fmcwlog report``'s numbers: a ``process`` output folder measured against its log's ground truth.
+
+Everything here is evaluation: it reads ``/ground_truth/*`` and ``fmcwlog.world``,
+which estimation never does. A value that cannot be computed is ``None`` with
+the reason in ``notes``; nothing is invented.
+
+Feature lengths (the paper's Tables 2 and 3) are measured in the map each
+method built, from the points it kept: every static point the method placed
+in its map (``/<method>/points/static`` in ``processed.mcap``, already placed
+with that method's poses) is also placed with the ground-truth pose of its
+sweep; the points that land within ``end_radius`` of a feature's end in the
+true world are "the points that saw that end". A feature's measured length is
+the distance between the means of its two ends' points as the method placed
+them, corrected by the same distance with the ground-truth placement (which
+removes the few-centimetre offset of averaging points near a corner, the same
+for every method):
+
+    measured = true + |m_b(est) − m_a(est)| − |m_b(gt) − m_a(gt)|
+
+so a method with perfect poses measures every feature at its true length, and
+a drifting or sliding one stretches or shrinks the map between the ends.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from .geometry import interpolate_poses, inverse, transform_points
+from .mcap_io import (
+    GT_LABELS_TOPIC,
+    GT_ODOM_TOPIC,
+    WORLD_KEY,
+    LogError,
+    LogReader,
+    odometry_pose_twist,
+    pointcloud_columns,
+    read_ground_truth,
+    read_point_labels,
+    stamp_ns,
+)
+from .metrics import ate, feature_length_errors, interpolate_reference, mean_relative_error_pct, rpe
+from .outputs import read_tum
+
+METHODS = ("improved", "baseline", "wheel_odometry")
+
+
+class ReportError(Exception):
+    """An output folder or log cannot be evaluated; the message says which and why."""
+
+
+@dataclass
+class Evaluation:
+    out_dir: Path
+    log: Path
+    run: dict[str, Any]
+    result: dict[str, Any] = field(default_factory=dict)
+    # for the plots
+    gt_t: np.ndarray | None = None
+    gt: np.ndarray | None = None
+    aligned: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, est, errors
+    walls: np.ndarray | None = None  # (M, 4) the world's walls, for the plots
+
+
+def load_run(out_dir: Path) -> dict[str, Any]:
+    run_json = out_dir / "run.json"
+    if not out_dir.is_dir():
+        raise ReportError(f"{out_dir}: no such folder")
+    if not run_json.is_file() or not (out_dir / "trajectories.parquet").is_file():
+        raise ReportError(f"{out_dir}: not a 'fmcwlog process' output (no run.json or trajectories.parquet)")
+    try:
+        return json.loads(run_json.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{run_json}: malformed ({exc.msg})") from None
+
+
+def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
+    scan = run.get("scan_topic", "/fmcw/points")
+    log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
+    if log_stamps.size == 0 or not np.all(np.isin(stamps, log_stamps)):
+        raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
+
+
+def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: float = 0.15) -> Evaluation:
+    out_dir = Path(out_dir)
+    run = load_run(out_dir)
+    log = Path(log) if log is not None else Path(run.get("log", ""))
+    if not log.is_file():
+        raise ReportError(f"{out_dir}: its log {log} is not there; name it with --log")
+    try:
+        reader = LogReader(log)
+    except LogError as exc:
+        raise ReportError(str(exc)) from None
+    table = pq.read_table(out_dir / "trajectories.parquet").to_pandas()
+    ev = Evaluation(out_dir, log, run)
+    notes: list[str] = []
+    _check_log_matches(out_dir, log, reader, run, table["stamp_ns"].unique())
+
+    gt_ns, gt = (read_ground_truth(reader) if GT_ODOM_TOPIC in reader.topics else (np.zeros(0, np.int64), np.zeros((0, 3))))
+    has_gt = len(gt_ns) >= 2
+    if not has_gt:
+        notes.append(f"{log} has no {GT_ODOM_TOPIC}: trajectory errors and feature lengths cannot be computed")
+    else:
+        ev.gt_t, ev.gt = gt_ns * 1e-9, gt
+    world = reader.metadata.get(WORLD_KEY)
+    features = json.loads(world["features"]) if world and "features" in world else []
+    if world and "walls" in world:
+        ev.walls = np.asarray(json.loads(world["walls"]), dtype=float).reshape(-1, 4)
+    if has_gt and not features:
+        notes.append(f"{log} has no {WORLD_KEY} features: map feature lengths cannot be computed")
+
+    methods: dict[str, dict[str, Any]] = {}
+    present = [m for m in METHODS if (out_dir / f"{m}.tum").is_file()]
+    feature_sums = _feature_points(out_dir, [m for m in present if m != "wheel_odometry"], features, gt_ns, gt,
+                                   end_radius) if (has_gt and features) else {}
+    labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
+    for m in present:
+        r: dict[str, Any] = {k: None for k in ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m",
+                                               "ate_first_aligned_rmse_m", "rpe_1m_pct", "rpe_10m_pct",
+                                               "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features",
+                                               "feature_avg_rel_error_pct", "segmentation",
+                                               "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second")}
+        r["notes"] = []
+        t, est = read_tum(out_dir / f"{m}.tum")
+        if has_gt and len(t) >= 2:
+            idx, ref = interpolate_reference(t, ev.gt_t, gt)
+            a = ate(est[idx], ref, "se2")
+            f = ate(est[idx], ref, "first")
+            r.update(ate_rmse_m=a.rmse, ate_mean_m=a.mean, ate_median_m=a.median, ate_max_m=a.max,
+                     ate_first_aligned_rmse_m=f.rmse)
+            ev.aligned[m] = (t[idx], a.est_aligned, a.errors)
+            for delta, key in ((1.0, "1m"), (10.0, "10m")):
+                try:
+                    e = rpe(est[idx], ref, delta)
+                    r[f"rpe_{key}_pct"] = e.trans_pct.mean
+                    r[f"rpe_{key}_deg_per_m"] = e.rot_deg_per_m.mean
+                except ValueError as exc:
+                    r["notes"].append(f"RPE over {delta:g} m: {exc}")
+        if m == "wheel_odometry":
+            r["notes"].append("wheel odometry builds no map: no feature lengths; it does not segment")
+        elif m in feature_sums:
+            rows = feature_sums[m]
+            measured = [row["measured_m"] for row in rows]
+            if rows and all(x is not None for x in measured):
+                errs = feature_length_errors([row["true_m"] for row in rows], measured)
+                r["features"] = [{"id": row["id"], "name": row["name"], "true_m": e.true_m, "measured_m": e.measured_m,
+                                  "abs_error_m": e.abs_error_m, "rel_error_pct": e.rel_error_pct}
+                                 for row, e in zip(rows, errs)]
+                r["feature_avg_rel_error_pct"] = mean_relative_error_pct(errs)
+            else:
+                missing = [str(row["id"]) for row in rows if row["measured_m"] is None]
+                r["notes"].append(f"features {', '.join(missing)}: no kept point saw an end of them")
+                r["features"] = [dict(row, abs_error_m=None, rel_error_pct=None) for row in rows]
+        if m == "improved":
+            r["segmentation"] = _segmentation(out_dir, labels, r["notes"])
+        elif m == "baseline":
+            r["notes"].append("the baseline does not segment moving points")
+        d = table[table.method == m]
+        if len(d):
+            r["ms_per_sweep_median"] = float(np.median(d.ms))
+            r["ms_per_sweep_p95"] = float(np.percentile(d.ms, 95))
+            r["sweeps_per_second"] = float(1000.0 / np.mean(d.ms))
+        elif m == "wheel_odometry":
+            r["notes"].append("wheel odometry is integrated from the ticks; its time is not measured per sweep")
+        methods[m] = r
+
+    imp = methods.get("improved", {}).get("feature_avg_rel_error_pct")
+    base = methods.get("baseline", {}).get("feature_avg_rel_error_pct")
+    reduction = (100.0 * (base - imp) / base) if (imp is not None and base) else None
+    if reduction is None and "improved" in methods and "baseline" in methods:
+        notes.append("no reduction of the average feature error: one of the two averages is missing")
+    ev.result = {
+        "schema": "fmcwlog.report/1",
+        "out_dir": str(out_dir),
+        "log": str(log),
+        "sweeps": int(run.get("sweeps", 0)),
+        "doppler": run.get("doppler"),
+        "prior": run.get("prior"),
+        "methods": methods,
+        "feature_avg_rel_error_reduction_pct": reduction,
+        "paper": {"baseline_avg_rel_error_pct": 6.0505, "improved_avg_rel_error_pct": 3.5919, "reduction_pct": 40.6},
+        "params": run.get("params"),
+        "notes": notes,
+    }
+    return ev
+
+
+def _feature_points(out_dir: Path, methods: list[str], features: list[dict], gt_ns: np.ndarray, gt: np.ndarray,
+                    radius: float) -> dict[str, list[dict]]:
+    """Per method and feature, the measured length from the points that saw its ends (module docstring)."""
+    ends = np.array([[f["a"], f["b"]] for f in features], dtype=float).reshape(-1, 2)  # (2F, 2): a0, b0, a1, ...
+    proc = out_dir / "processed.mcap"
+    if not proc.is_file():
+        return {}
+    reader = LogReader(proc)
+    poses: dict[str, dict[int, np.ndarray]] = {m: {} for m in methods}
+    sums = {m: {"est": np.zeros((len(ends), 2)), "gt": np.zeros((len(ends), 2)), "n": np.zeros(len(ends))} for m in methods}
+    topics = [f"/{m}/odom" for m in methods] + [f"/{m}/points/static" for m in methods]
+    gt_t = gt_ns * 1e-9
+    for msg in reader.messages(topics):
+        method = msg.topic.split("/")[1]
+        ns = stamp_ns(msg.msg.header.stamp)
+        if msg.topic.endswith("/odom"):
+            poses[method][ns] = odometry_pose_twist(msg.msg)[0]
+            continue
+        pose = poses[method].get(ns)
+        if pose is None:
+            continue
+        cols = pointcloud_columns(msg.msg, ("x", "y"))
+        est = np.column_stack([cols["x"], cols["y"]])
+        if len(est) == 0:
+            continue
+        base = transform_points(inverse(pose), est)
+        true_pose = interpolate_poses(np.array(ns * 1e-9), gt_t, gt)
+        in_world = transform_points(true_pose, base)
+        d = np.linalg.norm(in_world[:, None, :] - ends[None, :, :], axis=2)  # (N, 2F)
+        near = d < radius
+        s = sums[method]
+        s["n"] += near.sum(axis=0)
+        s["est"] += near.T.astype(float) @ est
+        s["gt"] += near.T.astype(float) @ in_world
+        poses[method].pop(ns, None)
+    out: dict[str, list[dict]] = {}
+    for m in methods:
+        s = sums[m]
+        rows = []
+        for i, f in enumerate(features):
+            a, b = 2 * i, 2 * i + 1
+            true = float(np.hypot(*(np.subtract(f["b"], f["a"]))))
+            if s["n"][a] == 0 or s["n"][b] == 0:
+                measured = None
+            else:
+                mean_est = s["est"][[a, b]] / s["n"][[a, b], None]
+                mean_gt = s["gt"][[a, b]] / s["n"][[a, b], None]
+                measured = true + float(np.linalg.norm(mean_est[1] - mean_est[0]) - np.linalg.norm(mean_gt[1] - mean_gt[0]))
+            rows.append({"id": f.get("id", i + 1), "name": f.get("name", ""), "true_m": true, "measured_m": measured,
+                         "points_a": int(s["n"][a]), "points_b": int(s["n"][b])})
+        out[m] = rows
+    return out
+
+
+def _segmentation(out_dir: Path, labels: dict[int, np.ndarray] | None, notes: list[str]) -> dict[str, float] | None:
+    if labels is None:
+        notes.append("the log has no /ground_truth/point_labels: segmentation cannot be scored")
+        return None
+    proc = out_dir / "processed.mcap"
+    tp = fp = fn = 0
+    seen = 0
+    for msg in LogReader(proc).messages(["/improved/moving_labels"]):
+        est = np.frombuffer(bytes(msg.msg.moving), np.uint8).astype(bool)
+        ref = labels.get(msg.log_time_ns)
+        if ref is None or ref.shape != est.shape:
+            continue
+        ref = ref.astype(bool)
+        tp += int(np.sum(est & ref))
+        fp += int(np.sum(est & ~ref))
+        fn += int(np.sum(~est & ref))
+        seen += 1
+    if seen == 0:
+        notes.append("no per-point moving verdicts in processed.mcap (Doppler was off): segmentation not scored")
+        return None
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    f1 = 2 * precision * recall / (precision + recall) if precision and recall else None
+    if tp + fn == 0:
+        notes.append("no point of the log hit a mover: recall is undefined")
+    return {"precision": precision, "recall": recall, "f1": f1, "true_positives": tp, "false_positives": fp,
+            "false_negatives": fn}

@@ -51,6 +51,7 @@ def cli() -> None:
     fmcwlog record   simulate a robot with an FMCW LiDAR and wheel encoders -> log.mcap
     fmcwlog process  estimate trajectories and maps from a log, improved and baseline
     fmcwlog report   measure them against ground truth: a page, Markdown and JSON
+    fmcwlog run      all three on a built-in scenario, into one folder
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
     """
@@ -313,6 +314,32 @@ def report_cmd(out_dirs, log, comparison_dir):
             tmp.write_text(text)
             os.replace(tmp, target / name)
         click.echo(f"wrote {target / 'comparison.md'} and comparison.json")
+
+
+@cli.command("run")
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("fmcwlog-run"),
+              show_default=True, help="Folder for the log, the results and the report.")
+@click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True)
+@click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.pass_context
+def run_cmd(ctx, out_dir, scenario, duration, seed, force):
+    """Record a built-in scenario, process it with both front ends and report, into one folder:
+    OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html."""
+    import shutil
+
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not force:
+            raise UserError(f"{out_dir}: exists and is not empty; use --force to replace it")
+        shutil.rmtree(out_dir)
+    log = out_dir / "log.mcap"
+    ctx.invoke(record_cmd, output=log, scenario=scenario, world_file=None, duration=duration, seed=seed, speed=None,
+               config_file=None, set_items=(), force=False, show_config=False)
+    ctx.invoke(process_cmd, log=log, out_dir=out_dir / "results", method="all", config_file=None, set_items=(),
+               scan_topic=None, ticks_topic=None, odom_topic=None, force=False, show_config=False)
+    ctx.invoke(report_cmd, out_dirs=(out_dir / "results",), log=None, comparison_dir=None)
+    click.echo(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
 
 
 def main() -> None:

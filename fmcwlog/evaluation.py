@@ -82,6 +82,8 @@ def load_run(out_dir: Path) -> dict[str, Any]:
 def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
     scan = run.get("scan_topic", "/fmcw/points")
     log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
+    # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
+    stamps = np.asarray(stamps, dtype=np.int64) - int(round(float(run.get("stamp_shift_s", 0.0)) * 1e9))
     if log_stamps.size == 0 or not np.all(np.isin(stamps, log_stamps)):
         raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
 
@@ -115,9 +117,11 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
         notes.append(f"{log} has no {WORLD_KEY} features: map feature lengths cannot be computed")
 
     methods: dict[str, dict[str, Any]] = {}
+    # fmcwlog's methods first, then any other trajectory dropped in the folder (a peer, e.g. kiss_icp.tum)
     present = [m for m in METHODS if (out_dir / f"{m}.tum").is_file()]
-    feature_sums = _feature_points(out_dir, [m for m in present if m != "wheel_odometry"], features, gt_ns, gt,
-                                   end_radius) if (has_gt and features) else {}
+    present += sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in METHODS)
+    feature_sums = _feature_points(out_dir, [m for m in present if m in ("improved", "baseline")], features, gt_ns,
+                                   gt, end_radius) if (has_gt and features) else {}
     labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
     for m in present:
         r: dict[str, Any] = {k: None for k in ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m",
@@ -142,8 +146,11 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
                 except ValueError as exc:
                     r["notes"].append(f"RPE over {delta:g} m: {exc}")
         if m == "wheel_odometry":
-            r["notes"].append("wheel odometry builds no map: no feature lengths; it does not segment")
-        elif m in feature_sums:
+            r["notes"].append("wheel odometry builds no map: no feature lengths")
+        elif m not in feature_sums:
+            if has_gt and features:
+                r["notes"].append("no map points of this method in processed.mcap: no feature lengths")
+        else:
             rows = feature_sums[m]
             seen = [row for row in rows if row["measured_m"] is not None]
             errs = dict(zip([row["id"] for row in seen],
@@ -161,8 +168,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
                                   f"pass them): the average is over the other {len(seen)}")
         if m == "improved":
             r["segmentation"] = _segmentation(out_dir, labels, r["notes"])
-        elif m == "baseline":
-            r["notes"].append("the baseline does not segment moving points")
+        else:
+            r["notes"].append(f"{m} does not segment moving points")
         d = table[table.method == m]
         if len(d):
             r["ms_per_sweep_median"] = float(np.median(d.ms))

@@ -49,7 +49,10 @@ class VoxelMap:
             return 0
         self.points = np.concatenate([self.points, xy[first[new]]])
         self._keys = np.concatenate([self._keys, keys[new]])
-        self.tree = cKDTree(self.points)
+        # An unbalanced, uncompacted tree builds in 2.6 ms instead of 4.7 ms for 20k wall points
+        # and answers the ICP's queries as fast (0.19 vs 0.20 ms for 500 points): it is rebuilt
+        # at every keyframe, queried ~5 times per sweep.
+        self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
         return int(new.sum())
 
     def __len__(self) -> int:

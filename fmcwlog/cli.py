@@ -52,6 +52,7 @@ def cli() -> None:
     fmcwlog process  estimate trajectories and maps from a log, improved and baseline
     fmcwlog report   measure them against ground truth: a page, Markdown and JSON
     fmcwlog run      all three on a built-in scenario, into one folder
+    fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
     """
@@ -273,7 +274,10 @@ written to comparison.md/.json in --output (default: the current folder).
               help="The log the folder was processed from (default: the one run.json names).")
 @click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where comparison.md/.json go when several folders are given.  [default: .]")
-def report_cmd(out_dirs, log, comparison_dir):
+@click.option("--relations", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
+                   "beside the published figures for that dataset.")
+def report_cmd(out_dirs, log, comparison_dir, relations=None):
     import json
     import os
 
@@ -292,13 +296,17 @@ def report_cmd(out_dirs, log, comparison_dir):
     results = []
     for out_dir in out_dirs:
         try:
-            ev = evaluate(out_dir, log)
+            ev = evaluate(out_dir, log, relations=relations)
         except (ReportError, LogError) as exc:
             raise UserError(str(exc)) from None
         paths = write_report(ev)
         results.append(ev.result)
         click.echo(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
         click.echo(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+        from .report_page import RELATIONS_HEADER, relations_rows
+
+        if relations_rows(ev.result):
+            click.echo(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
         red = ev.result["feature_avg_rel_error_reduction_pct"]
         if red is not None:
             click.echo(f"average feature error reduced by {red:.1f} % (the paper: 40.6 %)")
@@ -338,8 +346,51 @@ def run_cmd(ctx, out_dir, scenario, duration, seed, force):
                config_file=None, set_items=(), force=False, show_config=False)
     ctx.invoke(process_cmd, log=log, out_dir=out_dir / "results", method="all", config_file=None, set_items=(),
                scan_topic=None, ticks_topic=None, odom_topic=None, force=False, show_config=False)
-    ctx.invoke(report_cmd, out_dirs=(out_dir / "results",), log=None, comparison_dir=None)
+    ctx.invoke(report_cmd, out_dirs=(out_dir / "results",), log=None, comparison_dir=None, relations=None)
     click.echo(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
+
+
+@cli.group("import")
+def import_group() -> None:
+    """Convert real robot logs into fmcwlog logs (LaserScan on /scan, Odometry on /odom)."""
+
+
+@import_group.command("carmen")
+@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Log to write (.mcap).")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
+def import_carmen_cmd(source, output, force):
+    """Convert a CARMEN log (plain, .xz or .gz) into an MCAP log.
+
+    \b
+    Reads FLASER, RLASER (-> /rear_scan), ROBOTLASER1, ODOM and PARAM lines (the laser
+    offset and field of view come from PARAM robot_frontlaser_offset / robot_front_laser_fov),
+    and the CMU Wean Hall course format (O and L lines, centimetres), recognised by its first
+    line. Stamps are the log's own ipc_timestamps, which benchmark relations refer to. Without
+    ODOM lines, the odometry pose of each laser line becomes /odom. Malformed lines are
+    skipped, counted and listed with their line numbers. Then: fmcwlog process OUTPUT -o DIR.
+    """
+    from .carmen import parse_log
+    from .importer import ImportError_, write_mcap
+
+    if not source.is_file():
+        raise UserError(f"{source}: no such file")
+    if output.exists() and not force:
+        raise UserError(f"{output}: exists; use --force to overwrite it")
+    try:
+        parsed = parse_log(source)
+        summary = write_mcap(parsed, output)
+    except ImportError_ as exc:
+        raise UserError(str(exc)) from None
+    except (OSError, EOFError, UnicodeDecodeError) as exc:
+        raise UserError(f"{source}: cannot read ({exc})") from None
+    click.echo(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
+               f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {parsed.format}")
+    if summary.bad_lines:
+        shown = ", ".join(str(n) for n, _ in summary.bad_lines[:10])
+        more = f" and {len(summary.bad_lines) - 10} more" if len(summary.bad_lines) > 10 else ""
+        click.echo(f"skipped {len(summary.bad_lines)} malformed lines: {shown}{more} "
+                   f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})", err=True)
 
 
 def main() -> None:

@@ -46,6 +46,7 @@ from .mcap_io import (
 )
 from .metrics import ate, feature_length_errors, interpolate_reference, mean_relative_error_pct, rpe
 from .outputs import read_tum
+from .relations import RelationsError, published_for, read_relations, relations_error
 
 METHODS = ("improved", "baseline", "wheel_odometry")
 
@@ -88,7 +89,8 @@ def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, s
         raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
 
 
-def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: float = 0.15) -> Evaluation:
+def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: float = 0.15,
+             relations: str | Path | None = None) -> Evaluation:
     out_dir = Path(out_dir)
     run = load_run(out_dir)
     log = Path(log) if log is not None else Path(run.get("log", ""))
@@ -117,6 +119,12 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
         notes.append(f"{log} has no {WORLD_KEY} features: map feature lengths cannot be computed")
 
     methods: dict[str, dict[str, Any]] = {}
+    rel_table = None
+    if relations is not None:
+        try:
+            rel_table = read_relations(relations)
+        except RelationsError as exc:
+            raise ReportError(str(exc)) from None
     # fmcwlog's methods first, then any other trajectory dropped in the folder (a peer, e.g. kiss_icp.tum)
     present = [m for m in METHODS if (out_dir / f"{m}.tum").is_file()]
     present += sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in METHODS)
@@ -131,6 +139,11 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
                                                "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second")}
         r["notes"] = []
         t, est = read_tum(out_dir / f"{m}.tum")
+        if rel_table is not None:
+            rr = relations_error(t, est, rel_table)
+            r["relations"] = rr.as_dict()
+            if rr.n == 0:
+                r["notes"].append(f"no relation of {relations} falls within this trajectory's time span")
         if has_gt and len(t) >= 2:
             idx, ref = interpolate_reference(t, ev.gt_t, gt)
             a = ate(est[idx], ref, "se2")
@@ -192,6 +205,9 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
         "methods": methods,
         "feature_avg_rel_error_reduction_pct": reduction,
         "paper": {"baseline_avg_rel_error_pct": 6.0505, "improved_avg_rel_error_pct": 3.5919, "reduction_pct": 40.6},
+        "relations_file": str(relations) if relations is not None else None,
+        "relations_published": [{"method": n, "trans_mean_m": a, "trans_std_m": b} for n, a, b in
+                                (published_for(relations) if relations is not None else [])],
         "params": run.get("params"),
         "notes": notes,
     }

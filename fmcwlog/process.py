@@ -91,6 +91,8 @@ def _choose_topics(reader: LogReader, opts: ProcessOptions) -> tuple[str, str | 
     if scan is None:
         if POINTS_TOPIC in topics:
             scan = POINTS_TOPIC
+        elif "/scan" in topics:
+            scan = "/scan"
         else:
             scans = [t for t, s in topics.items() if s.endswith(("PointCloud2", "LaserScan")) and not t.startswith("/ground_truth")]
             if len(scans) != 1:
@@ -109,6 +111,8 @@ def _choose_topics(reader: LogReader, opts: ProcessOptions) -> tuple[str, str | 
         return scan, None, odom
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
+    if ticks is None and topics.get("/odom", "").endswith("Odometry"):  # an imported or ROS log
+        return scan, None, "/odom"
     if ticks is not None and ticks not in topics:
         raise LogError(f"{path}: no topic {ticks}")
     return scan, ticks, None

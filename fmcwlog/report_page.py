@@ -79,6 +79,23 @@ def feature_rows(result: dict) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+RELATIONS_HEADER = ["method", "relations", "translation m (mean ± std)", "rotation deg (mean ± std)"]
+
+
+def relations_rows(result: dict) -> list[list[str]]:
+    rows = []
+    for m, r in result["methods"].items():
+        rel = r.get("relations")
+        if rel is None:
+            continue
+        rows.append([LABELS.get(m, m), str(rel["n"]),
+                     "—" if rel["trans_mean_m"] is None else f"{rel['trans_mean_m']:.3f} ± {rel['trans_std_m']:.3f}",
+                     "—" if rel["rot_mean_deg"] is None else f"{rel['rot_mean_deg']:.2f} ± {rel['rot_std_deg']:.2f}"])
+    for p in result.get("relations_published") or []:
+        rows.append([f"published: {p['method']}", "all", f"{p['trans_mean_m']:.3f} ± {p['trans_std_m']:.3f}", "—"])
+    return rows
+
+
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -116,6 +133,9 @@ def render_markdown(ev: Evaluation) -> str:
              "## Trajectory, segmentation, speed", "", markdown_table(TRAJECTORY_HEADER, trajectory_rows(r)), "",
              "## Map feature lengths (the paper's Tables 2 and 3)", "",
              markdown_table(fh, fr) if fr else "No feature lengths (see the notes).", "", _summary_line(r), ""]
+    rel = relations_rows(r)
+    if rel:
+        parts += [f"## Relations metric ({r['relations_file']})", "", markdown_table(RELATIONS_HEADER, rel), ""]
     notes = _notes(r)
     if notes:
         parts += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
@@ -228,6 +248,7 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 (found by placing them with the ground-truth pose) are averaged as the method placed them; the
 distance between the two ends' averages, less the same distance with ground-truth placement, is the
 method's error on that length.</p>
+{("<h2>Relations metric (" + html.escape(str(r.get("relations_file"))) + ")</h2>" + _html_table(RELATIONS_HEADER, relations_rows(r))) if relations_rows(r) else ""}
 <h2>Maps</h2><div class="maps">{maps}</div>
 <h2>Notes</h2>{"<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else "<p>None.</p>"}
 <h2>Parameters</h2><pre>{html.escape(json.dumps(r['params'], indent=2))}</pre>

@@ -1,0 +1,93 @@
+"""The relations metric of Kümmerle et al. 2009 ("On measuring the accuracy of SLAM algorithms").
+
+A relations file holds, one per line, ``t1 t2 x y z roll pitch yaw``: the true motion ``δ*`` of the
+robot from its pose at ``t1`` to its pose at ``t2``, in the frame of the first (m, rad). For an
+estimated trajectory ``P``, each relation whose stamps both fall on its poses (within 1 ms) gives
+``δ = inv(P(t1)) ⊕ P(t2)`` (poses interpolated at the stamps) and the error ``δ*⁻¹ ⊕ δ``: its
+translation (m) and the absolute value of its rotation (deg). Reported as mean ± std over the
+relations, as in the paper's tables.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .geometry import between, interpolate_poses
+
+# Published relations errors (translation m, mean ± std) for the Intel Research Lab:
+# Kümmerle et al. 2009, Table 2 (scan matching, RBPF = GMapping, graph mapping) and
+# Hess et al. 2016, "Real-Time Loop Closure in 2D LIDAR SLAM", Table I (Cartographer).
+PUBLISHED = {
+    "intel": [
+        ("scan matching (Kümmerle et al. 2009)", 0.220, 0.296),
+        ("GMapping / RBPF (Kümmerle et al. 2009)", 0.070, 0.083),
+        ("graph mapping (Kümmerle et al. 2009)", 0.031, 0.026),
+        ("Cartographer (Hess et al. 2016)", 0.0229, 0.0239),
+    ],
+}
+
+
+class RelationsError(ValueError):
+    """A relations file cannot be read; the message names it and the line."""
+
+
+@dataclass
+class RelationsResult:
+    n: int
+    trans_mean_m: float | None
+    trans_std_m: float | None
+    rot_mean_deg: float | None
+    rot_std_deg: float | None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def read_relations(path: str | Path) -> np.ndarray:
+    """(K, 5) array of ``t1, t2, x, y, yaw``."""
+    path = Path(path)
+    rows = []
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise RelationsError(f"{path}: cannot read ({exc.strerror})") from None
+    for i, line in enumerate(lines, 1):
+        tok = line.split()
+        if not tok or tok[0].startswith("#"):
+            continue
+        if len(tok) != 8:
+            raise RelationsError(f"{path}: line {i} has {len(tok)} fields, a relation has 8 (t1 t2 x y z roll pitch yaw)")
+        try:
+            v = [float(x) for x in tok]
+        except ValueError:
+            raise RelationsError(f"{path}: line {i} holds a value that is not a number") from None
+        rows.append([v[0], v[1], v[2], v[3], v[7]])
+    if not rows:
+        raise RelationsError(f"{path}: no relations")
+    return np.asarray(rows)
+
+
+def relations_error(t: np.ndarray, poses: np.ndarray, relations: np.ndarray, max_gap: float = 1e-3) -> RelationsResult:
+    """Errors of the relations whose two stamps each lie within ``max_gap`` (s) of a pose of the
+    trajectory: interpolating across a longer gap would score the interpolation, not the method."""
+    def near(x: np.ndarray) -> np.ndarray:
+        i = np.clip(np.searchsorted(t, x), 1, len(t) - 1)
+        return np.minimum(np.abs(t[i] - x), np.abs(t[i - 1] - x)) <= max_gap
+
+    rel = relations[near(relations[:, 0]) & near(relations[:, 1])]
+    if len(rel) == 0:
+        return RelationsResult(0, None, None, None, None)
+    p1 = interpolate_poses(rel[:, 0], t, poses)
+    p2 = interpolate_poses(rel[:, 1], t, poses)
+    err = between(rel[:, 2:5], between(p1, p2))
+    trans = np.hypot(err[:, 0], err[:, 1])
+    rot = np.degrees(np.abs(err[:, 2]))
+    return RelationsResult(len(rel), float(trans.mean()), float(trans.std()), float(rot.mean()), float(rot.std()))
+
+
+def published_for(path: str | Path) -> list[tuple[str, float, float]]:
+    """The published rows for a relations file, by its name (``intel.relations`` -> intel)."""
+    return PUBLISHED.get(Path(path).name.split(".")[0], [])

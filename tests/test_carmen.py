@@ -1,0 +1,142 @@
+"""Real-log import (CARMEN, CMU course format) and the relations metric.
+
+Hand-written lines check the parser against the CARMEN conventions; the shared
+datasets (skipped where ../shared is absent) check it on real files.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from fmcwlog.carmen import parse_log
+from fmcwlog.geometry import compose
+from fmcwlog.relations import read_relations, relations_error
+
+
+def _write(tmp_path: Path, text: str, name: str = "log.clf") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_flaser_odom_param_and_bad_lines(tmp_path):
+    ranges = " ".join(["2.0"] * 179 + ["81.9"])
+    text = "\n".join([
+        "# CARMEN Logfile",
+        "PARAM robot_frontlaser_offset 0.2 1.0 host 1.0",
+        "ODOM 1.0 2.0 0.5 0.1 0 0 100.5 host 100.5",
+        f"FLASER 180 {ranges} 1.0 2.0 0.5 1.0 2.0 0.5 100.6 host 100.6",
+        "FLASER 180 1 2 3",  # truncated
+        "ODOM 1.1 2.0 0.5 0.1 0 0 oops host 100.7",  # not a number
+        "SYNC something",
+    ])
+    p = parse_log(_write(tmp_path, text))
+    assert p.format == "carmen" and len(p.scans) == 1 and len(p.odometry) == 1
+    s = p.scans[0]
+    assert s.stamp == 100.6 and s.laser_pose == (0.2, 0.0, 0.0)
+    assert s.angle_min == pytest.approx(-math.pi / 2) and s.angle_increment == pytest.approx(math.pi / 180)
+    assert np.isinf(s.ranges[-1]) and s.ranges[0] == 2.0  # 81.9 m is the no-return value
+    assert [n for n, _ in p.bad_lines] == [5, 6]
+    assert p.ignored == {"SYNC": 1}
+
+
+def test_robotlaser1_takes_the_laser_pose_relative_to_the_robot(tmp_path):
+    n = 180
+    robot = (10.0, 5.0, math.pi / 2)
+    laser = tuple(compose(np.array(robot), np.array([0.3, 0.0, 0.0])))
+    fields = ["ROBOTLASER1", "0", "-1.570796", "3.141593", "0.017453", "50.0", "0.1", "0", str(n)] + ["3.0"] * n + \
+        ["0"] + [f"{v:.6f}" for v in laser] + [f"{v:.6f}" for v in robot] + ["0"] * 5 + ["200.25", "host", "200.25"]
+    p = parse_log(_write(tmp_path, " ".join(fields) + "\n"))
+    s = p.scans[0]
+    assert s.stamp == 200.25 and s.laser_pose == pytest.approx((0.3, 0.0, 0.0), abs=1e-5)
+    assert s.odom_pose == pytest.approx(robot)
+
+
+def test_cmu_course_format_is_centimetres(tmp_path):
+    ranges = " ".join(["150"] * 180)
+    text = "O -94.0 -140.0 -1.34 0.02\nL -94.0 -140.0 -1.34 -88.0 -164.0 -1.34 " + ranges + " 0.5\n"
+    p = parse_log(_write(tmp_path, text, "robotdata.log"))
+    assert p.format == "cmu" and p.odometry[0].pose == pytest.approx((-0.94, -1.40, -1.34))
+    s = p.scans[0]
+    assert s.ranges[0] == pytest.approx(1.5)
+    assert math.hypot(*s.laser_pose[:2]) == pytest.approx(math.hypot(0.06, 0.24), abs=1e-6)
+
+
+def test_relations_metric_on_known_motion():
+    t = np.arange(0.0, 10.0, 1.0)
+    poses = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])  # 1 m/s along x
+    rel = np.array([[1.0, 3.0, 2.0, 0.0, 0.0],  # exact
+                    [2.0, 4.0, 2.1, 0.0, 0.0],  # 10 cm off
+                    [3.0, 5.0, 2.0, 0.0, math.radians(1.0)],  # 1 degree off
+                    [20.0, 21.0, 1.0, 0.0, 0.0],  # outside the trajectory
+                    [2.5, 4.0, 1.5, 0.0, 0.0]])  # 2.5 s is not a pose stamp
+    r = relations_error(t, poses, rel)
+    assert r.n == 3
+    assert r.trans_mean_m == pytest.approx((0 + 0.1 + 2 * math.sin(math.radians(0.5)) * 1) / 3, rel=0.2)
+    assert r.rot_mean_deg == pytest.approx(1 / 3, abs=1e-9)
+
+
+@pytest.fixture(scope="module")
+def intel(shared_dir, tmp_path_factory):
+    """The Intel subset imported and processed once."""
+    from fmcwlog.process import ProcessOptions, process_log
+
+    tmp = tmp_path_factory.mktemp("intel")
+    log = tmp / "intel.mcap"
+    proc = subprocess.run([sys.executable, "-m", "fmcwlog", "import", "carmen",
+                           str(shared_dir / "datasets" / "intel_lab_subset910" / "intel_subset910_rawodom.clf.xz"),
+                           "-o", str(log)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    out = tmp / "out"
+    summary = process_log(log, out, ProcessOptions())
+    return log, out, summary
+
+
+def test_intel_subset_imports_with_its_own_stamps(intel, shared_dir):
+    log, out, summary = intel
+    with open(log, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        stamps = [m.log_time for _, c, m, _ in reader.iter_decoded_messages(topics=["/scan"])]
+    assert len(stamps) == 910
+    rel = read_relations(shared_dir / "datasets" / "freiburg_relations" / "intel.relations")
+    ours = {round(s * 1e-9, 6) for s in stamps}
+    both = [(round(a, 6) in ours and round(b, 6) in ours) for a, b in rel[:, :2]]
+    assert sum(both) == 90  # as SOURCE.md says (stamps equal to the microsecond)
+    assert not summary.doppler and summary.prior == "odometry (/odom)"
+
+
+def test_intel_relations_report_beats_raw_odometry(intel, shared_dir):
+    from fmcwlog.evaluation import evaluate
+
+    log, out, _ = intel
+    r = evaluate(out, relations=shared_dir / "datasets" / "freiburg_relations" / "intel.relations").result
+    odo = r["methods"]["wheel_odometry"]["relations"]
+    imp = r["methods"]["improved"]["relations"]
+    assert odo["n"] == imp["n"] >= 85
+    assert imp["trans_mean_m"] < odo["trans_mean_m"]
+    assert r["relations_published"][0]["trans_mean_m"] == 0.220
+
+
+def test_fr079_sample_and_wean_hall_parse(shared_dir):
+    fr = parse_log(shared_dir / "datasets" / "freiburg_relations" / "fr079_head_sample.clf")
+    assert len(fr.scans) == 7 and len(fr.odometry) == 15 and fr.scans[0].laser_pose == (-0.04, 0.0, 0.0)
+    assert len(fr.scans[0].ranges) == 360 and fr.scans[0].angle_increment == pytest.approx(math.pi / 360)
+    wean = parse_log(shared_dir / "datasets" / "cmu_wean_hall" / "robotdata1.log.xz")
+    assert wean.format == "cmu" and len(wean.scans) == 713 and len(wean.odometry) == 1505 and not wean.bad_lines
+
+
+def test_a_file_with_nothing_usable_is_one_clear_error(tmp_path):
+    p = _write(tmp_path, "# nothing\nFLASER 3 1 2\n")
+    proc = subprocess.run([sys.executable, "-m", "fmcwlog", "import", "carmen", str(p), "-o", str(tmp_path / "x.mcap")],
+                          capture_output=True, text=True, timeout=60)
+    lines = [x for x in proc.stderr.splitlines() if x.strip()]
+    assert proc.returncode == 2 and len(lines) == 1 and "no laser scans" in lines[0]
+    assert not (tmp_path / "x.mcap").exists()

@@ -368,13 +368,14 @@ class LogReader:
         """Messages on ``topic`` by the summary's statistics; None for an unindexed file."""
         return self.contents.counts.get(topic)
 
-    def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
-        """Decoded messages on ``topics`` (all when None), in file order."""
-        wanted = None if topics is None else set(topics)
+    def _raw_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """Undecoded messages on the ``wanted`` topics (all when None), in file order.
+
+        Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
+        indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
+        """
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
-        # Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
-        # indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
         with open(self.path, "rb") as fh:
             for rec in self._stream_records(fh):
                 if isinstance(rec, Schema):
@@ -383,19 +384,18 @@ class LogReader:
                     channels[rec.id] = rec
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
-                    if ch is None or (wanted is not None and ch.topic not in wanted):
-                        continue
-                    yield self._decode(schemas.get(ch.schema_id), ch, rec)
+                    if ch is not None and (wanted is None or ch.topic in wanted):
+                        yield schemas.get(ch.schema_id), ch, rec
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
+        """Decoded messages on ``topics`` (all when None), in file order."""
+        for schema, channel, rec in self._raw_messages(None if topics is None else set(topics)):
+            yield self._decode(schema, channel, rec)
 
     def log_times(self, topic: str) -> Iterator[int]:
         """``log_time`` (ns) of every message on ``topic``, without decoding them."""
-        channels: set[int] = set()
-        with open(self.path, "rb") as fh:
-            for rec in self._stream_records(fh):
-                if isinstance(rec, Channel) and rec.topic == topic:
-                    channels.add(rec.id)
-                elif isinstance(rec, Message) and rec.channel_id in channels:
-                    yield rec.log_time
+        for _, _, rec in self._raw_messages({topic}):
+            yield rec.log_time
 
     def _decode(self, schema: Schema | None, channel: Channel, message: Message) -> LogMessage:
         if schema is None:

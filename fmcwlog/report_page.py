@@ -202,10 +202,35 @@ def _plots(ev: Evaluation, walls: np.ndarray | None) -> dict[str, str]:
         ax.legend(fontsize=8)
         plots["features"] = _png(fig)
     for m in ("improved", "baseline"):
-        png = ev.out_dir / f"{m}_map.png"
-        if png.is_file():
-            plots[f"map_{m}"] = "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode()
+        fig = _trajectory_over_own_map(ev.out_dir, m)
+        if fig is not None:
+            plots[f"map_{m}"] = _png(fig)
     return plots
+
+
+def _trajectory_over_own_map(out_dir: Path, method: str):
+    """The occupancy map a method built, with its own trajectory on it (its own frame; no ground truth needed)."""
+    import matplotlib.pyplot as plt
+    import yaml
+
+    from .outputs import _pgm_pixels, read_tum
+
+    pgm, meta, tum = (out_dir / f"{method}_map.pgm", out_dir / f"{method}_map.yaml", out_dir / f"{method}.tum")
+    if not (pgm.is_file() and meta.is_file() and tum.is_file()):
+        return None
+    info = yaml.safe_load(meta.read_text())
+    img = _pgm_pixels(pgm.read_bytes())
+    res, (ox, oy) = float(info["resolution"]), info["origin"][:2]
+    h, w = img.shape
+    _, poses = read_tum(tum)
+    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    ax.imshow(img, cmap="gray", vmin=0, vmax=255, extent=(ox, ox + w * res, oy, oy + h * res), interpolation="nearest")
+    ax.plot(poses[:, 0], poses[:, 1], color=COLORS.get(method), lw=1.0, label=f"{LABELS.get(method, method)} trajectory")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"Map built by the {LABELS.get(method, method)} method, with its trajectory")
+    ax.legend(loc="upper right", fontsize=8)
+    return fig
 
 
 def _html_table(header: list[str], rows: list[list[str]]) -> str:
@@ -221,7 +246,8 @@ def render_html(ev: Evaluation, walls: np.ndarray | None) -> str:
     img = lambda key, alt: (f'<figure><img alt="{alt}" src="{plots[key]}"><figcaption>{alt}</figcaption></figure>'
                             if key in plots else "")
     notes = _notes(r)
-    maps = "".join(img(f"map_{m}", f"occupancy map built by the {m} method") for m in ("improved", "baseline"))
+    maps = "".join(img(f"map_{m}", f"occupancy map built by the {m} method, with its trajectory")
+                   for m in ("improved", "baseline"))
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>fmcwlog report: {html.escape(ev.out_dir.name)}</title>
 <style>
@@ -230,7 +256,8 @@ table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
 th, td {{ border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }}
 th {{ background: #f3f3f3; }} td:first-child, th:first-child {{ text-align: left; }}
 figure {{ margin: 1em 0; }} img {{ max-width: 100%; border: 1px solid #eee; }}
-figcaption {{ font-size: 0.85em; color: #555; }} .maps img {{ max-width: 48%; }}
+figcaption {{ font-size: 0.85em; color: #555; }} .maps {{ display: flex; flex-wrap: wrap; gap: 1em; }}
+.maps figure {{ flex: 1 1 45%; }}
 pre {{ background: #f7f7f7; padding: 1em; overflow-x: auto; font-size: 0.85em; }}
 </style></head><body>
 <h1>fmcwlog report: {html.escape(ev.out_dir.name)}</h1>

@@ -194,9 +194,12 @@ Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp]
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Parameter file (TOML, YAML or JSON).")
 @click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE", help="Override one parameter; repeatable.")
-@click.option("--scan-topic", default=None, help="Scan topic.  [default: /fmcw/points]")
+@click.option("--scan-topic", default=None,
+              help="Scan topic.  [default: /fmcw/points, else /scan, else the log's only scan topic]")
 @click.option("--ticks-topic", default=None, help="Wheel-ticks topic.  [default: /wheel/ticks]")
-@click.option("--odom-topic", default=None, help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.")
+@click.option("--odom-topic", default=None,
+              help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
+                   "log has no wheel ticks]")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is not empty.")
 @click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
 def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, force, show_config):

@@ -87,7 +87,14 @@ def apply_to_dataclass(obj: Any, values: dict[str, Any], where: str) -> Any:
     hints = typing.get_type_hints(type(obj))
     known = {f.name for f in dataclasses.fields(obj)}
     changes = {}
-    for key, value in values.items():
+    nested: dict[str, Any] = {}
+    for key, value in values.items():  # "gmmsc.w_th" from --set is the table {"gmmsc": {"w_th": ...}}
+        head, dot, rest = key.partition(".")
+        if dot:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            nested[key] = value
+    for key, value in nested.items():
         if key not in known:
             raise ConfigError(f"unknown parameter {where}.{key} (known: {', '.join(sorted(known))})")
         current = getattr(obj, key)

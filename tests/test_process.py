@@ -336,3 +336,18 @@ def test_non_empty_output_folder_is_refused_without_force(tmp_path):
     proc = run_cli("process", str(log), "-o", str(out), "--force")
     assert proc.returncode == 0, proc.stderr
     assert not (out / "keep.txt").exists() and (out / "improved.tum").exists()
+
+
+def test_config_file_and_set_reach_nested_stages(tmp_path):
+    from fmcwlog.config_files import ConfigError, parse_set_option, read_config_file
+    from fmcwlog.process import load_params
+
+    cfg = tmp_path / "p.toml"
+    cfg.write_text("[segmentation]\nv_th = 0.25\n[icp.gmmsc]\nw_th = 0.6\n[frontend]\nvoxel_size = 0.1\n")
+    p = load_params(read_config_file(cfg), parse_set_option(("icp.gmmsc.n_components=3", "icp.huber_delta=0.04")))
+    assert (p.segmentation.v_th, p.icp.gmmsc.w_th, p.voxel_size) == (0.25, 0.6, 0.1)
+    assert (p.icp.gmmsc.n_components, p.icp.huber_delta) == (3, 0.04)
+    with pytest.raises(ConfigError, match="icp.gmmsc.nope"):
+        load_params(None, parse_set_option(("icp.gmmsc.nope=1",)))
+    proc = run_cli("process", "--config", str(cfg), "--show-config")
+    assert proc.returncode == 0 and json.loads(proc.stdout)["icp"]["gmmsc"]["w_th"] == 0.6

@@ -145,7 +145,7 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
         try:
             summary = record(world, cfg, output, on_progress=step)
         except (LogError, OSError) as exc:
-            raise UserError(f"{output}: cannot write ({exc})") from None
+            raise UserError(f"{output}: cannot write ({getattr(exc, 'strerror', None) or exc})") from None
     note = " (stopped early by Ctrl-C)" if summary.interrupted else ""
     click.echo(
         f"wrote {summary.path}: {summary.seconds:.1f} s, {summary.sweeps} sweeps, "
@@ -405,6 +405,10 @@ def main() -> None:
     except click.ClickException as exc:
         click.echo(f"fmcwlog: error: {exc.format_message()}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
+    except OSError as exc:  # a file system refusal no command caught: still one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"fmcwlog: error: {where}{exc.strerror or exc}", err=True)
+        sys.exit(2)
 
 
 if __name__ == "__main__":

@@ -307,6 +307,8 @@ class LogReader:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        if self.path.is_dir():
+            raise LogError(f"{self.path}: is a folder, not a log file")
         if not self.path.is_file():
             raise LogError(f"{self.path}: no such file")
         self.contents = LogContents()

@@ -124,10 +124,13 @@ def _prepare_out_dir(out_dir: Path, force: bool) -> Path:
             raise LogError(f"{out_dir}: exists and is not a folder")
         if any(out_dir.iterdir()) and not force:
             raise LogError(f"{out_dir}: exists and is not empty; use --force to replace it")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+    except OSError as exc:
+        raise LogError(f"{out_dir}: cannot create it ({exc.strerror})") from None
     return tmp
 
 

@@ -32,25 +32,34 @@ def parse_set_option(items: tuple[str, ...]) -> dict[str, dict[str, str]]:
     return out
 
 
-def read_config_file(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML (.toml), YAML (.yaml/.yml) or JSON (.json) config file into a dict."""
+_FORMATS = {".toml": "toml", ".yaml": "yaml", ".yml": "yaml", ".json": "json"}
+
+
+def read_structured_file(path: str | Path, error: type[ValueError] = ConfigError,
+                         default_format: str | None = None) -> Any:
+    """Parse a TOML, YAML or JSON file, by its suffix (``default_format`` for any other suffix).
+
+    Failures raise ``error`` with one line naming the file and the problem.
+    """
     path = Path(path)
+    fmt = _FORMATS.get(path.suffix, default_format)
+    if fmt is None:
+        raise error(f"{path}: unknown file type (use .toml, .yaml or .json)")
     try:
         text = path.read_text()
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        if path.suffix == ".toml":
-            data = tomllib.loads(text)
-        elif path.suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(text)
-        elif path.suffix == ".json":
-            data = json.loads(text)
-        else:
-            raise ConfigError(f"{path}: unknown config type (use .toml, .yaml or .json)")
+        if fmt == "toml":
+            return tomllib.loads(text)
+        return yaml.safe_load(text) if fmt == "yaml" else json.loads(text)
     except (tomllib.TOMLDecodeError, yaml.YAMLError, json.JSONDecodeError) as exc:
-        first = str(exc).splitlines()[0]
-        raise ConfigError(f"{path}: malformed: {first}") from None
+        raise error(f"{path}: malformed: {str(exc).splitlines()[0]}") from None
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """Parse a TOML (.toml), YAML (.yaml/.yml) or JSON (.json) config file into a dict."""
+    data = read_structured_file(path)
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a table of sections at the top level")
     return data

@@ -348,15 +348,8 @@ class LogReader:
 
     def _scan_headers(self) -> None:
         """Collect metadata and topics of an unindexed file with one sequential pass."""
-        schemas: dict[int, Schema] = {}
-        with open(self.path, "rb") as fh:
-            for rec in self._stream_records(fh):
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    self.contents.topics[rec.topic] = schemas[rec.schema_id].name if rec.schema_id in schemas else ""
-                elif isinstance(rec, Metadata):
-                    self.contents.metadata[rec.name] = dict(rec.metadata)
+        for _ in self._raw_messages(set()):
+            pass
 
     @property
     def metadata(self) -> dict[str, dict[str, str]]:
@@ -371,7 +364,8 @@ class LogReader:
         return self.contents.counts.get(topic)
 
     def _raw_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
-        """Undecoded messages on the ``wanted`` topics (all when None), in file order.
+        """Undecoded messages on the ``wanted`` topics (all when None), in file order; topics and
+        metadata met on the way are noted in :attr:`contents` (an unindexed file has no summary).
 
         Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
         indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
@@ -384,6 +378,9 @@ class LogReader:
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
+                    self.contents.topics.setdefault(rec.topic, schemas[rec.schema_id].name if rec.schema_id in schemas else "")
+                elif isinstance(rec, Metadata):
+                    self.contents.metadata.setdefault(rec.name, dict(rec.metadata))
                 elif isinstance(rec, Message):
                     ch = channels.get(rec.channel_id)
                     if ch is not None and (wanted is None or ch.topic in wanted):

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from ..config_files import read_structured_file
 from .movers import Mover
 from .route import Route, build_route
 
@@ -163,14 +163,5 @@ def world_from_dict(data: Any, source: str = "world") -> World:
 
 
 def load_world(path: str | Path) -> World:
-    """Read a YAML (.yaml/.yml) or JSON (.json) world file."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise WorldError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise WorldError(f"{path}: malformed: {str(exc).splitlines()[0]}") from None
-    return world_from_dict(data, str(path))
+    """Read a YAML (.yaml/.yml, or any other suffix) or JSON (.json) world file."""
+    return world_from_dict(read_structured_file(path, WorldError, default_format="yaml"), str(path))

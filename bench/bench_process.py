@@ -24,7 +24,7 @@ import tempfile
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np, pyarrow.parquet as pq
-from fmcwlog.process import ProcessOptions, process_log
+from fmcwlog.api import ProcessOptions, process as process_log
 log, out, method = sys.argv[1:4]
 t0 = time.perf_counter()
 process_log(log, out, ProcessOptions(methods=(method,)))

@@ -13,16 +13,16 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fmcwlog.deskew import deskew, se2_exp
-from fmcwlog.egomotion import (
+from fmcwlog.frontend.deskew import deskew, se2_exp
+from fmcwlog.frontend.egomotion import (
     base_twist_from_sensor_velocity,
     compensated_velocity,
     fit_sensor_velocity,
     sensor_velocity_from_base_twist,
 )
 from fmcwlog.geometry import compose, transform_points, wrap_angle
-from fmcwlog.robust_icp import register
-from fmcwlog.segmentation import segment_moving
+from fmcwlog.frontend.robust_icp import register
+from fmcwlog.frontend.segmentation import segment_moving
 
 SEGMENTS = np.array(
     [

@@ -31,14 +31,14 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from fmcwlog.evaluation import evaluate  # noqa: E402
+from fmcwlog.evaluation.evaluate import evaluate  # noqa: E402
 from fmcwlog.sim import scenarios  # noqa: E402
 from fmcwlog.sim.config import SimConfig, apply_overrides  # noqa: E402
 from fmcwlog.sim.recorder import record  # noqa: E402
 
 CHILD_PROCESS = r"""
 import json, resource, sys
-from fmcwlog.process import ProcessOptions, process_log
+from fmcwlog.api import ProcessOptions, process as process_log
 process_log(sys.argv[1], sys.argv[2], ProcessOptions(methods=(sys.argv[3],)))
 print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """

@@ -1,12 +1,19 @@
 """fmcwlog: record, process and evaluate FMCW LiDAR robot logs.
 
-Data flow, one module per idea:
+Layers, read from the path; data flows one way, log -> sweeps -> stages ->
+estimates -> outputs -> report:
 
-- ``mcap_io``      reading and writing logs (the only module that knows MCAP/CDR)
-- ``sim/``         ``fmcwlog record``: world, route, chassis, encoders, FMCW LiDAR
-- stage modules    ``odometry``, ``egomotion``, ``segmentation``, ``deskew``,
-                   ``gmmsc``, ``robust_icp``, ``occupancy`` (pure numpy functions)
-- ``cli``          the thin command-line front end
+- ``io/``          every file read or written: MCAP logs, CARMEN logs, outputs (TUM,
+                   parquet, map_server, processed.mcap), atomic writes
+- ``frontend/``    estimation, one module per stage (pure numpy functions), the two
+                   methods and the loop over a log; never reads ground truth
+- ``evaluation/``  the only readers of ground truth: metrics, feature lengths,
+                   relations, report pages
+- ``sim/``         ``fmcwlog record``'s simulator
+- ``api``          the library surface: record, process, report, compare, import
+- ``cli``          the command line, thin over ``api``
+- ``config``, ``errors``, ``geometry``: parameters and config files, the one exception
+                   family, SE(2) helpers
 """
 
 __version__ = "0.1.0"

@@ -1,7 +1,8 @@
-"""The ``fmcwlog`` command line: thin wrappers that parse, call, and report.
+"""The ``fmcwlog`` command line: thin wrappers that parse options, call :mod:`fmcwlog.api`, and print.
 
-Errors a user can fix (bad arguments, bad files) end in one line on stderr,
-``fmcwlog: error: ...``, and exit status 2; no traceback, no partial output.
+Errors a user can fix (bad arguments, bad files: every :class:`fmcwlog.errors.FmcwlogError`)
+end in one line on stderr, ``fmcwlog: error: ...``, and exit status 2; no traceback, no
+partial output.
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ from pathlib import Path
 
 import click
 
-from . import __version__
-from .mcap_io import LogError
-from .config_files import ConfigError, parse_set_option, read_config_file
+from . import __version__, api
+from .config import parse_set_option, read_config_file
+from .errors import FmcwlogError
+from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
-from .sim.world import WorldError, load_world
+from .sim.world import load_world
 
 
 class UserError(click.ClickException):
@@ -105,26 +107,21 @@ valid, shorter log.
 def record_cmd(output, scenario, world_file, duration, seed, speed, config_file, set_items, force, show_config):
     import json
 
-    from .sim.recorder import record
-
     if scenario and world_file:
         raise UserError("give --scenario or --world, not both")
-    try:
-        cfg = SimConfig()
-        if config_file:
-            cfg = apply_overrides(cfg, read_config_file(config_file))
-        flags: dict[str, dict] = {"run": {}, "robot": {}}
-        if duration is not None:
-            flags["run"]["duration"] = duration
-        if seed is not None:
-            flags["run"]["seed"] = seed
-        if speed is not None:
-            flags["robot"]["speed"] = speed
-        cfg = apply_overrides(cfg, flags)
-        cfg = apply_overrides(cfg, parse_set_option(set_items)).validate()
-        world = load_world(world_file) if world_file else SCENARIOS[scenario or DEFAULT_SCENARIO]()
-    except (ConfigError, WorldError) as exc:
-        raise UserError(str(exc)) from None
+    cfg = SimConfig()
+    if config_file:
+        cfg = apply_overrides(cfg, read_config_file(config_file))
+    flags: dict[str, dict] = {"run": {}, "robot": {}}
+    if duration is not None:
+        flags["run"]["duration"] = duration
+    if seed is not None:
+        flags["run"]["seed"] = seed
+    if speed is not None:
+        flags["robot"]["speed"] = speed
+    cfg = apply_overrides(cfg, flags)
+    cfg = apply_overrides(cfg, parse_set_option(set_items)).validate()
+    world = load_world(world_file) if world_file else api.scenario(scenario or DEFAULT_SCENARIO)
     if show_config:
         click.echo(json.dumps(cfg.as_dict(), indent=2))
         return
@@ -132,8 +129,11 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
         raise UserError("missing -o/--output: the log file to write")
     if output.exists() and not force:
         raise UserError(f"{output}: exists; use --force to overwrite it")
-    output.parent.mkdir(parents=True, exist_ok=True)
+    _record(world, cfg, output)
 
+
+def _record(world, cfg: SimConfig, output: Path) -> None:
+    output.parent.mkdir(parents=True, exist_ok=True)
     n = int(cfg.run.duration * cfg.sensor.scan_rate + 1e-9)
     with _progress(n, f"recording {world.name}") as bar:
         last = [0]
@@ -143,9 +143,9 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
             last[0] = done
 
         try:
-            summary = record(world, cfg, output, on_progress=step)
-        except (LogError, OSError) as exc:
-            raise UserError(f"{output}: cannot write ({getattr(exc, 'strerror', None) or exc})") from None
+            summary = api.record(world, cfg, output, on_progress=step)
+        except OSError as exc:
+            raise UserError(f"{output}: cannot write ({exc.strerror or exc})") from None
     note = " (stopped early by Ctrl-C)" if summary.interrupted else ""
     click.echo(
         f"wrote {summary.path}: {summary.seconds:.1f} s, {summary.sweeps} sweeps, "
@@ -205,14 +205,10 @@ Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp]
 def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, force, show_config):
     import dataclasses
     import json
-    import time
 
-    from .process import ProcessOptions, load_params, process_log
+    from .frontend.params import load_frontend_params
 
-    try:
-        params = load_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
-    except ConfigError as exc:
-        raise UserError(str(exc)) from None
+    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
     if show_config:
         click.echo(json.dumps(dataclasses.asdict(params), indent=2))
         return
@@ -220,8 +216,13 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
         raise UserError("missing LOG: the .mcap file to process")
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
-    methods = ("improved", "baseline") if method == "all" else (method,)
-    opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params)
+    methods = api.ProcessOptions().methods if method == "all" else (method,)
+    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params), force)
+
+
+def _process(log: Path, out_dir: Path, opts: "api.ProcessOptions", force: bool) -> None:
+    import time
+
     bar = None
     started = time.perf_counter()
 
@@ -234,9 +235,7 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
         bar.update(1, current_item=done)
 
     try:
-        summary = process_log(log, out_dir, opts, force=force, on_sweep=on_sweep)
-    except LogError as exc:
-        raise UserError(str(exc)) from None
+        summary = api.process(log, out_dir, opts, force=force, on_sweep=on_sweep)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)
@@ -281,50 +280,37 @@ written to comparison.md/.json in --output (default: the current folder).
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
 def report_cmd(out_dirs, log, comparison_dir, relations=None):
-    import json
-    import os
-
-    from .evaluation import ReportError, evaluate
-    from .report_page import (
-        TRAJECTORY_HEADER,
-        comparison_rows,
-        markdown_table,
-        terminal_table,
-        trajectory_rows,
-        write_report,
-    )
+    from .evaluation.pages import comparison_rows, terminal_table
 
     if log is not None and len(out_dirs) > 1:
         raise UserError("--log goes with a single output folder")
-    results = []
-    for out_dir in out_dirs:
-        try:
-            ev = evaluate(out_dir, log, relations=relations)
-        except (ReportError, LogError) as exc:
-            raise UserError(str(exc)) from None
-        paths = write_report(ev)
-        results.append(ev.result)
-        click.echo(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
-        click.echo(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
-        from .report_page import RELATIONS_HEADER, relations_rows
-
-        if relations_rows(ev.result):
-            click.echo(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
-        red = ev.result["feature_avg_rel_error_reduction_pct"]
-        if red is not None:
-            click.echo(f"average feature error reduced by {red:.1f} % (the paper: 40.6 %)")
-        click.echo(f"wrote {paths[2]} (and report.md, report.json)")
+    results = [_report(out_dir, log, relations) for out_dir in out_dirs]
     if len(results) > 1:
         header, rows = comparison_rows(results)
         click.echo("\n" + terminal_table(header, rows))
-        target = comparison_dir or Path(".")
-        target.mkdir(parents=True, exist_ok=True)
-        for name, text in (("comparison.md", markdown_table(header, rows) + "\n"),
-                           ("comparison.json", json.dumps(results, indent=2) + "\n")):
-            tmp = target / f".{name}.partial"
-            tmp.write_text(text)
-            os.replace(tmp, target / name)
-        click.echo(f"wrote {target / 'comparison.md'} and comparison.json")
+        written = api.compare(results, comparison_dir or Path("."))
+        click.echo(f"wrote {written} and comparison.json")
+
+
+def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
+    from .evaluation.pages import (
+        RELATIONS_HEADER,
+        TRAJECTORY_HEADER,
+        relations_rows,
+        terminal_table,
+        trajectory_rows,
+    )
+
+    ev = api.report(out_dir, log, relations)
+    click.echo(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
+    click.echo(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+    if relations_rows(ev.result):
+        click.echo(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
+    red = ev.result["feature_avg_rel_error_reduction_pct"]
+    if red is not None:
+        click.echo(f"average feature error reduced by {red:.1f} % (the paper: {PAPER_FEATURE_ERROR_REDUCTION_PCT} %)")
+    click.echo(f"wrote {ev.out_dir / 'report.html'} (and report.md, report.json)")
+    return ev.result
 
 
 @cli.command("run")
@@ -334,8 +320,7 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 @click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
-@click.pass_context
-def run_cmd(ctx, out_dir, scenario, duration, seed, force):
+def run_cmd(out_dir, scenario, duration, seed, force):
     """Record a built-in scenario, process it with both front ends and report, into one folder:
     OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html."""
     import shutil
@@ -345,11 +330,10 @@ def run_cmd(ctx, out_dir, scenario, duration, seed, force):
             raise UserError(f"{out_dir}: exists and is not empty; use --force to replace it")
         shutil.rmtree(out_dir)
     log = out_dir / "log.mcap"
-    ctx.invoke(record_cmd, output=log, scenario=scenario, world_file=None, duration=duration, seed=seed, speed=None,
-               config_file=None, set_items=(), force=False, show_config=False)
-    ctx.invoke(process_cmd, log=log, out_dir=out_dir / "results", method="all", config_file=None, set_items=(),
-               scan_topic=None, ticks_topic=None, odom_topic=None, force=False, show_config=False)
-    ctx.invoke(report_cmd, out_dirs=(out_dir / "results",), log=None, comparison_dir=None, relations=None)
+    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
+    _record(api.scenario(scenario), cfg, log)
+    _process(log, out_dir / "results", api.ProcessOptions(), force=False)
+    _report(out_dir / "results", None, None)
     click.echo(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
 
 
@@ -373,22 +357,16 @@ def import_carmen_cmd(source, output, force):
     ODOM lines, the odometry pose of each laser line becomes /odom. Malformed lines are
     skipped, counted and listed with their line numbers. Then: fmcwlog process OUTPUT -o DIR.
     """
-    from .carmen import parse_log
-    from .importer import ImportError_, write_mcap
-
     if not source.is_file():
         raise UserError(f"{source}: no such file")
     if output.exists() and not force:
         raise UserError(f"{output}: exists; use --force to overwrite it")
     try:
-        parsed = parse_log(source)
-        summary = write_mcap(parsed, output)
-    except ImportError_ as exc:
-        raise UserError(str(exc)) from None
+        summary, fmt = api.import_carmen(source, output)
     except (OSError, EOFError, UnicodeDecodeError) as exc:
         raise UserError(f"{source}: cannot read ({exc})") from None
     click.echo(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
-               f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {parsed.format}")
+               f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {fmt}")
     if summary.bad_lines:
         shown = ", ".join(str(n) for n, _ in summary.bad_lines[:10])
         more = f" and {len(summary.bad_lines) - 10} more" if len(summary.bad_lines) > 10 else ""
@@ -405,6 +383,9 @@ def main() -> None:
     except click.ClickException as exc:
         click.echo(f"fmcwlog: error: {exc.format_message()}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
+    except FmcwlogError as exc:  # bad input or parameters: the message names the file or parameter
+        click.echo(f"fmcwlog: error: {exc}", err=True)
+        sys.exit(2)
     except OSError as exc:  # a file system refusal no command caught: still one line
         where = f"{exc.filename}: " if exc.filename else ""
         click.echo(f"fmcwlog: error: {where}{exc.strerror or exc}", err=True)

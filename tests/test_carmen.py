@@ -16,9 +16,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from fmcwlog.carmen import parse_log
+from fmcwlog.io.carmen import parse_log
 from fmcwlog.geometry import compose
-from fmcwlog.relations import read_relations, relations_error
+from fmcwlog.evaluation.relations import read_relations, relations_error
 
 
 def _write(tmp_path: Path, text: str, name: str = "log.clf") -> Path:
@@ -87,7 +87,7 @@ def test_relations_metric_on_known_motion():
 @pytest.fixture(scope="module")
 def intel(shared_dir, tmp_path_factory):
     """The Intel subset imported and processed once."""
-    from fmcwlog.process import ProcessOptions, process_log
+    from fmcwlog.api import ProcessOptions, process as process_log
 
     tmp = tmp_path_factory.mktemp("intel")
     log = tmp / "intel.mcap"
@@ -114,7 +114,7 @@ def test_intel_subset_imports_with_its_own_stamps(intel, shared_dir):
 
 
 def test_intel_relations_report_beats_raw_odometry(intel, shared_dir):
-    from fmcwlog.evaluation import evaluate
+    from fmcwlog.evaluation.evaluate import evaluate
 
     log, out, _ = intel
     r = evaluate(out, relations=shared_dir / "datasets" / "freiburg_relations" / "intel.relations").result

@@ -97,15 +97,18 @@ def test_ctrl_c_leaves_a_valid_shorter_log(tmp_path):
     out = tmp_path / "long.mcap"
     proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "record", "-o", str(out), "--duration", "600"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    partial = tmp_path / ".long.mcap.partial"
     deadline = time.time() + 60
-    while not (partial.exists() and partial.stat().st_size > 200_000) and time.time() < deadline:
+
+    def partial_size() -> int:  # the log is written as .long.mcap.partial-PID until it is complete
+        return sum(p.stat().st_size for p in tmp_path.glob(".long.mcap.partial*"))
+
+    while partial_size() <= 200_000 and time.time() < deadline:
         time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
     assert "stopped early" in stdout
-    assert not partial.exists()
+    assert not list(tmp_path.glob(".long.mcap.partial*"))
     with open(out, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()  # a finished file: summary and footer are there

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fmcwlog.deskew import deskew, se2_exp
+from fmcwlog.frontend.deskew import deskew, se2_exp
 
 
 def _base_pose_on_circle(t, v, omega, start):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fmcwlog.egomotion import (
+from fmcwlog.frontend.egomotion import (
     base_twist_from_sensor_velocity,
     compensated_velocity,
     fit_sensor_velocity,

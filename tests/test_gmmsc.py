@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.stats import norm
 
-from fmcwlog.gmmsc import (
+from fmcwlog.frontend.gmmsc import (
     DistanceMixture,
     GMMSCParams,
     fit_distance_mixture,

@@ -7,7 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
-from fmcwlog.mcap_io import LogError, LogReader, pointcloud_columns
+from fmcwlog.errors import LogError
+from fmcwlog.io.mcap_log import LogReader
+from fmcwlog.io.messages import pointcloud_columns
 
 
 def _counts(reader: LogReader) -> dict[str, int]:

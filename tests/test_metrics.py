@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fmcwlog import metrics as M
+from fmcwlog.evaluation import metrics as M
 from fmcwlog.geometry import between, compose, inverse, wrap_angle
 
 try:  # evo is an optional test dependency (pyproject [test]); only the cross-checks need it
@@ -219,32 +219,6 @@ def test_path_pairs_float_accumulation_by_hand():
 # ---------------------------------------------------------------- association, hand-made
 
 
-def test_associate_by_hand():
-    t_ref = np.arange(0.0, 1.0, 0.02)  # 50 Hz
-    t_est = np.array([-0.5, 0.001, 0.109, 0.5, 2.0])
-    ie, ir = M.associate(t_est, t_ref, max_diff=0.01)
-    assert ie.tolist() == [1, 2, 3]
-    np.testing.assert_allclose(t_ref[ir], [0.0, 0.1, 0.5])
-    with pytest.raises(ValueError):
-        M.associate(np.array([5.0]), t_ref, max_diff=0.01)
-    # an exact tie goes to the earlier stamp (binary-exact stamps)
-    ie, ir = M.associate(np.array([0.125]), np.array([0.0, 0.25, 0.5]), max_diff=0.2)
-    assert (ie.tolist(), ir.tolist()) == ([0], [0])
-
-
-def test_associate_iterates_over_the_shorter_trajectory():
-    # like evo, every stamp of the sparser stream gets at most one partner:
-    # here the reference is the sparser one, so only two pairs survive
-    t_ref = np.array([0.0, 1.0])
-    t_est = np.array([0.0, 0.004, 0.008, 1.0])
-    ie, ir = M.associate(t_est, t_ref, max_diff=0.01)
-    assert (ie.tolist(), ir.tolist()) == ([0, 3], [0, 1])
-    # and the other way round, the estimate being sparser, all three dense
-    # reference stamps near 0 compete and the closest wins
-    ie, ir = M.associate(t_ref, t_est, max_diff=0.01)
-    assert (ie.tolist(), ir.tolist()) == ([0, 1], [0, 3])
-
-
 def test_interpolate_reference_by_hand():
     t_ref = np.arange(0.0, 2.0, 0.02)
     ref = np.c_[3.0 * t_ref, -t_ref, wrap_angle(np.pi - 0.1 + 0.2 * t_ref)]  # crosses ±pi
@@ -368,23 +342,6 @@ def _stamps(rng):
     t_ref = np.sort(np.arange(0.0, 60.0, 0.02) + 0.002 * rng.standard_normal(3000))  # 50 Hz
     t_est = np.arange(0.3, 61.0, 0.1) + 0.004 * rng.standard_normal(607)  # 10 Hz, overhangs
     return t_est, t_ref
-
-
-@needs_evo
-@pytest.mark.parametrize("swap", [False, True], ids=["est_10Hz", "est_50Hz"])
-@pytest.mark.parametrize("max_diff", [0.005, 0.01, 0.02])
-def test_associate_matches_evo(max_diff, swap):
-    rng = np.random.default_rng(7)
-    t_est, t_ref = _stamps(rng)
-    if swap:  # a denser estimate than reference
-        t_est, t_ref = t_ref, np.sort(t_est)
-    traj_ref = to_evo(t_ref, random_walk(rng, t_ref.size, 0.02))
-    traj_est = to_evo(t_est, random_walk(rng, t_est.size))
-    r2, e2 = evo_sync.associate_trajectories(traj_ref, traj_est, max_diff=max_diff)
-    ie, ir = M.associate(t_est, t_ref, max_diff)
-    assert ie.size > 0.5 * min(t_est.size, t_ref.size)
-    np.testing.assert_array_equal(t_est[ie], e2.timestamps)
-    np.testing.assert_array_equal(t_ref[ir], r2.timestamps)
 
 
 @needs_evo

@@ -3,7 +3,7 @@
 import numpy as np
 import yaml
 
-from fmcwlog.occupancy import OccupancyGrid, OccupancyParams
+from fmcwlog.frontend.occupancy import OccupancyGrid, OccupancyParams
 
 RES = 0.05
 

@@ -22,7 +22,7 @@ from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
 from conftest import SAMPLE_LOGS
-from fmcwlog.process import ProcessOptions, process_log
+from fmcwlog.api import ProcessOptions, process as process_log
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -339,8 +339,9 @@ def test_non_empty_output_folder_is_refused_without_force(tmp_path):
 
 
 def test_config_file_and_set_reach_nested_stages(tmp_path):
-    from fmcwlog.config_files import ConfigError, parse_set_option, read_config_file
-    from fmcwlog.process import load_params
+    from fmcwlog.config import parse_set_option, read_config_file
+    from fmcwlog.errors import ConfigError
+    from fmcwlog.frontend.params import load_frontend_params as load_params
 
     cfg = tmp_path / "p.toml"
     cfg.write_text("[segmentation]\nv_th = 0.25\n[icp.gmmsc]\nw_th = 0.6\n[frontend]\nvoxel_size = 0.1\n")

@@ -21,11 +21,13 @@ import pyarrow.parquet as pq
 import pytest
 
 from conftest import SAMPLE_LOGS
-from fmcwlog.evaluation import evaluate
+from fmcwlog.evaluation.evaluate import evaluate
 from fmcwlog.geometry import compose, interpolate_poses, transform_points
-from fmcwlog.mcap_io import LogReader, LogWriter, odometry_message, pointcloud_columns, pointcloud_message, read_ground_truth
-from fmcwlog.outputs import write_tum
-from fmcwlog.report_page import write_report
+from fmcwlog.evaluation.ground_truth import read_ground_truth
+from fmcwlog.io.mcap_log import LogReader, LogWriter
+from fmcwlog.io.messages import odometry_message, pointcloud_columns, pointcloud_message
+from fmcwlog.io.outputs import write_tum
+from fmcwlog.evaluation.pages import write_report
 
 LOG = SAMPLE_LOGS / "corridor_30s.mcap"
 TRUE_LENGTHS = [2.344, 6.775, 6.686, 1.064, 8.094, 1.029, 7.901, 26.681, 25.534]
@@ -113,8 +115,8 @@ def test_rigid_transforms_of_the_truth_have_no_aligned_error(folders, name):
 
 
 def test_unaligned_offset_is_the_offset(folders):
-    from fmcwlog.metrics import ate
-    from fmcwlog.outputs import read_tum
+    from fmcwlog.evaluation.metrics import ate
+    from fmcwlog.io.outputs import read_tum
 
     t, est = read_tum(folders["offset"] / "improved.tum")
     gt_ns, gt = read_ground_truth(LogReader(LOG))
@@ -177,7 +179,7 @@ def test_report_agrees_with_evo_on_a_processed_log(tmp_path):
     from evo.core import sync
     from evo.tools import file_interface
 
-    from fmcwlog.process import ProcessOptions, process_log
+    from fmcwlog.api import ProcessOptions, process as process_log
 
     out = tmp_path / "out"
     process_log(LOG, out, ProcessOptions())

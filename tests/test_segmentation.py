@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from fmcwlog.egomotion import compensated_velocity, fit_sensor_velocity
-from fmcwlog.segmentation import SegmentationParams, segment_moving
+from fmcwlog.frontend.egomotion import compensated_velocity, fit_sensor_velocity
+from fmcwlog.frontend.segmentation import SegmentationParams, segment_moving
 
 BEAM = np.deg2rad(0.27)  # ~1000 beams over 270°
 

@@ -12,7 +12,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ..config_files import ConfigError, apply_to_dataclass
+from ..config import apply_to_dataclass
+from ..errors import ConfigError
 
 
 @dataclass(frozen=True)

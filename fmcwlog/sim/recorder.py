@@ -20,25 +20,13 @@ from typing import Callable
 import numpy as np
 
 from .. import __version__
-from ..mcap_io import (
-    CALIBRATION_KEY,
-    GT_LABELS_TOPIC,
-    GT_ODOM_TOPIC,
-    POINTS_TOPIC,
-    TICKS_TOPIC,
-    WORLD_KEY,
-    LogWriter,
-    odometry_message,
-    pointcloud_message,
-    stamp,
-)
+from ..io.mcap_log import LogWriter
+from ..io.messages import odometry_message, pointcloud_message, stamp
+from ..io.topics import CALIBRATION_KEY, GT_LABELS_TOPIC, GT_ODOM_TOPIC, POINTS_TOPIC, SIM_KEY, TICKS_TOPIC, WORLD_KEY
 from .chassis import Chassis
 from .config import SimConfig
 from .lidar import FmcwLidar
 from .world import World
-
-SIM_KEY = "fmcwlog.sim"
-
 
 @dataclass(frozen=True)
 class RecordSummary:

@@ -29,13 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from ..config_files import read_structured_file
+from ..config import read_structured_file
+from ..errors import WorldError
 from .movers import Mover
 from .route import Route, build_route
-
-
-class WorldError(ValueError):
-    """A world description is invalid; the message says where and why."""
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import between
+from ..geometry import between
 
 
 @dataclass

@@ -15,14 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import CarmenImportError
 from .carmen import ParsedLog
-from .mcap_io import CALIBRATION_KEY, LogWriter, odometry_message, stamp
-
-IMPORT_KEY = "fmcwlog.import"
-
-
-class ImportError_(ValueError):
-    """Nothing usable in the file; the message says why."""
+from .mcap_log import LogWriter
+from .messages import odometry_message, stamp
+from .topics import CALIBRATION_KEY, IMPORT_KEY
 
 
 @dataclass
@@ -42,7 +39,7 @@ def _ns(t: float) -> int:
 def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     scans = [s for s in parsed.scans if s.topic == "/scan"] + [s for s in parsed.scans if s.topic != "/scan"]
     if not parsed.scans:
-        raise ImportError_(f"{parsed.path}: no laser scans found ({len(parsed.bad_lines)} malformed lines)")
+        raise CarmenImportError(f"{parsed.path}: no laser scans found ({len(parsed.bad_lines)} malformed lines)")
     if parsed.odometry:
         odom = [(o.stamp, o.pose) for o in parsed.odometry]
         source = "odometry messages"

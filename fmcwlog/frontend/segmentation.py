@@ -2,7 +2,7 @@
 
 Frames and units: ``xy`` (N, 2) in the lidar frame (m); ``epsilon`` (N,) the
 ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (m/s) from
-:func:`fmcwlog.egomotion.compensated_velocity`.
+:func:`fmcwlog.frontend.egomotion.compensated_velocity`.
 
 Eq. 17 clusters with DBSCAN under ``dist² = Δx² + Δy² + α Δv²``; embedding each
 point as ``(x, y, √α·v)`` makes that the plain Euclidean metric. Eq. 18-19

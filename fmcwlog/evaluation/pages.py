@@ -13,7 +13,7 @@ reason in ``notes`` or ``methods.M.notes``):
   ``segmentation`` (``precision``, ``recall``, ``f1`` and counts),
   ``ms_per_sweep_median``, ``ms_per_sweep_p95``, ``sweeps_per_second``, ``notes``;
 - ``feature_avg_rel_error_reduction_pct``: how much the improved method cuts the
-  baseline's average relative feature error (the paper: 6.05 % -> 3.59 %, 40.6 %);
+  baseline's average relative feature error (the paper's figures: :mod:`fmcwlog.evaluation.published`);
 - ``paper``, ``params``, ``log``, ``out_dir``, ``sweeps``, ``doppler``, ``prior``, ``notes``.
 """
 
@@ -23,13 +23,15 @@ import base64
 import html
 import io
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .evaluation import Evaluation
+from ..io.atomic import json_text, write_text
+from ..io.outputs import pgm_pixels, read_tum
+from .evaluate import Evaluation
+from .published import paper_summary
 
 LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry"}
 COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#999999", "truth": "#000000"}
@@ -122,7 +124,7 @@ def _summary_line(result: dict) -> str:
     if red is None:
         return "The average relative feature error could not be compared (see the notes)."
     return (f"Average relative feature error: baseline {base:.2f} %, improved {imp:.2f} %: "
-            f"a {red:.1f} % reduction (the paper: 6.05 % -> 3.59 %, 40.6 %).")
+            f"a {red:.1f} % reduction ({paper_summary()}).")
 
 
 def render_markdown(ev: Evaluation) -> str:
@@ -213,13 +215,12 @@ def _trajectory_over_own_map(out_dir: Path, method: str):
     import matplotlib.pyplot as plt
     import yaml
 
-    from .outputs import _pgm_pixels, read_tum
 
     pgm, meta, tum = (out_dir / f"{method}_map.pgm", out_dir / f"{method}_map.yaml", out_dir / f"{method}.tum")
     if not (pgm.is_file() and meta.is_file() and tum.is_file()):
         return None
     info = yaml.safe_load(meta.read_text())
-    img = _pgm_pixels(pgm.read_bytes())
+    img = pgm_pixels(pgm.read_bytes())
     res, (ox, oy) = float(info["resolution"]), info["origin"][:2]
     h, w = img.shape
     _, poses = read_tum(tum)
@@ -286,13 +287,10 @@ method's error on that length.</p>
 def write_report(ev: Evaluation) -> list[Path]:
     """Write report.json, report.md and report.html into the output folder (each via a temporary name)."""
     out = []
-    for name, text in (("report.json", json.dumps(ev.result, indent=2, default=_jsonable) + "\n"),
-                       ("report.md", render_markdown(ev)), ("report.html", render_html(ev, ev.walls))):
-        path = ev.out_dir / name
-        tmp = path.with_name(f".{name}.partial")
-        tmp.write_text(text)
-        os.replace(tmp, path)
-        out.append(path)
+    for name, text in (("report.json", json_text(ev.result)), ("report.md", render_markdown(ev)),
+                       ("report.html", render_html(ev, ev.walls))):
+        write_text(ev.out_dir / name, text)
+        out.append(ev.out_dir / name)
     return out
 
 
@@ -306,11 +304,3 @@ def comparison_rows(results: list[dict]) -> tuple[list[str], list[list[str]]]:
                          _fmt(r["rpe_1m_pct"], 2), _fmt(r["rpe_10m_pct"], 2), _fmt(r["feature_avg_rel_error_pct"], 2),
                          _fmt(seg.get("f1"), 3), _fmt(r["ms_per_sweep_median"], 2)])
     return header, rows
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, Path):
-        return str(x)
-    raise TypeError(type(x).__name__)

@@ -1,7 +1,7 @@
 """The motion prior as a track of poses that can be read at any time.
 
 Fed incrementally, in log order, by wheel ticks (integrated with the
-calibration, paper eq. 9 and 13, see :mod:`fmcwlog.odometry`) or by the poses
+calibration, paper eq. 9 and 13, see :mod:`fmcwlog.frontend.odometry`) or by the poses
 of an Odometry topic. Only the last few seconds are kept (in a buffer shifted
 when full): memory does not grow with the log.
 """
@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import between, interpolate_poses
-from .odometry import WheelCalibration, body_increments, integrate_arcs
+from ..geometry import between, interpolate_poses
+from ..io.calibration import WheelCalibration
+from .odometry import body_increments, integrate_arcs
 
 
 class PoseTrack:

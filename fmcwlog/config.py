@@ -15,9 +15,7 @@ from typing import Any
 
 import yaml
 
-
-class ConfigError(ValueError):
-    """A parameter or config file is invalid; the message says which and why."""
+from .errors import ConfigError
 
 
 def parse_set_option(items: tuple[str, ...]) -> dict[str, dict[str, str]]:
@@ -91,8 +89,11 @@ def coerce(value: Any, kind: Any, name: str) -> Any:
         raise ConfigError(f"{name} must be a {what}, got {value!r}") from None
 
 
-def apply_to_dataclass(obj: Any, values: dict[str, Any], where: str) -> Any:
-    """A copy of dataclass ``obj`` with ``values`` set; nested dataclasses take nested tables."""
+def apply_to_dataclass(obj: Any, values: dict[str, Any], where: str = "") -> Any:
+    """A copy of dataclass ``obj`` with ``values`` set; nested dataclasses take nested tables.
+
+    ``where`` prefixes the parameter names in error messages (``icp`` -> ``icp.huber_delta``).
+    """
     hints = typing.get_type_hints(type(obj))
     known = {f.name for f in dataclasses.fields(obj)}
     changes = {}
@@ -104,13 +105,14 @@ def apply_to_dataclass(obj: Any, values: dict[str, Any], where: str) -> Any:
         else:
             nested[key] = value
     for key, value in nested.items():
+        name = f"{where}.{key}" if where else key
         if key not in known:
-            raise ConfigError(f"unknown parameter {where}.{key} (known: {', '.join(sorted(known))})")
+            raise ConfigError(f"unknown parameter {name} (known: {', '.join(sorted(known))})")
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current):
             if not isinstance(value, dict):
-                raise ConfigError(f"{where}.{key} must be a table of parameters")
-            changes[key] = apply_to_dataclass(current, value, f"{where}.{key}")
+                raise ConfigError(f"[{name}] must be a table of parameters")
+            changes[key] = apply_to_dataclass(current, value, name)
         else:
-            changes[key] = coerce(value, hints[key], f"{where}.{key}")
+            changes[key] = coerce(value, hints[key], name)
     return dataclasses.replace(obj, **changes)

@@ -11,26 +11,10 @@ which is what we implement (per interval, on arc lengths rather than rates).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from fmcwlog.geometry import wrap_angle
-
-
-@dataclass(frozen=True)
-class WheelCalibration:
-    """Rear-axle calibration.
-
-    wheel_radius_left, wheel_radius_right: rolling radii ``r_L``, ``r_R`` (m).
-    track_width: distance ``b`` between the rear wheels' contact points (m), eq. 10.
-    ticks_per_revolution: encoder pulses per wheel revolution ``k`` (eq. 9).
-    """
-
-    wheel_radius_left: float
-    wheel_radius_right: float
-    track_width: float
-    ticks_per_revolution: int
+from ..geometry import wrap_angle
+from ..io.calibration import WheelCalibration
 
 
 def wheel_arc_lengths(
@@ -62,24 +46,6 @@ def body_increments(
     return 0.5 * (ds_l + ds_r), (ds_r - ds_l) / calib.track_width
 
 
-def wheel_speeds_from_ticks(
-    stamps_s: np.ndarray,
-    left_ticks: np.ndarray,
-    right_ticks: np.ndarray,
-    calib: WheelCalibration,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Mean forward speed ``v`` (m/s) and yaw rate ``ω`` (rad/s) over each interval.
-
-    Returns two (N-1,) arrays, interval ``i`` spanning ``stamps_s[i]..stamps_s[i+1]``.
-    Raises ``ValueError`` if the stamps are not strictly increasing.
-    """
-    dt = np.diff(np.asarray(stamps_s, dtype=float))
-    if np.any(dt <= 0.0):
-        raise ValueError("stamps must be strictly increasing")
-    ds, dth = body_increments(left_ticks, right_ticks, calib)
-    return ds / dt, dth / dt
-
-
 def integrate_arcs(
     ds: np.ndarray, dtheta: np.ndarray, initial_pose: np.ndarray | tuple = (0.0, 0.0, 0.0)
 ) -> np.ndarray:
@@ -98,28 +64,3 @@ def integrate_arcs(
     x = x0 + np.concatenate(([0.0], np.cumsum(chord * np.cos(mid))))
     y = y0 + np.concatenate(([0.0], np.cumsum(chord * np.sin(mid))))
     return np.stack([x, y, wrap_angle(heading)], -1)
-
-
-def integrate_wheel_odometry(
-    stamps_s: np.ndarray,
-    left_ticks: np.ndarray,
-    right_ticks: np.ndarray,
-    calib: WheelCalibration,
-    initial_pose: np.ndarray | tuple = (0.0, 0.0, 0.0),
-) -> np.ndarray:
-    """Dead-reckoned base_link poses (N, 3) at each tick sample, odometry frame.
-
-    Each interval is integrated exactly as an arc of constant curvature (the
-    wheels' arc lengths fix both its length and its turn; time is not needed
-    for the pose, only checked for monotonicity). ``poses[0] = initial_pose``.
-    """
-    stamps = np.asarray(stamps_s, dtype=float)
-    n = stamps.shape[0]
-    if np.asarray(left_ticks).shape != (n,) or np.asarray(right_ticks).shape != (n,):
-        raise ValueError("stamps, left_ticks and right_ticks must have the same length")
-    if n and np.any(np.diff(stamps) < 0.0):
-        raise ValueError("stamps must be non-decreasing")
-    if n == 0:
-        return np.zeros((0, 3))
-    ds, dth = body_increments(left_ticks, right_ticks, calib)
-    return integrate_arcs(ds, dth, initial_pose)

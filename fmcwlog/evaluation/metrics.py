@@ -22,24 +22,16 @@ v1.38.1):
   pairs on the estimate unless that flag is given); ``pairs_from='estimate'``
   reproduces evo's default.
 
-Two ways of pairing a 10 Hz estimate with 50 Hz ground truth are provided:
-
-* :func:`associate` — nearest-timestamp matching, as
-  ``evo.core.sync.associate_trajectories(traj_ref, traj_est, max_diff)``
-  (``SyncMethod.nearest_time``): every stamp of the shorter trajectory is
-  matched to the closest stamp of the longer one if they differ by at most
-  ``max_diff``; unmatched stamps are dropped. The reference pose used is up
-  to ``max_diff`` seconds away from the estimate's stamp.
-* :func:`interpolate_reference` — resample the reference at the estimate's
-  stamps (linear in x, y, shortest-arc linear in yaw, which for planar poses
-  equals evo's position lerp + quaternion slerp). Estimate stamps outside
-  the reference's time span are dropped (no extrapolation). This removes the
-  up-to-``max_diff`` time misalignment of nearest matching and is what the
-  report uses. evo's ``SyncMethod.interpolation`` gives the same poses for
-  every estimate stamp inside the reference's span that also has a
-  reference stamp within ``max_diff``; unlike evo, stamps with no reference
-  sample nearby are kept (use ``max_gap`` to drop them) and stamps just
-  outside the span are dropped instead of clamped to the end pose.
+The report pairs a 10 Hz estimate with 50 Hz ground truth by
+:func:`interpolate_reference`: the reference is resampled at the estimate's
+stamps (linear in x, y, shortest-arc linear in yaw, which for planar poses
+equals evo's position lerp + quaternion slerp). Estimate stamps outside the
+reference's time span are dropped (no extrapolation). evo's
+``SyncMethod.interpolation`` gives the same poses for every estimate stamp
+inside the reference's span that also has a reference stamp within
+``max_diff``; unlike evo, stamps with no reference sample nearby are kept (use
+``max_gap`` to drop them) and stamps just outside the span are dropped instead
+of clamped to the end pose.
 """
 
 from __future__ import annotations
@@ -50,7 +42,7 @@ from typing import Literal
 
 import numpy as np
 
-from fmcwlog.geometry import between, compose, interpolate_poses, inverse, wrap_angle
+from ..geometry import between, compose, interpolate_poses, inverse, wrap_angle
 
 __all__ = [
     "ErrorStats",
@@ -58,7 +50,6 @@ __all__ = [
     "RPEResult",
     "FeatureLengthError",
     "error_statistics",
-    "associate",
     "interpolate_reference",
     "align_se2",
     "align_first_pose",
@@ -122,69 +113,6 @@ def _check_stamps(t: np.ndarray, name: str) -> np.ndarray:
     if t.ndim != 1 or t.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D array of seconds, got shape {t.shape}")
     return t
-
-
-def _nearest_matches(
-    stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised ``evo.core.sync.matching_time_indices`` (without offset)."""
-    if np.all(np.diff(stamps_2) >= 0):
-        n2 = stamps_2.size
-        in_range = ~((stamps_1 < stamps_2[0] - max_diff) | (stamps_1 > stamps_2[-1] + max_diff))
-        i2 = np.minimum(np.searchsorted(stamps_2, stamps_1, side="right"), n2 - 1)
-        diff_ub = stamps_2[i2] - stamps_1
-        diff_lb = np.where(i2 > 0, stamps_1 - stamps_2[i2 - 1], np.inf)
-        take_ub = (diff_ub <= max_diff) & (diff_ub < diff_lb)
-        take_lb = ~take_ub & (diff_lb <= max_diff) & (diff_lb <= diff_ub)
-        ok = in_range & (take_ub | take_lb)
-        best = np.where(take_ub, i2, i2 - 1)
-        return np.flatnonzero(ok), best[ok].astype(int)
-    # Unsorted second stamps: evo's linear search (argmin of |Δt|, first on ties).
-    idx1, idx2 = [], []
-    for start in range(0, stamps_1.size, 1024):  # chunks only bound memory
-        chunk = stamps_1[start : start + 1024]
-        diffs = np.abs(stamps_2[None, :] - chunk[:, None])
-        best = np.argmin(diffs, axis=1)
-        ok = diffs[np.arange(chunk.size), best] <= max_diff
-        idx1.append(np.flatnonzero(ok) + start)
-        idx2.append(best[ok])
-    return np.concatenate(idx1).astype(int), np.concatenate(idx2).astype(int)
-
-
-def associate(
-    t_est: np.ndarray, t_ref: np.ndarray, max_diff: float = 0.01
-) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest-timestamp association, as evo's ``associate_trajectories``.
-
-    Reproduces ``sync.associate_trajectories(traj_ref, traj_est, max_diff=max_diff)``
-    (``SyncMethod.nearest_time``, no time offset): the stamps of the trajectory
-    with fewer poses (the estimate if both have the same length) are each
-    matched to the closest stamp of the other one; a match is kept if the two
-    stamps differ by at most ``max_diff`` seconds (ties go to the earlier
-    stamp). Several stamps of the shorter trajectory may match the same stamp
-    of the longer one, exactly as in evo.
-
-    Args:
-        t_est: estimate stamps (N_est,), seconds.
-        t_ref: reference stamps (N_ref,), seconds, same clock as ``t_est``.
-        max_diff: largest accepted |t_est - t_ref|, seconds.
-
-    Returns:
-        ``(idx_est, idx_ref)``: int arrays of equal length K; ``est[idx_est]``
-        pairs with ``ref[idx_ref]``, ordered along the shorter trajectory.
-
-    Raises:
-        ValueError: if nothing matches (evo raises ``SyncException``).
-    """
-    t_est = _check_stamps(t_est, "t_est")
-    t_ref = _check_stamps(t_ref, "t_ref")
-    if t_ref.size > t_est.size:
-        idx_est, idx_ref = _nearest_matches(t_est, t_ref, max_diff)
-    else:
-        idx_ref, idx_est = _nearest_matches(t_ref, t_est, max_diff)
-    if idx_est.size == 0:
-        raise ValueError(f"no matching timestamps with max_diff = {max_diff} s")
-    return idx_est, idx_ref
 
 
 def interpolate_reference(
@@ -355,7 +283,7 @@ def ate(est_poses: np.ndarray, ref_poses: np.ndarray, alignment: Alignment = "se
 
     Args:
         est_poses: estimated poses (N, 3), estimate world frame, already
-            associated with ``ref_poses`` row by row (see :func:`associate`,
+            associated with ``ref_poses`` row by row (see
             :func:`interpolate_reference`).
         ref_poses: reference poses (N, 3), reference world frame.
         alignment: ``'se2'`` least-squares rigid alignment of the positions

@@ -10,18 +10,20 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .geometry import yaw_to_quaternion
-from .mcap_io import LogWriter, odometry_message, pointcloud_message, stamp
-from .occupancy import OccupancyGrid
+from ..geometry import quaternion_to_yaw, yaw_to_quaternion
+from .mcap_log import LogWriter
+from .messages import odometry_message, pointcloud_message, stamp
+
+if TYPE_CHECKING:  # the grid is built by the front end; only its export methods are used here
+    from ..frontend.occupancy import OccupancyGrid
 
 TRAJECTORY_COLUMNS = ("method", "stamp_ns", "t", "x", "y", "yaw", "icp_iterations", "correspondences",
                       "moving_points", "ms")
@@ -40,8 +42,6 @@ def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Stamps (s) and poses (N, 3) of a planar TUM file."""
-    from .geometry import quaternion_to_yaw
-
     a = np.loadtxt(path, ndmin=2)
     if a.size == 0:
         return np.zeros(0), np.zeros((0, 3))
@@ -59,7 +59,7 @@ def write_trajectories_parquet(path: Path, rows: dict[str, list]) -> None:
     pq.write_table(table.select(list(TRAJECTORY_COLUMNS)), path)
 
 
-def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
+def write_grid(folder: Path, name: str, grid: "OccupancyGrid") -> None:
     """``name.pgm`` + ``name.yaml`` (map_server) and ``name.png`` (a picture of the same)."""
     import matplotlib
 
@@ -68,10 +68,10 @@ def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
 
     (folder / f"{name}.pgm").write_bytes(grid.to_pgm_bytes())
     (folder / f"{name}.yaml").write_text(grid.map_server_yaml(f"{name}.pgm"))
-    mpimg.imsave(folder / f"{name}.png", _pgm_pixels(grid.to_pgm_bytes()), cmap="gray", vmin=0, vmax=255)
+    mpimg.imsave(folder / f"{name}.png", pgm_pixels(grid.to_pgm_bytes()), cmap="gray", vmin=0, vmax=255)
 
 
-def _pgm_pixels(data: bytes) -> np.ndarray:
+def pgm_pixels(data: bytes) -> np.ndarray:
     """Pixels of a binary (P5) PGM with 8-bit samples."""
     parts, pos = [], 0
     while len(parts) < 4:
@@ -118,7 +118,7 @@ class ProcessedLog:
         self.writer.write(topic, "nav_msgs/msg/Odometry", odometry_message(stamp_ns, "map", "base_link", pose, np.zeros(3)),
                           stamp_ns)
 
-    def grid(self, method: str, stamp_ns: int, grid: OccupancyGrid) -> None:
+    def grid(self, method: str, stamp_ns: int, grid: "OccupancyGrid") -> None:
         msg = {
             "header": {"stamp": stamp(stamp_ns), "frame_id": "map"},
             "info": {
@@ -140,15 +140,56 @@ class ProcessedLog:
         self.writer.abort()
 
 
-def write_run_json(path: Path, info: dict[str, Any]) -> None:
-    path.write_text(json.dumps(info, indent=2, sort_keys=True, default=_jsonable) + "\n")
+class ProcessOutputs:
+    """Everything ``fmcwlog process`` writes into its (temporary) output folder, fed sweep by sweep.
 
+    ``processed.mcap`` is streamed; trajectories and the parquet rows are kept (a few
+    numbers per sweep) and written by :meth:`finish`, with the maps.
+    """
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, Path):
-        return str(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+    def __init__(self, folder: Path, trajectories: tuple[str, ...]):
+        self.folder = folder
+        self.processed = ProcessedLog(folder / "processed.mcap")
+        self.rows: dict[str, list] = {k: [] for k in ("method", "stamp_ns", "x", "y", "yaw", "icp_iterations",
+                                                      "correspondences", "moving_points", "ms")}
+        self.trajectories: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
+
+    def add_sweep(self, method: str, stamp_ns: int, pose: np.ndarray, iterations: int, correspondences: int,
+                  moving_points: int, ms: float, static_xy: np.ndarray, moving_xy: np.ndarray,
+                  moving_mask: np.ndarray | None) -> None:
+        """One method's result for one sweep; ``moving_mask`` is its per-point verdict, if it made one."""
+        for k, v in (("method", method), ("stamp_ns", stamp_ns), ("x", pose[0]), ("y", pose[1]), ("yaw", pose[2]),
+                     ("icp_iterations", iterations), ("correspondences", correspondences),
+                     ("moving_points", moving_points), ("ms", ms)):
+            self.rows[k].append(v)
+        self.trajectories[method][0].append(stamp_ns)
+        self.trajectories[method][1].append(pose)
+        self.processed.sweep(method, stamp_ns, pose, static_xy, moving_xy)
+        if moving_mask is not None:
+            self.processed.moving_labels(method, stamp_ns, moving_mask)
+
+    def add_pose(self, name: str, stamp_ns: int, pose: np.ndarray) -> None:
+        """A pose of a trajectory that is not a method's (the motion prior's)."""
+        self.trajectories[name][0].append(stamp_ns)
+        self.trajectories[name][1].append(pose)
+        self.processed.odometry(f"/{name}/odom", stamp_ns, pose)
+
+    def ms_median(self) -> dict[str, float]:
+        method = np.asarray(self.rows["method"])
+        ms = np.asarray(self.rows["ms"], dtype=float)
+        return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows["method"])}
+
+    def finish(self, grids: dict[str, "OccupancyGrid"]) -> None:
+        """The maps, the trajectories and the parquet; ``processed.mcap`` closed."""
+        last_ns = int(self.rows["stamp_ns"][-1])
+        for method, grid in grids.items():
+            write_grid(self.folder, f"{method}_map", grid)
+            self.processed.grid(method, last_ns, grid)
+        self.processed.close()
+        for name, (stamps, poses) in self.trajectories.items():
+            if stamps:
+                write_tum(self.folder / f"{name}.tum", np.asarray(stamps), np.asarray(poses))
+        write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
+
+    def abort(self) -> None:
+        self.processed.abort()

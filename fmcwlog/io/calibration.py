@@ -5,14 +5,25 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .odometry import WheelCalibration
+from ..errors import CalibrationError
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
 
 
-class CalibrationError(ValueError):
-    """A calibration value is missing or not a number."""
+@dataclass(frozen=True)
+class WheelCalibration:
+    """Rear-axle calibration.
+
+    wheel_radius_left, wheel_radius_right: rolling radii ``r_L``, ``r_R`` (m).
+    track_width: distance ``b`` between the rear wheels' contact points (m), eq. 10.
+    ticks_per_revolution: encoder pulses per wheel revolution ``k`` (eq. 9).
+    """
+
+    wheel_radius_left: float
+    wheel_radius_right: float
+    track_width: float
+    ticks_per_revolution: int
 
 
 @dataclass(frozen=True)

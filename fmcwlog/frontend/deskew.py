@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmcwlog.geometry import compose, inverse, transform_points
+from ..geometry import compose, inverse, transform_points
 
 
 def se2_exp(

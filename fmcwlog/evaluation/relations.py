@@ -15,24 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import between, interpolate_poses
-
-# Published relations errors (translation m, mean ± std) for the Intel Research Lab:
-# Kümmerle et al. 2009, Table 2 (scan matching, RBPF = GMapping, graph mapping) and
-# Hess et al. 2016, "Real-Time Loop Closure in 2D LIDAR SLAM", Table I (Cartographer).
-PUBLISHED = {
-    "intel": [
-        ("scan matching (Kümmerle et al. 2009)", 0.220, 0.296),
-        ("GMapping / RBPF (Kümmerle et al. 2009)", 0.070, 0.083),
-        ("graph mapping (Kümmerle et al. 2009)", 0.031, 0.026),
-        ("Cartographer (Hess et al. 2016)", 0.0229, 0.0239),
-    ],
-}
-
-
-class RelationsError(ValueError):
-    """A relations file cannot be read; the message names it and the line."""
-
+from ..errors import RelationsError
+from ..geometry import between, interpolate_poses
 
 @dataclass
 class RelationsResult:
@@ -86,8 +70,3 @@ def relations_error(t: np.ndarray, poses: np.ndarray, relations: np.ndarray, max
     trans = np.hypot(err[:, 0], err[:, 1])
     rot = np.degrees(np.abs(err[:, 2]))
     return RelationsResult(len(rel), float(trans.mean()), float(trans.std()), float(rot.mean()), float(rot.std()))
-
-
-def published_for(path: str | Path) -> list[tuple[str, float, float]]:
-    """The published rows for a relations file, by its name (``intel.relations`` -> intel)."""
-    return PUBLISHED.get(Path(path).name.split(".")[0], [])

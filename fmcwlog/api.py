@@ -1,0 +1,186 @@
+"""The library surface: what the command line does, as functions (evo's ``main_*`` modules).
+
+    from fmcwlog import api
+    api.record(api.scenario("corridor"), api.SimConfig(), "corridor.mcap")
+    summary = api.process("corridor.mcap", "out/")
+    ev = api.report("out/")                  # ev.result["methods"]["improved"]["ate_rmse_m"]
+
+Every function raises :class:`fmcwlog.errors.FmcwlogError` (with a one-line message
+naming the file and the problem) for input it cannot use, and leaves nothing
+half-written behind.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from . import __version__
+from .errors import CalibrationError, LogError
+from .evaluation.evaluate import Evaluation, evaluate
+from .evaluation.pages import comparison_rows, markdown_table, write_report
+from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
+from .frontend.params import FrontEndParams
+from .frontend.runner import LogRunner
+from .io.atomic import atomic_folder, check_output_folder, json_text, write_json, write_text
+from .io.calibration import parse_calibration
+from .io.carmen import parse_log
+from .io.carmen_import import ImportSummary, write_mcap
+from .io.inputs import choose_topics, iter_inputs
+from .io.mcap_log import LogReader
+from .io.outputs import ProcessOutputs
+from .io.topics import CALIBRATION_KEY
+from .sim.config import SimConfig
+from .sim.recorder import RecordSummary
+from .sim.recorder import record as _record
+from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
+from .sim.world import World
+
+__all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "scenario", "record",
+           "process", "evaluate", "report", "compare", "import_carmen"]
+
+
+def scenario(name: str = DEFAULT_SCENARIO) -> World:
+    """A built-in world by name (``corridor``, ``static``, ``crowd``, ``long-corridor``)."""
+    return SCENARIOS[name]()
+
+
+def record(world: World, cfg: SimConfig, out: str | Path,
+           on_progress: Callable[[int], None] | None = None) -> RecordSummary:
+    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``."""
+    return _record(world, cfg, out, on_progress)
+
+
+@dataclass
+class ProcessOptions:
+    """What :func:`process` runs: which methods, on which topics, with which parameters.
+
+    scan_topic: default ``/fmcw/points``, else ``/scan``, else the log's only scan topic.
+    ticks_topic: default ``/wheel/ticks`` when present.
+    odom_topic: an Odometry topic as the motion prior instead of ticks (default ``/odom``
+        when the log has no ticks).
+    """
+
+    methods: tuple[str, ...] = METHOD_NAMES
+    scan_topic: str | None = None
+    ticks_topic: str | None = None
+    odom_topic: str | None = None
+    params: FrontEndParams = field(default_factory=FrontEndParams)
+
+
+@dataclass
+class ProcessSummary:
+    out_dir: Path
+    sweeps: int
+    doppler: bool
+    prior: str
+    skipped_sweeps: int
+    repeated_prior_stamps: int
+    ms_median: dict[str, float]
+    truncated: bool
+    warnings: list[str]
+
+
+def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
+            on_sweep: Callable[[int, int | None], None] | None = None) -> ProcessSummary:
+    """Run ``opts.methods`` over ``log`` and write everything into ``out_dir``.
+
+    ``on_sweep(done, total)`` is called after each sweep (total None when unknown). The
+    outputs are written to a temporary folder that replaces ``out_dir`` when complete.
+    """
+    opts = opts or ProcessOptions()
+    log, out_dir = Path(log), Path(out_dir)
+    started = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = LogReader(log)
+        topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
+        try:
+            cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=topics.ticks is not None)
+        except CalibrationError as exc:
+            raise LogError(f"{log}: {exc}") from None
+        total = reader.message_count(topics.scan)
+        check_output_folder(out_dir, force)
+        with atomic_folder(out_dir) as tmp:
+            runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
+            outputs = ProcessOutputs(tmp, (*opts.methods, WHEEL_ODOMETRY))
+            try:
+                for step in runner.run(iter_inputs(reader, topics)):
+                    for r in step.results:
+                        outputs.add_sweep(r.method, r.stamp_ns, r.pose, r.iterations, r.correspondences,
+                                          r.moving_points, r.ms, r.static_map_xy, r.moving_map_xy,
+                                          r.moving_mask if r.segmented else None)
+                    if step.wheel_pose is not None:
+                        outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose)
+                    if on_sweep:
+                        on_sweep(runner.sweeps, total)
+                outputs.finish({fe.name: fe.grid for fe in runner.fronts})
+            except BaseException:
+                outputs.abort()
+                raise
+            notes = [str(w.message) for w in caught] + _process_notes(runner, topics.scan)
+            if topics.ticks:
+                prior = f"wheel ticks ({topics.ticks})"
+            else:
+                prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, runner.skipped_sweeps,
+                                     runner.repeated_prior_stamps, outputs.ms_median(), reader.contents.truncated,
+                                     notes)
+            write_json(tmp / "run.json", {
+                "fmcwlog_version": __version__,
+                "log": str(log.resolve()),
+                "log_size_bytes": log.stat().st_size,
+                "methods": list(opts.methods),
+                "scan_topic": topics.scan,
+                "prior": summary.prior,
+                "doppler": summary.doppler,
+                "mount": list(cal.mount),
+                "params": dataclasses.asdict(opts.params),
+                "sweeps": summary.sweeps,
+                "skipped_sweeps": summary.skipped_sweeps,
+                "repeated_prior_stamps": summary.repeated_prior_stamps,
+                "truncated_log": summary.truncated,
+                "warnings": summary.warnings,
+                "ms_per_sweep_median": summary.ms_median,
+                "wall_seconds": round(time.perf_counter() - started, 3),
+            }, sort_keys=True)
+    return summary
+
+
+def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
+    notes = []
+    if not runner.doppler:
+        notes.append(f"{scan_topic} carries no Doppler velocity: ego-motion and segmentation are off")
+    if runner.skipped_sweeps:
+        notes.append(f"{runner.skipped_sweeps} sweeps with a repeated stamp were skipped")
+    if runner.repeated_prior_stamps:
+        notes.append(f"{runner.repeated_prior_stamps} motion-prior messages with a repeated stamp were skipped")
+    return notes
+
+
+def report(out_dir: str | Path, log: str | Path | None = None,
+           relations: str | Path | None = None) -> Evaluation:
+    """:func:`evaluate` ``out_dir`` and write report.html, report.md and report.json into it."""
+    ev = evaluate(out_dir, log, relations=relations)
+    write_report(ev)
+    return ev
+
+
+def compare(results: list[dict], target: str | Path) -> Path:
+    """comparison.md and comparison.json of several reports' results in ``target``; returns the .md."""
+    target = Path(target)
+    target.mkdir(parents=True, exist_ok=True)
+    header, rows = comparison_rows(results)
+    write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
+    write_text(target / "comparison.json", json_text(results))
+    return target / "comparison.md"
+
+
+def import_carmen(source: str | Path, output: str | Path) -> tuple[ImportSummary, str]:
+    """Convert a CARMEN or CMU course log into an fmcwlog MCAP log; returns the summary and the format."""
+    parsed = parse_log(Path(source))
+    return write_mcap(parsed, Path(output)), parsed.format

@@ -1,0 +1,44 @@
+"""The one exception family of fmcwlog: every error a user can fix is a :class:`FmcwlogError`.
+
+Each message is one line that names the file (or the parameter) and what is wrong with it;
+the command line prints it as ``fmcwlog: error: ...`` and exits with status 2. Anything
+else that escapes is a bug in fmcwlog, not in the user's input.
+"""
+
+from __future__ import annotations
+
+
+class FmcwlogError(Exception):
+    """Base of every error a user can fix; the message names the file or parameter and the problem."""
+
+
+class ConfigError(FmcwlogError, ValueError):
+    """A parameter or config file is invalid; the message says which and why."""
+
+
+class LogError(FmcwlogError):
+    """A log cannot be read or written; the message names the file and the problem."""
+
+
+class CalibrationError(FmcwlogError, ValueError):
+    """A calibration value is missing, not a number, or out of its physical range."""
+
+
+class WorldError(FmcwlogError, ValueError):
+    """A world description is invalid; the message says where and why."""
+
+
+class CarmenImportError(FmcwlogError, ValueError):
+    """A CARMEN or CMU log holds nothing usable; the message says why."""
+
+
+class RelationsError(FmcwlogError, ValueError):
+    """A relations file cannot be read; the message names it and the line."""
+
+
+class ReportError(FmcwlogError):
+    """An output folder or log cannot be evaluated; the message says which and why."""
+
+
+class OutputError(FmcwlogError):
+    """An output cannot be written where it was asked for; the message says where and why."""

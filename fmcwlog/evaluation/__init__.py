@@ -1,0 +1,11 @@
+"""Evaluation: the only code that reads ground truth.
+
+- ``ground_truth``        the readers of ``/ground_truth/*`` and ``fmcwlog.world``
+- ``metrics``             ATE, RPE (evo's definitions), feature-length errors
+- ``features``            feature lengths in the map each method built (the paper's Tables 2 and 3)
+- ``segmentation_score``  moving-point precision and recall
+- ``relations``           the relations metric of Kümmerle et al. 2009 (real logs)
+- ``published``           the paper's and the literature's figures, once
+- ``evaluate``            an output folder measured against its log
+- ``pages``               report.html, report.md, report.json and the terminal tables
+"""

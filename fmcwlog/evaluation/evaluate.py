@@ -1,0 +1,237 @@
+"""``fmcwlog report``'s numbers: a ``process`` output folder measured against its log's ground truth.
+
+Everything here is evaluation: it reads ``/ground_truth/*`` and ``fmcwlog.world``
+(through :mod:`fmcwlog.evaluation.ground_truth`), which estimation never does. A
+value that cannot be computed is ``None`` with the reason in ``notes``; nothing
+is invented. Feature lengths: :mod:`fmcwlog.evaluation.features`; moving-point
+scores: :mod:`fmcwlog.evaluation.segmentation_score`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from ..errors import LogError, ReportError
+from ..frontend.methods import METHOD_NAMES, METHODS, WHEEL_ODOMETRY, BaselineFrontEnd, ImprovedFrontEnd
+from ..io.mcap_log import LogReader
+from ..io.outputs import read_tum
+from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, WORLD_KEY
+from .features import feature_lengths
+from .ground_truth import read_ground_truth, read_point_labels, read_world
+from .metrics import (
+    ate,
+    feature_length_errors,
+    interpolate_reference,
+    mean_relative_error_pct,
+    relative_reduction_pct,
+    rpe,
+)
+from .published import PAPER, relations_for
+from .relations import read_relations, relations_error
+from .segmentation_score import segmentation_scores
+
+TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY)  # fmcwlog's own, in the order the report shows them
+_METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",
+                "rpe_10m_pct", "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features", "feature_avg_rel_error_pct",
+                "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second")
+
+
+@dataclass
+class Evaluation:
+    out_dir: Path
+    log: Path
+    run: dict[str, Any]
+    result: dict[str, Any] = field(default_factory=dict)
+    # for the plots
+    gt_t: np.ndarray | None = None
+    gt: np.ndarray | None = None
+    aligned: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, est, errors
+    walls: np.ndarray | None = None  # (M, 4) the world's walls, for the plots
+
+
+def load_run(out_dir: Path) -> dict[str, Any]:
+    run_json = out_dir / "run.json"
+    if not out_dir.is_dir():
+        raise ReportError(f"{out_dir}: no such folder")
+    if not run_json.is_file() or not (out_dir / "trajectories.parquet").is_file():
+        raise ReportError(f"{out_dir}: not a 'fmcwlog process' output (no run.json or trajectories.parquet)")
+    try:
+        return json.loads(run_json.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{run_json}: malformed ({exc.msg})") from None
+
+
+def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
+    scan = run.get("scan_topic", "/fmcw/points")
+    log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
+    # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
+    stamps = np.asarray(stamps, dtype=np.int64) - int(round(float(run.get("stamp_shift_s", 0.0)) * 1e9))
+    if log_stamps.size == 0 or not np.all(np.isin(stamps, log_stamps)):
+        raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
+
+
+def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: float = 0.15,
+             relations: str | Path | None = None) -> Evaluation:
+    """Measure the trajectories and maps in ``out_dir`` against the ground truth of ``log``
+    (default: the log ``run.json`` names); ``relations``: a Freiburg relations file."""
+    out_dir = Path(out_dir)
+    run = load_run(out_dir)
+    log = Path(log) if log is not None else Path(run.get("log", ""))
+    if not log.is_file():
+        raise ReportError(f"{out_dir}: its log {log} is not there; name it with --log")
+    try:
+        reader = LogReader(log)
+    except LogError as exc:
+        raise ReportError(str(exc)) from None
+    table = pq.read_table(out_dir / "trajectories.parquet", columns=["method", "stamp_ns", "ms"])
+    sweep_method = table.column("method").to_numpy(zero_copy_only=False)
+    sweep_ms = table.column("ms").to_numpy()
+    _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
+
+    ev = Evaluation(out_dir, log, run)
+    notes: list[str] = []
+    gt_ns, gt = _ground_truth(reader, log, ev, notes)
+    world = read_world(reader)
+    ev.walls = world.walls
+    if ev.gt is not None and not world.features:
+        notes.append(f"{log} has no {WORLD_KEY} features: map feature lengths cannot be computed")
+    rel_table = read_relations(relations) if relations is not None else None
+    # fmcwlog's trajectories first, then any other dropped in the folder (a peer, e.g. kiss_icp.tum)
+    present = [m for m in TRAJECTORIES if (out_dir / f"{m}.tum").is_file()]
+    present += sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in TRAJECTORIES)
+    measurable = ev.gt is not None and bool(world.features)
+    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, gt_ns, gt,
+                                   end_radius) if measurable else {}
+    labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
+
+    methods: dict[str, dict[str, Any]] = {}
+    for m in present:
+        r: dict[str, Any] = {k: None for k in _METRIC_KEYS}
+        r["notes"] = []
+        t, est = read_tum(out_dir / f"{m}.tum")
+        if rel_table is not None:
+            _relations(r, t, est, rel_table, relations)
+        if ev.gt is not None and len(t) >= 2:
+            _trajectory_errors(r, m, t, est, ev)
+        _features(r, m, feature_rows, measurable)
+        _segmentation(r, m, out_dir, labels)
+        _speed(r, m, sweep_ms[sweep_method == m])
+        methods[m] = r
+
+    reduction = _reduction(methods)
+    if reduction is None and ImprovedFrontEnd.name in methods and BaselineFrontEnd.name in methods and measurable:
+        notes.append("no reduction of the average feature error: no feature was measured by both methods")
+    ev.result = {
+        "schema": "fmcwlog.report/1",
+        "out_dir": str(out_dir),
+        "log": str(log),
+        "sweeps": int(run.get("sweeps", 0)),
+        "doppler": run.get("doppler"),
+        "prior": run.get("prior"),
+        "methods": methods,
+        "feature_avg_rel_error_reduction_pct": reduction,
+        "paper": dict(PAPER),
+        "relations_file": str(relations) if relations is not None else None,
+        "relations_published": [{"method": n, "trans_mean_m": a, "trans_std_m": b} for n, a, b in
+                                (relations_for(relations) if relations is not None else [])],
+        "params": run.get("params"),
+        "notes": notes,
+    }
+    return ev
+
+
+def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The log's ground-truth stamps (ns) and poses; set on ``ev`` when there are at least two."""
+    if GT_ODOM_TOPIC in reader.topics:
+        gt_ns, gt = read_ground_truth(reader)
+    else:
+        gt_ns, gt = np.zeros(0, np.int64), np.zeros((0, 3))
+    if len(gt_ns) >= 2:
+        ev.gt_t, ev.gt = gt_ns * 1e-9, gt
+    else:
+        notes.append(f"{log} has no {GT_ODOM_TOPIC}: trajectory errors and feature lengths cannot be computed")
+    return gt_ns, gt
+
+
+def _relations(r: dict, t: np.ndarray, est: np.ndarray, table: np.ndarray, relations: str | Path) -> None:
+    rr = relations_error(t, est, table)
+    r["relations"] = rr.as_dict()
+    if rr.n == 0:
+        r["notes"].append(f"no relation of {relations} falls within this trajectory's time span")
+
+
+def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev: Evaluation) -> None:
+    """ATE (SE(2)- and first-pose-aligned) and RPE over 1 m and 10 m, as evo defines them."""
+    assert ev.gt_t is not None and ev.gt is not None
+    idx, ref = interpolate_reference(t, ev.gt_t, ev.gt)
+    a = ate(est[idx], ref, "se2")
+    f = ate(est[idx], ref, "first")
+    r.update(ate_rmse_m=a.rmse, ate_mean_m=a.mean, ate_median_m=a.median, ate_max_m=a.max,
+             ate_first_aligned_rmse_m=f.rmse)
+    ev.aligned[method] = (t[idx], a.est_aligned, a.errors)
+    for delta, key in ((1.0, "1m"), (10.0, "10m")):
+        try:
+            e = rpe(est[idx], ref, delta)
+            r[f"rpe_{key}_pct"] = e.trans_pct.mean
+            r[f"rpe_{key}_deg_per_m"] = e.rot_deg_per_m.mean
+        except ValueError as exc:
+            r["notes"].append(f"RPE over {delta:g} m: {exc}")
+
+
+def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measurable: bool) -> None:
+    if method == WHEEL_ODOMETRY:
+        r["notes"].append("wheel odometry builds no map: no feature lengths")
+        return
+    if method not in feature_rows:
+        if measurable:
+            r["notes"].append("no map points of this method in processed.mcap: no feature lengths")
+        return
+    rows = feature_rows[method]
+    seen = [row for row in rows if row["measured_m"] is not None]
+    errs = dict(zip([row["id"] for row in seen],
+                    feature_length_errors([row["true_m"] for row in seen], [row["measured_m"] for row in seen])))
+    r["features"] = [{"id": row["id"], "name": row["name"], "true_m": row["true_m"], "measured_m": row["measured_m"],
+                      "abs_error_m": errs[row["id"]].abs_error_m if row["id"] in errs else None,
+                      "rel_error_pct": errs[row["id"]].rel_error_pct if row["id"] in errs else None}
+                     for row in rows]
+    if seen:
+        r["feature_avg_rel_error_pct"] = mean_relative_error_pct(list(errs.values()))
+    missing = [str(row["id"]) for row in rows if row["measured_m"] is None]
+    if missing:
+        r["notes"].append(f"features {', '.join(missing)} were not seen at both ends (the log does not "
+                          f"pass them): the average is over the other {len(seen)}")
+
+
+def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:
+    if method in METHODS and METHODS[method].segments:
+        r["segmentation"] = segmentation_scores(out_dir, method, labels, r["notes"])
+    elif method != WHEEL_ODOMETRY:
+        r["notes"].append(f"{method} does not segment moving points")
+
+
+def _speed(r: dict, method: str, ms: np.ndarray) -> None:
+    if len(ms):
+        r["ms_per_sweep_median"] = float(np.median(ms))
+        r["ms_per_sweep_p95"] = float(np.percentile(ms, 95))
+        r["sweeps_per_second"] = float(1000.0 / np.mean(ms))
+    elif method == WHEEL_ODOMETRY:
+        r["notes"].append("wheel odometry is the motion prior itself; its time is not measured per sweep")
+
+
+def _reduction(methods: dict[str, dict[str, Any]]) -> float | None:
+    """% by which the improved method cuts the baseline's average relative feature error,
+    over the features both measured."""
+    imp = (methods.get(ImprovedFrontEnd.name) or {}).get("features") or []
+    base = (methods.get(BaselineFrontEnd.name) or {}).get("features") or []
+    pairs = [(a["rel_error_pct"], b["rel_error_pct"]) for a, b in zip(imp, base)
+             if a["rel_error_pct"] is not None and b["rel_error_pct"] is not None]
+    if not pairs:
+        return None
+    mi, mb = np.mean([p[0] for p in pairs]), np.mean([p[1] for p in pairs])
+    return float(relative_reduction_pct(mb, mi)) if mb > 0 else None

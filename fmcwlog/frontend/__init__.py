@@ -1,0 +1,22 @@
+"""The front ends: estimation from what the log's sensors saw, never from ground truth.
+
+One module per stage, each pure functions on numpy arrays (KISS-ICP's layout):
+
+- ``odometry``            wheel odometry of the rear axle (paper eq. 9, 13)
+- ``motion_prior``        the odometry (ticks or an Odometry topic) as poses readable at any time
+- ``egomotion``           the sensor's velocity from one sweep's Doppler field (NOTES.md)
+- ``segmentation``        moving points by DBSCAN over position and compensated Doppler (eq. 17-19)
+- ``deskew``              every point to the sweep's stamp under a constant twist
+- ``local_map``           the voxel map scans are matched against
+- ``gmmsc``               false-match rejection by a mixture on pair distances (eq. 20-21)
+- ``icp``                 what both ICPs share: pairs, a Gauss-Newton step
+- ``robust_icp``          GMMSC x Huber Gauss-Newton ICP (eq. 22-26), the improved method's
+- ``point_to_point_icp``  classic closed-form ICP, the baseline's
+- ``occupancy``           log-odds occupancy grid by ray casting
+
+and what chains them:
+
+- ``params``   every parameter of a front end, with its default
+- ``methods``  the two methods, :class:`ImprovedFrontEnd` and :class:`BaselineFrontEnd`, sweep by sweep
+- ``runner``   the loop over a log's inputs, the methods side by side
+"""

@@ -1,0 +1,68 @@
+"""The baseline: classic point-to-point ICP in SE(2), the paper's "before improvement".
+
+Frames and units as in :mod:`fmcwlog.frontend.icp`. The same correspondence
+search and distance gate as :mod:`fmcwlog.frontend.robust_icp`, but unit
+weights, no rejection, no kernel, solved in closed form each iteration (2-D
+Kabsch / Arun SVD: the optimal rotation from the cross-covariance of the
+centred pairs). The centring there is part of the least-squares solution, not
+a pre-alignment.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..geometry import transform_points, wrap_angle
+from .icp import ICPParams, ICPResult, find_correspondences, gauss_newton_step, step_is_small
+
+
+def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarray:
+    """Least-squares pose (3,) with ``target ≈ R source + t`` for given pairs (2-D Kabsch).
+
+    ``θ = atan2(Σ p'×q', Σ p'·q')`` on centred pairs, ``t = q̄ - R p̄``.
+    """
+    pc, qc = source_pts.mean(axis=0), target_pts.mean(axis=0)
+    p, q = source_pts - pc, target_pts - qc
+    th = np.arctan2(np.sum(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]), np.sum(p * q))
+    c, s = np.cos(th), np.sin(th)
+    t = qc - np.array([c * pc[0] - s * pc[1], s * pc[0] + c * pc[1]])
+    return np.array([t[0], t[1], th])
+
+
+def register_point_to_point(
+    source_xy: np.ndarray,
+    target_tree: cKDTree,
+    target_xy: np.ndarray,
+    initial_pose: np.ndarray,
+    params: ICPParams = ICPParams(),
+) -> ICPResult:
+    """Baseline: classic point-to-point ICP, all gated pairs, unit weights, closed form.
+
+    Same correspondence search and gate as :func:`register`; no GMMSC, no Huber.
+    Each iteration solves the pose exactly for the current pairs (2-D Kabsch).
+    """
+    pose = np.asarray(initial_pose, dtype=float).copy()
+    h = np.zeros((3, 3))
+    n_kept, rmse, converged = 0, float("nan"), False
+    it = 0
+    for it in range(1, params.max_iterations + 1):
+        c = find_correspondences(
+            source_xy, pose, target_tree, target_xy,
+            params.max_correspondence_distance, params.workers,
+        )
+        if c.distances.size < params.min_correspondences:
+            break
+        src = source_xy[c.source_idx]
+        new = closed_form_pose(src, c.target)
+        step = new - pose
+        step[2] = wrap_angle(step[2])
+        pose = new
+        n_kept = int(c.distances.size)
+        rmse = float(np.sqrt(np.mean(c.distances**2)))
+        if step_is_small(step, params):
+            converged = True
+            break
+    if n_kept:  # information matrix of the last pairs at the final pose (unit weights)
+        _, h = gauss_newton_step(transform_points(pose, src), c.target, pose, np.ones(n_kept))
+    return ICPResult(pose, it, n_kept, converged, rmse, h, 0)

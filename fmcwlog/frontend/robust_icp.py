@@ -1,0 +1,140 @@
+"""Robust point-to-point ICP in SE(2) (paper §4.3, eq. 22-26): GMMSC weights × Huber kernel.
+
+Frames and units as in :mod:`fmcwlog.frontend.icp`.
+
+:func:`register`: Gauss-Newton on ``(x, y, θ)`` minimising
+eq. 22 ``Σ w_ij ρ(‖R p_i + t - q_j‖)`` with ``w_ij`` the GMMSC weights
+(eq. 20-21, :mod:`fmcwlog.frontend.gmmsc`) and ρ the Huber kernel applied as
+iteratively reweighted least squares (weight 1 for ``|r| ≤ δ``, ``δ/|r|``
+beyond). The step is ``Δ = -(JᵀWJ)⁻¹ JᵀWe`` — NOTES.md: eq. 26 drops the
+``Jᵀ``. The paper's steps 1-2 (centroid pre-alignment) are not done (NOTES:
+harmful when movers pull the centroid; the odometry prior is the start).
+Two additions, both measured on the tests' room scans: GMMSC starts only once
+Huber-only steps are small (fitting the mixture to misaligned distances
+rejects whole walls and stalls the pose), and successive collinear GN steps
+are extrapolated (point-to-point ICP converges linearly; this about halves
+the iterations at unchanged accuracy; ``ICPParams.extrapolate=False`` turns it off).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..geometry import wrap_angle
+from .gmmsc import DistanceMixture, gmmsc_weights
+from .icp import ICPParams, ICPResult, find_correspondences, gauss_newton_step, step_is_small
+
+
+def huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
+    """IRLS weights of the Huber kernel: 1 for ``|r| ≤ δ``, ``δ/|r|`` otherwise."""
+    a = np.abs(r)
+    return np.where(a <= delta, 1.0, delta / np.maximum(a, 1e-300))
+
+
+def _extrapolation_factor(delta: np.ndarray, prev: np.ndarray, p: ICPParams) -> float:
+    """Besl-McKay style acceleration of point-to-point ICP's linear convergence.
+
+    Point-to-point steps shrink geometrically (ratio ≈ the fraction of points on
+    surfaces parallel to the error, which "anchor" it). When two successive GN
+    steps are nearly collinear (cosine > ``extrapolation_min_cos``, rotation
+    scaled by ``extrapolation_lever`` m) and shrink by ``ρ < 1``, the remaining
+    geometric series ``ρ/(1-ρ)`` is added, capped at ``max_extrapolation``.
+    The convergence test still uses the plain GN step.
+    """
+    a = np.array([delta[0], delta[1], delta[2] * p.extrapolation_lever])
+    b = np.array([prev[0], prev[1], prev[2] * p.extrapolation_lever])
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0.0 or nb == 0.0:
+        return 1.0
+    rho = na / nb
+    if a @ b / (na * nb) < p.extrapolation_min_cos or rho >= 0.98:
+        return 1.0
+    return 1.0 + min(rho / (1.0 - rho), p.max_extrapolation)
+
+
+def register(
+    source_xy: np.ndarray,
+    target_tree: cKDTree,
+    target_xy: np.ndarray,
+    initial_pose: np.ndarray,
+    params: ICPParams = ICPParams(),
+    mixture: DistanceMixture | None = None,
+    prior_pose: np.ndarray | None = None,
+    prior_information: np.ndarray | None = None,
+) -> ICPResult:
+    """Robust ICP: GMMSC weights × Huber weights, Gauss-Newton on SE(2) (eq. 22-26).
+
+    Each iteration: nearest neighbours under the current pose (distance gate),
+    weights, one GN step ``Δ = -(JᵀWJ)⁻¹ JᵀWe``; stop when the step is below
+    tolerance. Two phases, in the paper's order (coarse match, then GMMSC, then
+    ICP): Huber-only iterations until the step falls below the ``gmm_start_*``
+    tolerances, then the distance mixture is fit once at that pose and every
+    following iteration drops pairs with inlier posterior below ``w_th`` and
+    weights the rest by posterior × Huber. Fitting the mixture while far from
+    the solution is harmful: the distances then reflect the misalignment (the
+    walls across the error direction all sit at the offset) and GMMSC rejects
+    whole walls as "outliers", stalling the pose in that direction.
+
+    ``mixture``: a mixture from a previous registration (``ICPResult.mixture``);
+    if given it is used instead of a first fit (saves one sklearn EM run per
+    sweep) and refit only by the ``gmm_refit_ratio`` rule.
+
+    ``prior_pose`` (3,) and ``prior_information`` (3, 3): optional Gaussian prior
+    on the pose added to every GN step (see :func:`gauss_newton_step`); it holds
+    directions the scan leaves unconstrained (e.g. along a corridor). The
+    returned ``hessian`` then includes ``Λ``.
+    """
+    pose = np.asarray(initial_pose, dtype=float).copy()
+    gmm_on = False
+    n_fits = 0
+    h = np.zeros((3, 3))
+    n_kept, rmse, converged = 0, float("nan"), False
+    prev_delta: np.ndarray | None = None
+    it = 0
+    for it in range(1, params.max_iterations + 1):
+        c = find_correspondences(
+            source_xy, pose, target_tree, target_xy,
+            params.max_correspondence_distance, params.workers,
+        )
+        if c.distances.size < params.min_correspondences:
+            break
+        w = np.ones(c.distances.size)
+        keep = np.ones(c.distances.size, bool)
+        if gmm_on:
+            med = float(np.median(c.distances))
+            r = params.gmm_refit_ratio
+            ref = mixture.fit_median if mixture is not None else np.nan
+            # NaN reference (unknown): keep the given mixture
+            refit = mixture is None or r >= 1.0 or med < r * ref or med * r > ref
+            g = gmmsc_weights(c.distances, params.gmmsc, mixture, refit=refit)
+            if refit:
+                n_fits += g.mixture is not None
+                mixture, prev_delta = g.mixture, None
+            w, keep = g.weights, g.keep  # eq. 21, w_i < w_th rejected
+        if keep.sum() < params.min_correspondences:
+            break
+        d = c.distances[keep]
+        w = w[keep] * huber_weights(d, params.huber_delta)  # W = GMM × Huber (NOTES)
+        delta, h = gauss_newton_step(
+            c.moved[keep], c.target[keep], pose, w, prior_pose, prior_information
+        )
+        step = delta
+        if params.extrapolate and prev_delta is not None:
+            step = delta * _extrapolation_factor(delta, prev_delta, params)
+        prev_delta = delta
+        pose = pose + step
+        pose[2] = wrap_angle(pose[2])
+        n_kept, rmse = int(keep.sum()), float(np.sqrt(np.mean(d * d)))
+        if params.use_gmmsc and not gmm_on:
+            gmm_on = bool(
+                np.hypot(delta[0], delta[1]) < params.gmm_start_translation
+                and abs(delta[2]) < params.gmm_start_rotation
+            )
+            if gmm_on:
+                prev_delta = None  # new weights: a new fixed point
+            continue  # never stop before GMMSC has been applied
+        if step_is_small(delta, params):
+            converged = True
+            break
+    return ICPResult(pose, it, n_kept, converged, rmse, h, n_fits, mixture)

@@ -1,0 +1,13 @@
+"""Logs in and outputs out: every file fmcwlog reads or writes goes through here.
+
+- ``topics``        the names the log format fixes (topics, metadata records, frames)
+- ``schemas``       the ``ros2msg`` schema texts from ``schemas/``
+- ``messages``      ROS 2 messages as dicts and numpy arrays (PointCloud2, Odometry, ...)
+- ``mcap_log``      the MCAP container: :class:`LogReader`, :class:`LogWriter`
+- ``inputs``        what estimation reads: sweeps, wheel ticks, odometry poses
+- ``calibration``   the ``fmcwlog.calibration`` record as numbers
+- ``carmen``        real 2-D laser logs (CARMEN, CMU course format), parsed
+- ``carmen_import`` those logs written as fmcwlog logs
+- ``outputs``       TUM, parquet, map_server maps, ``processed.mcap``, ``run.json``
+- ``atomic``        a temporary name, then a rename: nothing is seen half-written
+"""

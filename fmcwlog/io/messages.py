@@ -1,0 +1,119 @@
+"""ROS 2 messages of the log format as Python dicts (for writing) and numpy arrays (when read).
+
+``sensor_msgs/PointCloud2`` fields are located by name and offset, never by an
+assumed layout (LOG_FORMAT.md); ``nav_msgs/Odometry`` carries a planar pose in
+its ``header.frame_id`` and a twist in its ``child_frame_id``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..geometry import quaternion_to_yaw, yaw_to_quaternion
+
+# PointField datatype codes (sensor_msgs/PointField) -> numpy dtypes, little-endian.
+_POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 8: "<f8"}
+FLOAT32 = 7
+
+
+def stamp(ns: int) -> dict[str, int]:
+    """``builtin_interfaces/Time`` from integer nanoseconds since the epoch."""
+    return {"sec": int(ns // 1_000_000_000), "nanosec": int(ns % 1_000_000_000)}
+
+
+def stamp_ns(t: Any) -> int:
+    """Integer nanoseconds from a decoded ``builtin_interfaces/Time``."""
+    return int(t.sec) * 1_000_000_000 + int(t.nanosec)
+
+
+POINT_FIELDS = ("x", "y", "z", "intensity", "velocity", "t")
+
+
+def pointcloud_message(stamp_ns_: int, frame_id: str, columns: dict[str, np.ndarray]) -> dict:
+    """A ``sensor_msgs/PointCloud2`` dict with one FLOAT32 field per column, packed in order."""
+    names = list(columns)
+    n = len(next(iter(columns.values()))) if names else 0
+    packed = np.empty((n, len(names)), dtype="<f4")
+    for i, name in enumerate(names):
+        packed[:, i] = columns[name]
+    step = 4 * len(names)
+    return {
+        "header": {"stamp": stamp(stamp_ns_), "frame_id": frame_id},
+        "height": 1,
+        "width": n,
+        "fields": [
+            {"name": name, "offset": 4 * i, "datatype": FLOAT32, "count": 1}
+            for i, name in enumerate(names)
+        ],
+        "is_bigendian": False,
+        "point_step": step,
+        "row_step": step * n,
+        "data": packed.tobytes(),
+        "is_dense": True,
+    }
+
+
+def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[str, np.ndarray]:
+    """Columns of a decoded PointCloud2 as float64 arrays, located by field name and offset.
+
+    Extra fields are ignored; a missing requested field raises ``KeyError``.
+    """
+    if msg.is_bigendian:
+        raise ValueError("big-endian PointCloud2 is not supported")
+    n = int(msg.width) * int(msg.height)
+    step = int(msg.point_step)
+    data = bytes(msg.data)
+    if len(data) < n * step:
+        raise ValueError(f"PointCloud2 data holds {len(data)} bytes, expected {n * step}")
+    by_name = {f.name: f for f in msg.fields}
+    out = {}
+    for name in names:
+        f = by_name[name]
+        if f.datatype not in _POINTFIELD_DTYPES:
+            raise ValueError(f"field {name!r} has unknown datatype {f.datatype}")
+        dt = np.dtype(_POINTFIELD_DTYPES[f.datatype])
+        if n == 0:
+            out[name] = np.zeros(0)
+            continue
+        col = np.ndarray((n,), dtype=dt, buffer=data, offset=int(f.offset), strides=(step,))
+        out[name] = col.astype(np.float64)
+    return out
+
+
+def odometry_message(
+    stamp_ns_: int, frame_id: str, child_frame_id: str, pose: np.ndarray, twist: np.ndarray
+) -> dict:
+    """``nav_msgs/Odometry``: ``pose`` (x, y, yaw) in ``frame_id``, ``twist`` (vx, vy, wz) in ``child_frame_id``."""
+    q = yaw_to_quaternion(pose[2])
+    zeros = [0.0] * 36
+    return {
+        "header": {"stamp": stamp(stamp_ns_), "frame_id": frame_id},
+        "child_frame_id": child_frame_id,
+        "pose": {
+            "pose": {
+                "position": {"x": float(pose[0]), "y": float(pose[1]), "z": 0.0},
+                "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])},
+            },
+            "covariance": zeros,
+        },
+        "twist": {
+            "twist": {
+                "linear": {"x": float(twist[0]), "y": float(twist[1]), "z": 0.0},
+                "angular": {"x": 0.0, "y": 0.0, "z": float(twist[2])},
+            },
+            "covariance": zeros,
+        },
+    }
+
+
+def odometry_pose_twist(msg: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y, yaw)`` and ``(vx, vy, wz)`` of a decoded ``nav_msgs/Odometry``."""
+    p = msg.pose.pose.position
+    q = msg.pose.pose.orientation
+    tw = msg.twist.twist
+    pose = np.array([p.x, p.y, float(quaternion_to_yaw(q.x, q.y, q.z, q.w))])
+    return pose, np.array([tw.linear.x, tw.linear.y, tw.angular.z])
+
+

@@ -1,0 +1,20 @@
+"""Names the log format fixes (LOG_FORMAT.md): topics, metadata records and frames.
+
+Names only: reading what is under ``/ground_truth/`` or in ``fmcwlog.world`` is
+evaluation's business (:mod:`fmcwlog.evaluation.ground_truth`), never estimation's.
+"""
+
+POINTS_TOPIC = "/fmcw/points"
+TICKS_TOPIC = "/wheel/ticks"
+GT_ODOM_TOPIC = "/ground_truth/odom"
+GT_LABELS_TOPIC = "/ground_truth/point_labels"
+GROUND_TRUTH_PREFIX = "/ground_truth/"
+
+CALIBRATION_KEY = "fmcwlog.calibration"
+WORLD_KEY = "fmcwlog.world"
+SIM_KEY = "fmcwlog.sim"
+IMPORT_KEY = "fmcwlog.import"
+
+MAP_FRAME = "map"
+BASE_FRAME = "base_link"
+LIDAR_FRAME = "lidar"

@@ -20,9 +20,9 @@ from fmcwlog.frontend.egomotion import (
     fit_sensor_velocity,
     sensor_velocity_from_base_twist,
 )
-from fmcwlog.geometry import compose, transform_points, wrap_angle
 from fmcwlog.frontend.robust_icp import register
 from fmcwlog.frontend.segmentation import segment_moving
+from fmcwlog.geometry import compose, transform_points, wrap_angle
 
 SEGMENTS = np.array(
     [

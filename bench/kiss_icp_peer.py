@@ -24,12 +24,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from fmcwlog.io.calibration import parse_calibration
 from fmcwlog.geometry import compose, inverse
+from fmcwlog.io.calibration import parse_calibration
 from fmcwlog.io.inputs import sweep_from_pointcloud
 from fmcwlog.io.mcap_log import LogReader
-from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
 from fmcwlog.io.outputs import write_tum
+from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
 
 
 def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: float = 0.3,

@@ -220,7 +220,7 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
     _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params), force)
 
 
-def _process(log: Path, out_dir: Path, opts: "api.ProcessOptions", force: bool) -> None:
+def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
     import time
 
     bar = None

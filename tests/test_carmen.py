@@ -16,9 +16,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from fmcwlog.io.carmen import parse_log
-from fmcwlog.geometry import compose
 from fmcwlog.evaluation.relations import read_relations, relations_error
+from fmcwlog.geometry import compose
+from fmcwlog.io.carmen import parse_log
 
 
 def _write(tmp_path: Path, text: str, name: str = "log.clf") -> Path:
@@ -87,7 +87,8 @@ def test_relations_metric_on_known_motion():
 @pytest.fixture(scope="module")
 def intel(shared_dir, tmp_path_factory):
     """The Intel subset imported and processed once."""
-    from fmcwlog.api import ProcessOptions, process as process_log
+    from fmcwlog.api import ProcessOptions
+    from fmcwlog.api import process as process_log
 
     tmp = tmp_path_factory.mktemp("intel")
     log = tmp / "intel.mcap"

@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import SAMPLE_LOGS
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
-from conftest import SAMPLE_LOGS
-from fmcwlog.api import ProcessOptions, process as process_log
-
+from fmcwlog.api import ProcessOptions
+from fmcwlog.api import process as process_log
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -31,8 +31,7 @@ from fmcwlog.api import ProcessOptions, process as process_log
 def decoded(path: Path, topics=None):
     with open(path, "rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-        for schema, channel, message, msg in reader.iter_decoded_messages(topics=topics):
-            yield schema, channel, message, msg
+        yield from reader.iter_decoded_messages(topics=topics)
 
 
 def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None) -> None:

@@ -19,15 +19,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-
 from conftest import SAMPLE_LOGS
+
 from fmcwlog.evaluation.evaluate import evaluate
-from fmcwlog.geometry import compose, interpolate_poses, transform_points
 from fmcwlog.evaluation.ground_truth import read_ground_truth
+from fmcwlog.evaluation.pages import write_report
+from fmcwlog.geometry import compose, interpolate_poses, transform_points
 from fmcwlog.io.mcap_log import LogReader, LogWriter
 from fmcwlog.io.messages import odometry_message, pointcloud_columns, pointcloud_message
 from fmcwlog.io.outputs import write_tum
-from fmcwlog.evaluation.pages import write_report
 
 LOG = SAMPLE_LOGS / "corridor_30s.mcap"
 TRUE_LENGTHS = [2.344, 6.775, 6.686, 1.064, 8.094, 1.029, 7.901, 26.681, 25.534]
@@ -179,7 +179,8 @@ def test_report_agrees_with_evo_on_a_processed_log(tmp_path):
     from evo.core import sync
     from evo.tools import file_interface
 
-    from fmcwlog.api import ProcessOptions, process as process_log
+    from fmcwlog.api import ProcessOptions
+    from fmcwlog.api import process as process_log
 
     out = tmp_path / "out"
     process_log(LOG, out, ProcessOptions())

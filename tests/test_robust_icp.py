@@ -6,10 +6,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from fmcwlog.geometry import inverse, transform_points, wrap_angle
 from fmcwlog.frontend.icp import ICPParams, find_correspondences, gauss_newton_step
 from fmcwlog.frontend.point_to_point_icp import closed_form_pose, register_point_to_point
 from fmcwlog.frontend.robust_icp import huber_weights, register
+from fmcwlog.geometry import inverse, transform_points, wrap_angle
 
 # a 10 x 6 m room, an L-shaped interior wall and a cabinet (segments x0, y0, x1, y1)
 SEGMENTS = np.array(

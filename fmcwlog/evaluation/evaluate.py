@@ -82,17 +82,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
     (default: the log ``run.json`` names); ``relations``: a Freiburg relations file."""
     out_dir = Path(out_dir)
     run = load_run(out_dir)
-    log = Path(log) if log is not None else Path(run.get("log", ""))
-    if not log.is_file():
-        raise ReportError(f"{out_dir}: its log {log} is not there; name it with --log")
-    try:
-        reader = LogReader(log)
-    except LogError as exc:
-        raise ReportError(str(exc)) from None
-    table = pq.read_table(out_dir / "trajectories.parquet", columns=["method", "stamp_ns", "ms"])
-    sweep_method = table.column("method").to_numpy(zero_copy_only=False)
-    sweep_ms = table.column("ms").to_numpy()
-    _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
+    log, reader = _open_log(out_dir, run, log)
+    sweep_method, sweep_ms = _sweep_times(out_dir, log, reader, run)
 
     ev = Evaluation(out_dir, log, run)
     notes: list[str] = []
@@ -102,9 +93,7 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
     if ev.gt is not None and not world.features:
         notes.append(f"{log} has no {WORLD_KEY} features: map feature lengths cannot be computed")
     rel_table = read_relations(relations) if relations is not None else None
-    # fmcwlog's trajectories first, then any other dropped in the folder (a peer, e.g. kiss_icp.tum)
-    present = [m for m in TRAJECTORIES if (out_dir / f"{m}.tum").is_file()]
-    present += sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in TRAJECTORIES)
+    present = _trajectories_in(out_dir)
     measurable = ev.gt is not None and bool(world.features)
     feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, gt_ns, gt,
                                    end_radius) if measurable else {}
@@ -115,17 +104,16 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
         r: dict[str, Any] = {k: None for k in _METRIC_KEYS}
         r["notes"] = []
         t, est = read_tum(out_dir / f"{m}.tum")
-        if rel_table is not None:
+        if rel_table is not None and relations is not None:
             _relations(r, t, est, rel_table, relations)
-        if ev.gt is not None and len(t) >= 2:
-            _trajectory_errors(r, m, t, est, ev)
+        _trajectory_errors(r, m, t, est, ev)
         _features(r, m, feature_rows, measurable)
         _segmentation(r, m, out_dir, labels)
         _speed(r, m, sweep_ms[sweep_method == m])
         methods[m] = r
 
     reduction = _reduction(methods)
-    if reduction is None and ImprovedFrontEnd.name in methods and BaselineFrontEnd.name in methods and measurable:
+    if reduction is None and measurable and {ImprovedFrontEnd.name, BaselineFrontEnd.name} <= set(methods):
         notes.append("no reduction of the average feature error: no feature was measured by both methods")
     ev.result = {
         "schema": "fmcwlog.report/1",
@@ -138,12 +126,40 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
         "feature_avg_rel_error_reduction_pct": reduction,
         "paper": dict(PAPER),
         "relations_file": str(relations) if relations is not None else None,
-        "relations_published": [{"method": n, "trans_mean_m": a, "trans_std_m": b} for n, a, b in
-                                (relations_for(relations) if relations is not None else [])],
+        "relations_published": _published_relations(relations),
         "params": run.get("params"),
         "notes": notes,
     }
     return ev
+
+
+def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, LogReader]:
+    """The log the folder was processed from: ``log`` if given, else the one run.json names."""
+    path = Path(log) if log is not None else Path(run.get("log", ""))
+    if not path.is_file():
+        raise ReportError(f"{out_dir}: its log {path} is not there; name it with --log")
+    try:
+        return path, LogReader(path)
+    except LogError as exc:
+        raise ReportError(str(exc)) from None
+
+
+def _sweep_times(out_dir: Path, log: Path, reader: LogReader, run: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Method and ms of every row of trajectories.parquet, once its stamps are checked against the log."""
+    table = pq.read_table(out_dir / "trajectories.parquet", columns=["method", "stamp_ns", "ms"])
+    _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
+    return table.column("method").to_numpy(zero_copy_only=False), table.column("ms").to_numpy()
+
+
+def _published_relations(relations: str | Path | None) -> list[dict]:
+    rows = relations_for(relations) if relations is not None else []
+    return [{"method": n, "trans_mean_m": a, "trans_std_m": b} for n, a, b in rows]
+
+
+def _trajectories_in(out_dir: Path) -> list[str]:
+    """fmcwlog's trajectories first, then any other dropped in the folder (a peer, e.g. kiss_icp.tum)."""
+    present = [m for m in TRAJECTORIES if (out_dir / f"{m}.tum").is_file()]
+    return present + sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in TRAJECTORIES)
 
 
 def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -168,7 +184,8 @@ def _relations(r: dict, t: np.ndarray, est: np.ndarray, table: np.ndarray, relat
 
 def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev: Evaluation) -> None:
     """ATE (SE(2)- and first-pose-aligned) and RPE over 1 m and 10 m, as evo defines them."""
-    assert ev.gt_t is not None and ev.gt is not None
+    if ev.gt_t is None or ev.gt is None or len(t) < 2:
+        return
     idx, ref = interpolate_reference(t, ev.gt_t, ev.gt)
     a = ate(est[idx], ref, "se2")
     f = ate(est[idx], ref, "first")
@@ -195,7 +212,8 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
     rows = feature_rows[method]
     seen = [row for row in rows if row["measured_m"] is not None]
     errs = dict(zip([row["id"] for row in seen],
-                    feature_length_errors([row["true_m"] for row in seen], [row["measured_m"] for row in seen])))
+                    feature_length_errors(np.array([row["true_m"] for row in seen]),
+                                          np.array([row["measured_m"] for row in seen]))))
     r["features"] = [{"id": row["id"], "name": row["name"], "true_m": row["true_m"], "measured_m": row["measured_m"],
                       "abs_error_m": errs[row["id"]].abs_error_m if row["id"] in errs else None,
                       "rel_error_pct": errs[row["id"]].rel_error_pct if row["id"] in errs else None}

@@ -65,7 +65,7 @@ def feature_rows(result: dict) -> tuple[list[str], list[list[str]]]:
     header = ["feature", "name", "true mm"]
     for m in methods:
         header += [f"{LABELS[m]} measured mm", f"{LABELS[m]} abs error mm", f"{LABELS[m]} rel error %"]
-    rows = []
+    rows: list[list[str]] = []
     if not methods:
         return header, rows
     for i, f in enumerate(result["methods"][methods[0]]["features"]):
@@ -106,7 +106,7 @@ def markdown_table(header: list[str], rows: list[list[str]]) -> str:
 
 def terminal_table(header: list[str], rows: list[list[str]]) -> str:
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
-    fmt = "  ".join("{:<%d}" % w if i == 0 else "{:>%d}" % w for i, w in enumerate(widths))
+    fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
     return "\n".join([fmt.format(*header), fmt.format(*("-" * w for w in widths))] + [fmt.format(*r) for r in rows])
 
 
@@ -276,12 +276,20 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 (found by placing them with the ground-truth pose) are averaged as the method placed them; the
 distance between the two ends' averages, less the same distance with ground-truth placement, is the
 method's error on that length.</p>
-{("<h2>Relations metric (" + html.escape(str(r.get("relations_file"))) + ")</h2>" + _html_table(RELATIONS_HEADER, relations_rows(r))) if relations_rows(r) else ""}
+{_relations_html(r)}
 <h2>Maps</h2><div class="maps">{maps}</div>
 <h2>Notes</h2>{"<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else "<p>None.</p>"}
 <h2>Parameters</h2><pre>{html.escape(json.dumps(r['params'], indent=2))}</pre>
 </body></html>
 """
+
+
+def _relations_html(r: dict) -> str:
+    rows = relations_rows(r)
+    if not rows:
+        return ""
+    return (f"<h2>Relations metric ({html.escape(str(r.get('relations_file')))})</h2>"
+            + _html_table(RELATIONS_HEADER, rows))
 
 
 def write_report(ev: Evaluation) -> list[Path]:

@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import RelationsError
 from ..geometry import between, interpolate_poses
 
+
 @dataclass
 class RelationsResult:
     n: int

@@ -10,7 +10,7 @@ from ..io.mcap_log import LogReader
 
 
 def segmentation_scores(out_dir: Path, method: str, labels: dict[int, np.ndarray] | None,
-                        notes: list[str]) -> dict[str, float] | None:
+                        notes: list[str]) -> dict[str, float | int | None] | None:
     """Precision, recall, F1 (and counts) of ``method``'s per-point verdicts in ``processed.mcap``
     against ``/ground_truth/point_labels``; None, with the reason added to ``notes``, where it
     cannot be scored."""

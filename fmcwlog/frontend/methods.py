@@ -50,6 +50,7 @@ from .egomotion import (
     fit_sensor_velocity,
     sensor_velocity_from_base_twist,
 )
+from .gmmsc import DistanceMixture
 from .local_map import VoxelMap, voxel_downsample
 from .occupancy import OccupancyGrid, OccupancyParams
 from .params import FrontEndParams
@@ -141,7 +142,7 @@ class FrontEnd:
         self.map = VoxelMap(params.voxel_size)
         self.grid = OccupancyGrid(OccupancyParams(resolution=params.map_resolution))
         self.pose: np.ndarray | None = None
-        self.last_stamp: float | None = None
+        self.last_stamp = 0.0  # s, of the last sweep; meaningful once ``pose`` is set
         self.last_key: np.ndarray | None = None
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
@@ -223,7 +224,7 @@ class ImprovedFrontEnd(FrontEnd):
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         super().__init__(params, cal)
-        self.mixture = None  # the last GMMSC mixture, reused by the next sweep's ICP
+        self.mixture: DistanceMixture | None = None  # the last GMMSC mixture, reused by the next sweep's ICP
 
     def doppler_stages(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> Doppler | None:
         """Ego-motion and segmentation of one sweep; None without Doppler.

@@ -58,8 +58,8 @@ class OccupancyGrid:
         self.params = params
         self.ix0 = 0
         self.iy0 = 0
-        self.log_odds = np.zeros((0, 0), np.float32)
-        self.observed = np.zeros((0, 0), bool)
+        self.log_odds: np.ndarray = np.zeros((0, 0), np.float32)
+        self.observed: np.ndarray = np.zeros((0, 0), bool)
 
     # --- geometry -----------------------------------------------------------------
     @property

@@ -45,8 +45,8 @@ def register_point_to_point(
     pose = np.asarray(initial_pose, dtype=float).copy()
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
-    it = 0
-    for it in range(1, params.max_iterations + 1):
+    iterations = 0
+    for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
         c = find_correspondences(
             source_xy, pose, target_tree, target_xy,
             params.max_correspondence_distance, params.workers,
@@ -65,4 +65,4 @@ def register_point_to_point(
             break
     if n_kept:  # information matrix of the last pairs at the final pose (unit weights)
         _, h = gauss_newton_step(transform_points(pose, src), c.target, pose, np.ones(n_kept))
-    return ICPResult(pose, it, n_kept, converged, rmse, h, 0)
+    return ICPResult(pose, iterations, n_kept, converged, rmse, h, 0)

@@ -91,8 +91,8 @@ def register(
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
     prev_delta: np.ndarray | None = None
-    it = 0
-    for it in range(1, params.max_iterations + 1):
+    iterations = 0
+    for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
         c = find_correspondences(
             source_xy, pose, target_tree, target_xy,
             params.max_correspondence_distance, params.workers,
@@ -137,4 +137,4 @@ def register(
         if step_is_small(delta, params):
             converged = True
             break
-    return ICPResult(pose, it, n_kept, converged, rmse, h, n_fits, mixture)
+    return ICPResult(pose, iterations, n_kept, converged, rmse, h, n_fits, mixture)

@@ -10,9 +10,9 @@ and the steps go to the output writers (:mod:`fmcwlog.api`).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -99,6 +99,7 @@ class LogRunner:
         assert self.prior is not None
         try:
             if isinstance(item, TicksInput):
+                assert self.cal.wheels is not None  # parse_calibration requires them with a ticks topic
                 self.prior.add_ticks(item.stamp_ns * 1e-9, item.left, item.right, self.cal.wheels)
             else:
                 self.prior.add_pose(item.stamp_ns * 1e-9, item.pose)

@@ -58,13 +58,14 @@ def parse_calibration(values: dict[str, str] | None, need_wheels: bool) -> Calib
     if need_wheels:
         if not values:
             raise CalibrationError("no fmcwlog.calibration record, which wheel ticks need")
-        wheels = WheelCalibration(*(_number(values, k) for k in WHEEL_KEYS[:3]),
-                                  int(_number(values, WHEEL_KEYS[3])))
+        r_left, r_right, track = (_number(values, k) for k in WHEEL_KEYS[:3])
+        wheels = WheelCalibration(r_left, r_right, track, int(_number(values, WHEEL_KEYS[3])))
         if min(wheels.wheel_radius_left, wheels.wheel_radius_right, wheels.track_width,
                wheels.ticks_per_revolution) <= 0:
             raise CalibrationError("wheel radii, track width and ticks per revolution must be positive")
     else:
         wheels = None
-    mount = tuple(_number(values, k) if k in values else 0.0 for k in MOUNT_KEYS)
+    x, y, yaw = (_number(values, k) if k in values else 0.0 for k in MOUNT_KEYS)
+    mount = (x, y, yaw)
     opt = {k: _number(values, k) if k in values else None for k in ("doppler_resolution", "range_sigma")}
     return Calibration(wheels, mount, opt["doppler_resolution"], opt["range_sigma"])

@@ -68,7 +68,7 @@ def open_text(path: Path):
         return lzma.open(path, "rt", errors="replace")
     if path.suffix == ".gz":
         return gzip.open(path, "rt", errors="replace")
-    return open(path, "rt", errors="replace")
+    return open(path, errors="replace")
 
 
 class _Bad(ValueError):

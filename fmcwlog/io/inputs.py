@@ -8,9 +8,10 @@ touches ``/ground_truth/*`` or ``fmcwlog.world``.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -84,7 +85,7 @@ def sweep_from_laserscan(path: Path, msg: Any) -> SweepInput:
     return SweepInput(ns, xy, (i * float(msg.time_increment))[ok], None, inten)
 
 
-def iter_inputs(reader: LogReader, topics: "InputTopics") -> Iterator[SweepInput | TicksInput | OdomInput]:
+def iter_inputs(reader: LogReader, topics: InputTopics) -> Iterator[SweepInput | TicksInput | OdomInput]:
     """The estimator's inputs in file order: sweeps, and ticks or odometry as the motion prior."""
     for m in reader.messages([t for t in (topics.scan, topics.ticks, topics.odom) if t]):
         if m.topic == topics.scan:

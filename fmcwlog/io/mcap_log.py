@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Iterable, Iterator
+from typing import IO, Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -76,7 +77,7 @@ class LogWriter:
         finally:
             self._tmp.unlink(missing_ok=True)
 
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -163,7 +164,8 @@ class LogReader:
         except (McapError, EOFError, ValueError, AssertionError) as exc:
             if not self.contents.truncated:
                 self.contents.truncated = True
-                warnings.warn(f"{self.path}: log ends early ({type(exc).__name__}); reading up to where it ends")
+                warnings.warn(f"{self.path}: log ends early ({type(exc).__name__}); reading up to where it ends",
+                              stacklevel=2)
 
     def _scan_headers(self) -> None:
         """Collect metadata and topics of an unindexed file with one sequential pass."""

@@ -7,7 +7,8 @@ its ``header.frame_id`` and a twist in its ``child_frame_id``.
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 

@@ -59,7 +59,7 @@ def write_trajectories_parquet(path: Path, rows: dict[str, list]) -> None:
     pq.write_table(table.select(list(TRAJECTORY_COLUMNS)), path)
 
 
-def write_grid(folder: Path, name: str, grid: "OccupancyGrid") -> None:
+def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
     """``name.pgm`` + ``name.yaml`` (map_server) and ``name.png`` (a picture of the same)."""
     import matplotlib
 
@@ -73,7 +73,8 @@ def write_grid(folder: Path, name: str, grid: "OccupancyGrid") -> None:
 
 def pgm_pixels(data: bytes) -> np.ndarray:
     """Pixels of a binary (P5) PGM with 8-bit samples."""
-    parts, pos = [], 0
+    parts: list[bytes] = []
+    pos = 0
     while len(parts) < 4:
         while data[pos:pos + 1].isspace():
             pos += 1
@@ -118,7 +119,7 @@ class ProcessedLog:
         self.writer.write(topic, "nav_msgs/msg/Odometry", odometry_message(stamp_ns, "map", "base_link", pose, np.zeros(3)),
                           stamp_ns)
 
-    def grid(self, method: str, stamp_ns: int, grid: "OccupancyGrid") -> None:
+    def grid(self, method: str, stamp_ns: int, grid: OccupancyGrid) -> None:
         msg = {
             "header": {"stamp": stamp(stamp_ns), "frame_id": "map"},
             "info": {
@@ -179,7 +180,7 @@ class ProcessOutputs:
         ms = np.asarray(self.rows["ms"], dtype=float)
         return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows["method"])}
 
-    def finish(self, grids: dict[str, "OccupancyGrid"]) -> None:
+    def finish(self, grids: dict[str, OccupancyGrid]) -> None:
         """The maps, the trajectories and the parquet; ``processed.mcap`` closed."""
         last_ns = int(self.rows["stamp_ns"][-1])
         for method, grid in grids.items():

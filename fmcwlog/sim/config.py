@@ -82,7 +82,7 @@ class SimConfig:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def validate(self) -> "SimConfig":
+    def validate(self) -> SimConfig:
         s, r, u = self.sensor, self.robot, self.run
         checks = [
             (u.duration > 0, "run.duration must be positive"),

@@ -13,9 +13,9 @@ from __future__ import annotations
 import json
 import math
 import signal
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from .chassis import Chassis
 from .config import SimConfig
 from .lidar import FmcwLidar
 from .world import World
+
 
 @dataclass(frozen=True)
 class RecordSummary:
@@ -71,7 +72,7 @@ class _StopFlag:
         self.set = False
         self._old = None
 
-    def __enter__(self) -> "_StopFlag":
+    def __enter__(self) -> _StopFlag:
         try:
             self._old = signal.signal(signal.SIGINT, self._handle)
         except ValueError:  # not the main thread: leave SIGINT alone

@@ -61,9 +61,7 @@ class Route:
         return x, y, h + lap * self.turn_per_lap, k
 
 
-def build_route(waypoints: np.ndarray, loop: bool, corner_radius: float) -> Route:
-    """Round each corner of the polyline with an arc of ``corner_radius`` (shrunk where
-    the adjacent segments are too short) and lay the pieces end to end."""
+def _waypoints(waypoints: np.ndarray, loop: bool) -> np.ndarray:
     pts = np.asarray(waypoints, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
         raise ValueError("a route needs at least two [x, y] waypoints")
@@ -71,6 +69,31 @@ def build_route(waypoints: np.ndarray, loop: bool, corner_radius: float) -> Rout
         raise ValueError("a looped route needs at least three waypoints")
     if loop and np.allclose(pts[0], pts[-1]):
         pts = pts[:-1]
+    return pts
+
+
+def _corners(seg_dir: np.ndarray, seg_len: np.ndarray, n: int, loop: bool,
+             corner_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per waypoint: the turn (rad), the arc's radius and its tangent length (m); 0 where straight."""
+    seg_count = len(seg_dir)
+    tangent, turn, radius = np.zeros(n), np.zeros(n), np.zeros(n)
+    for v in range(n) if loop else range(1, n - 1):
+        a, b = seg_dir[(v - 1) % seg_count], seg_dir[v % seg_count]
+        ang = float(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b))
+        if abs(ang) < 1e-9:
+            continue
+        if abs(abs(ang) - np.pi) < 1e-6:
+            raise ValueError("a route must not turn back on itself")
+        half = 0.5 * min(seg_len[(v - 1) % seg_count], seg_len[v % seg_count])
+        r = min(corner_radius, half / np.tan(abs(ang) / 2.0))
+        turn[v], radius[v], tangent[v] = ang, r, r * np.tan(abs(ang) / 2.0)
+    return turn, radius, tangent
+
+
+def build_route(waypoints: np.ndarray, loop: bool, corner_radius: float) -> Route:
+    """Round each corner of the polyline with an arc of ``corner_radius`` (shrunk where
+    the adjacent segments are too short) and lay the pieces end to end."""
+    pts = _waypoints(waypoints, loop)
     n = len(pts)
     seg_count = n if loop else n - 1
     seg_vec = np.array([pts[(i + 1) % n] - pts[i] for i in range(seg_count)])
@@ -78,22 +101,7 @@ def build_route(waypoints: np.ndarray, loop: bool, corner_radius: float) -> Rout
     if np.any(seg_len < 1e-9):
         raise ValueError("route waypoints must not repeat")
     seg_dir = seg_vec / seg_len[:, None]
-
-    corners = range(n) if loop else range(1, n - 1)
-    tangent = np.zeros(n)
-    turn = np.zeros(n)
-    radius = np.zeros(n)
-    for v in corners:
-        a, b = seg_dir[(v - 1) % seg_count], seg_dir[v % seg_count]
-        ang = float(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b))
-        if abs(ang) < 1e-9:
-            continue
-        if abs(abs(ang) - np.pi) < 1e-6:
-            raise ValueError("a route must not turn back on itself")
-        r = corner_radius
-        half = 0.5 * min(seg_len[(v - 1) % seg_count], seg_len[v % seg_count])
-        r = min(r, half / np.tan(abs(ang) / 2.0))
-        turn[v], radius[v], tangent[v] = ang, r, r * np.tan(abs(ang) / 2.0)
+    turn, radius, tangent = _corners(seg_dir, seg_len, n, loop, corner_radius)
 
     start_s, length, start_xy, heading, curvature = [], [], [], [], []
     s = 0.0

@@ -92,10 +92,10 @@ def crowd() -> World:
             x = (4.0 if i % 4 == 0 else 26.0) + lane
             path = [[x, 3.0], [x, 17.0]]
         movers.append(Mover("person", path, rng.uniform(0.8, 1.5), phase=rng.uniform(0, 40)))
-    for i in range(10):  # crossing the hall
+    for _ in range(10):  # crossing the hall
         x0, x1 = rng.uniform(2, 28, size=2)
         movers.append(Mover("person", [[x0, 1.0], [x1, 19.0]], rng.uniform(0.8, 1.4), phase=rng.uniform(0, 40)))
-    for i in range(4):
+    for _ in range(4):
         y = rng.uniform(6.5, 13.5)
         movers.append(Mover("cart", [[5.0, y], [25.0, y]], rng.uniform(0.5, 1.0), phase=rng.uniform(0, 40)))
     return World("crowd", np.array(walls, dtype=float), route, features, movers)

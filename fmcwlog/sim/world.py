@@ -76,7 +76,7 @@ class World:
             "walls": json.dumps([[float(v) for v in w] for w in self.walls]),
         }
 
-    def without_movers(self, name: str | None = None) -> "World":
+    def without_movers(self, name: str | None = None) -> World:
         return World(name or self.name, self.walls, self.route, self.features, [])
 
 
@@ -106,7 +106,13 @@ def world_from_dict(data: Any, source: str = "world") -> World:
     if len(walls) == 0:
         raise WorldError(f"{source}: walls is empty")
 
-    r = data["route"]
+    route = _route(data["route"], source)
+    features = _features(data.get("features") or [], source)
+    movers = [_mover(m, f"{source}: movers[{i}]") for i, m in enumerate(data.get("movers") or [])]
+    return World(str(data.get("name", source)), walls, route, features, movers)
+
+
+def _route(r: Any, source: str) -> RouteSpec:
     if not isinstance(r, dict) or "waypoints" not in r:
         raise WorldError(f"{source}: route needs 'waypoints'")
     route = RouteSpec(
@@ -120,9 +126,12 @@ def world_from_dict(data: Any, source: str = "world") -> World:
         route.build()
     except ValueError as exc:
         raise WorldError(f"{source}: route: {exc}") from None
+    return route
 
+
+def _features(entries: list, source: str) -> list[Feature]:
     features = []
-    for i, f in enumerate(data.get("features") or []):
+    for i, f in enumerate(entries):
         where = f"{source}: features[{i}]"
         if not isinstance(f, dict) or not {"a", "b"} <= set(f):
             raise WorldError(f"{where} needs 'a' and 'b'")
@@ -131,32 +140,31 @@ def world_from_dict(data: Any, source: str = "world") -> World:
         features.append(Feature(int(f.get("id", i + 1)), str(f.get("name", f"feature {i + 1}")), tuple(a), tuple(b)))
     if len({f.id for f in features}) != len(features):
         raise WorldError(f"{source}: feature ids must be unique")
+    return features
 
-    movers = []
-    for i, m in enumerate(data.get("movers") or []):
-        where = f"{source}: movers[{i}]"
-        if not isinstance(m, dict) or "path" not in m:
-            raise WorldError(f"{where} needs 'path'")
-        kind = m.get("kind", "person")
-        if kind not in ("person", "cart"):
-            raise WorldError(f"{where}.kind must be 'person' or 'cart', got {kind!r}")
-        path = _num_list(m["path"], (-1, 2), f"{where}.path")
-        try:
-            mover = Mover(
-                kind=kind,
-                path=path,
-                speed=float(m.get("speed", 1.2 if kind == "person" else 0.8)),
-                phase=float(m.get("phase", 0.0)),
-                radius=float(m.get("radius", 0.25)),
-                length=float(m.get("length", 1.0)),
-                width=float(m.get("width", 0.6)),
-            )
-        except (TypeError, ValueError):
-            raise WorldError(f"{where}: speed, phase, radius, length and width must be numbers") from None
-        if mover.speed < 0 or mover.radius <= 0 or mover.length <= 0 or mover.width <= 0:
-            raise WorldError(f"{where}: speed must be >= 0 and sizes positive")
-        movers.append(mover)
-    return World(str(data.get("name", source)), walls, route, features, movers)
+
+def _mover(m: Any, where: str) -> Mover:
+    if not isinstance(m, dict) or "path" not in m:
+        raise WorldError(f"{where} needs 'path'")
+    kind = m.get("kind", "person")
+    if kind not in ("person", "cart"):
+        raise WorldError(f"{where}.kind must be 'person' or 'cart', got {kind!r}")
+    path = _num_list(m["path"], (-1, 2), f"{where}.path")
+    try:
+        mover = Mover(
+            kind=kind,
+            path=path,
+            speed=float(m.get("speed", 1.2 if kind == "person" else 0.8)),
+            phase=float(m.get("phase", 0.0)),
+            radius=float(m.get("radius", 0.25)),
+            length=float(m.get("length", 1.0)),
+            width=float(m.get("width", 0.6)),
+        )
+    except (TypeError, ValueError):
+        raise WorldError(f"{where}: speed, phase, radius, length and width must be numbers") from None
+    if mover.speed < 0 or mover.radius <= 0 or mover.length <= 0 or mover.width <= 0:
+        raise WorldError(f"{where}: speed must be >= 0 and sizes positive")
+    return mover
 
 
 def load_world(path: str | Path) -> World:

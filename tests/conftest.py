@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from fmcwlog.api import ProcessOptions, process
 from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import SimConfig, apply_overrides
 from fmcwlog.sim.recorder import record
@@ -38,3 +39,20 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip(f"{SHARED} is absent: the shared conformance logs and datasets live there")
     return SHARED
+
+
+@pytest.fixture(scope="session")
+def processed(tmp_path_factory) -> dict[str, Path]:
+    """The two committed sample logs, processed once with both methods."""
+    out = {}
+    for name in ("corridor_30s", "crowd_30s"):
+        d = tmp_path_factory.mktemp(name) / "out"
+        process(SAMPLE_LOGS / f"{name}.mcap", d, ProcessOptions())
+        out[name] = d
+    return out
+
+
+@pytest.fixture(scope="session")
+def long_corridor_log(tmp_path_factory) -> Path:
+    """60 s of the 100 m bare corridor: geometry alone cannot fix the position along it."""
+    return _record(tmp_path_factory, "long-corridor", 60.0)

@@ -8,9 +8,6 @@ not fmcwlog's metrics.
 from __future__ import annotations
 
 import json
-import math
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
@@ -18,91 +15,16 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from conftest import SAMPLE_LOGS
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
-from mcap_ros2.writer import Writer
+from helpers import ate_rmse, copy_log, decoded, ground_truth, run_cli, tum
 
 from fmcwlog.api import ProcessOptions
 from fmcwlog.api import process as process_log
 
-# ----------------------------------------------------------------------------- helpers
-
-
-def decoded(path: Path, topics=None):
-    with open(path, "rb") as fh:
-        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-        yield from reader.iter_decoded_messages(topics=topics)
-
-
-def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None) -> None:
-    """Re-encode a log message by message; ``edit(topic, index, msg)`` may change a message or
-    return False to drop it."""
-    with open(src, "rb") as fh:
-        meta = {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}
-    counts: dict[str, int] = {}
-    with open(dst, "wb") as out:
-        w = Writer(out)
-        schemas = {}
-        for name, values in meta.items():
-            if name not in drop_metadata:
-                w.add_metadata(name, values)
-        for schema, channel, message, msg in decoded(src):
-            if channel.topic in drop_topics:
-                continue
-            i = counts.get(channel.topic, 0)
-            counts[channel.topic] = i + 1
-            if edit is not None and edit(channel.topic, i, msg) is False:
-                continue
-            if schema.name not in schemas:
-                schemas[schema.name] = w.register_msgdef(schema.name, schema.data.decode())
-            w.write_message(channel.topic, schemas[schema.name], msg, log_time=message.log_time,
-                            publish_time=message.publish_time)
-        w.finish()
-
-
-def ground_truth(path: Path):
-    rows = []
-    for _, _, message, m in decoded(path, ["/ground_truth/odom"]):
-        p, q = m.pose.pose.position, m.pose.pose.orientation
-        rows.append([message.log_time * 1e-9, p.x, p.y, math.atan2(2 * q.w * q.z, 1 - 2 * q.z * q.z)])
-    return np.array(rows)
-
-
-def tum(path: Path) -> np.ndarray:
-    a = np.loadtxt(path, ndmin=2)
-    return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2 * np.arctan2(a[:, 6], a[:, 7])])
-
-
-def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
-    """RMSE of positions after the best rigid 2-D alignment (Kabsch), GT interpolated at est stamps."""
-    ref = np.column_stack([np.interp(est[:, 0], gt[:, 0], gt[:, i]) for i in (1, 2)])
-    p = est[:, 1:3] - est[:, 1:3].mean(0)
-    q = ref - ref.mean(0)
-    u, _, vt = np.linalg.svd(p.T @ q)
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1, d]) @ u.T
-    return float(np.sqrt(np.mean(np.sum((p @ r.T - q) ** 2, axis=1))))
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
-
-
-@pytest.fixture(scope="module")
-def processed(tmp_path_factory):
-    """The two committed sample logs, processed once with both methods."""
-    out = {}
-    for name in ("corridor_30s", "crowd_30s"):
-        d = tmp_path_factory.mktemp(name) / "out"
-        process_log(SAMPLE_LOGS / f"{name}.mcap", d, ProcessOptions())
-        out[name] = d
-    return out
-
-
 # ----------------------------------------------------------------------------- accuracy
 
 
-@pytest.mark.parametrize("name, target", [("corridor_30s", 0.05), ("crowd_30s", 0.10)])
+# targets about twice the measured ATE (1.07 and 0.53 cm), so a broken stage fails them
+@pytest.mark.parametrize("name, target", [("corridor_30s", 0.022), ("crowd_30s", 0.011)])
 def test_improved_beats_baseline_and_wheel_odometry(processed, name, target):
     gt = ground_truth(SAMPLE_LOGS / f"{name}.mcap")
     errors = {m: ate_rmse(tum(processed[name] / f"{m}.tum"), gt) for m in ("improved", "baseline", "wheel_odometry")}
@@ -130,14 +52,9 @@ def test_moving_points_found_with_precision_and_recall_above_90_percent(processe
     assert precision > 0.9 and recall > 0.9, (precision, recall)
 
 
-def test_long_corridor_does_not_slide(tmp_path):
+def test_long_corridor_does_not_slide(long_corridor_log, tmp_path):
     """Geometry cannot fix the position along a bare corridor; the Doppler speed can."""
-    from fmcwlog.sim import scenarios
-    from fmcwlog.sim.config import SimConfig, apply_overrides
-    from fmcwlog.sim.recorder import record
-
-    log = tmp_path / "long.mcap"
-    record(scenarios.long_corridor(), apply_overrides(SimConfig(), {"run": {"duration": 60.0}}), log)
+    log = long_corridor_log
     out = tmp_path / "out"
     process_log(log, out, ProcessOptions())
     gt = ground_truth(log)
@@ -147,25 +64,11 @@ def test_long_corridor_does_not_slide(tmp_path):
         est = tum(out / f"{m}.tum")
         ref = np.column_stack([np.interp(est[:, 0], gt[:, 0], gt[:, i]) for i in (1, 2)])
         along[m] = abs(np.hypot(*(est[-1, 1:3] - est[0, 1:3])) - np.hypot(*(ref[-1] - ref[0])))
-    assert along["improved"] < 0.2, along
+    assert along["improved"] < 0.25, along  # measured 0.12 m over 60 m of corridor
     assert along["baseline"] > 5 * along["improved"], along
 
 
 # ----------------------------------------------------------------------------- contract
-
-
-def test_estimates_never_read_ground_truth(processed, tmp_path):
-    stripped = tmp_path / "stripped.mcap"
-    copy_log(SAMPLE_LOGS / "corridor_30s.mcap", stripped,
-             drop_topics=("/ground_truth/odom", "/ground_truth/point_labels"), drop_metadata=("fmcwlog.world",))
-    out = tmp_path / "out"
-    process_log(stripped, out, ProcessOptions())
-    ref = processed["corridor_30s"]
-    for name in ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm"):
-        assert (out / name).read_bytes() == (ref / name).read_bytes(), name
-    a = pq.read_table(out / "trajectories.parquet").drop(["ms"])
-    b = pq.read_table(ref / "trajectories.parquet").drop(["ms"])
-    assert a.equals(b)
 
 
 def test_outputs_open_in_the_usual_tools(processed):
@@ -198,7 +101,7 @@ def test_other_writers_logs_process_like_ours(shared_dir, tmp_path):
     run = json.loads((tmp_path / "lz4" / "run.json").read_text())
     assert run["mount"] == [0.45, 0.05, 0.03]
     gt = ground_truth(lz4)
-    assert ate_rmse(tum(tmp_path / "lz4" / "improved.tum"), gt) < 0.05
+    assert ate_rmse(tum(tmp_path / "lz4" / "improved.tum"), gt) < 0.01  # measured 0.49 cm
 
     cut = shared_dir / "conformance" / "other-writer-cut-off.mcap"
     with warnings.catch_warnings():
@@ -206,43 +109,6 @@ def test_other_writers_logs_process_like_ours(shared_dir, tmp_path):
         s = process_log(cut, tmp_path / "cut", ProcessOptions())
     assert s.sweeps == 80 and s.truncated
     assert any("ends early" in w for w in json.loads((tmp_path / "cut" / "run.json").read_text())["warnings"])
-
-
-def test_laserscan_with_odometry_prior_runs_without_doppler(tmp_path):
-    """A log with a LaserScan (no Doppler) and an Odometry topic as the prior."""
-    src = SAMPLE_LOGS / "corridor_30s.mcap"
-    dst = tmp_path / "scan.mcap"
-    with open(dst, "wb") as out:
-        w = Writer(out)
-        scan_schema = w.register_msgdef("sensor_msgs/msg/LaserScan", (Path(__file__).parents[1] / "schemas" / "sensor_msgs"
-                                                                     / "msg" / "LaserScan.msg").read_text()
-                                        + "=" * 80 + "\nMSG: std_msgs/msg/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
-                                        + "=" * 80 + "\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n")
-        odom_schema = None
-        n = 1081
-        res = math.radians(0.25)
-        for schema, channel, message, msg in decoded(src, ["/fmcw/points", "/ground_truth/odom"]):
-            if channel.topic == "/ground_truth/odom":  # stands in for a robot's own odometry here
-                if odom_schema is None:
-                    odom_schema = w.register_msgdef(schema.name, schema.data.decode())
-                w.write_message("/odom", odom_schema, msg, log_time=message.log_time, publish_time=message.log_time)
-                continue
-            pts = np.frombuffer(bytes(msg.data), np.float32).reshape(-1, 6)
-            beam = np.rint((np.arctan2(pts[:, 1], pts[:, 0]) + math.radians(135)) / res).astype(int)
-            ranges = np.full(n, np.inf, np.float32)
-            ranges[beam] = np.hypot(pts[:, 0], pts[:, 1])
-            w.write_message("/scan", scan_schema, {
-                "header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec}, "frame_id": "laser"},
-                "angle_min": -math.radians(135), "angle_max": math.radians(135), "angle_increment": res,
-                "time_increment": 0.075 / 1080, "scan_time": 0.1, "range_min": 0.1, "range_max": 30.0,
-                "ranges": ranges.tolist(), "intensities": []}, log_time=message.log_time, publish_time=message.log_time)
-        w.finish()
-    out = tmp_path / "out"
-    s = process_log(dst, out, ProcessOptions(odom_topic="/odom"))
-    assert not s.doppler and s.sweeps == 300
-    run = json.loads((out / "run.json").read_text())
-    assert run["doppler"] is False and any("no Doppler" in w for w in run["warnings"])
-    assert run["prior"] == "odometry (/odom)"
 
 
 # ----------------------------------------------------------------------------- bad input

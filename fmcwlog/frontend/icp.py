@@ -30,6 +30,7 @@ class ICPParams:
     translation_tol, rotation_tol: stop when a step is below both (m, rad).
     min_correspondences: fewer usable pairs aborts (converged=False).
     huber_delta: Huber threshold δ on the residual norm (m); robust only.
+    use_huber: weight residuals by the Huber kernel (robust only; False = plain least squares).
     use_gmmsc: apply GMMSC weights/rejection (robust only; False = Huber only).
     gmmsc: parameters of the distance mixture.
     gmm_start_translation, gmm_start_rotation: GMMSC starts once a (Huber-only)
@@ -52,6 +53,7 @@ class ICPParams:
     rotation_tol: float = 5e-5
     min_correspondences: int = 10
     huber_delta: float = 0.05
+    use_huber: bool = True
     use_gmmsc: bool = True
     gmmsc: GMMSCParams = field(default_factory=GMMSCParams)
     gmm_start_translation: float = 2e-3

@@ -99,12 +99,14 @@ class MotionEstimate:
     predicted: base_link's pose at the sweep's stamp before matching (map frame).
     moving: (N,) points judged moving, left out of matching and the map.
     doppler: the Doppler stages' output (improved method with Doppler), else None.
+    segmented: ``moving`` is a segmentation's verdict (else no point was judged).
     """
 
     twist: tuple[float, float]
     predicted: np.ndarray
     moving: np.ndarray
     doppler: Doppler | None = None
+    segmented: bool = False
 
 
 @dataclass
@@ -197,7 +199,8 @@ class FrontEnd:
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         use = ~near & ~motion.moving
-        pts = transform_points(self.mount, deskew(xy[use], t[use], v, omega, self.mount))  # base_link at t_k
+        seen = deskew(xy[use], t[use], v, omega, self.mount) if p.deskew else xy[use]
+        pts = transform_points(self.mount, seen)  # base_link at t_k
         source = voxel_downsample(pts, p.source_voxel)
 
         if self.map.tree is None or len(self.map) < p.icp.min_correspondences:
@@ -213,7 +216,7 @@ class FrontEnd:
         moving_map = transform_points(compose(pose, self.mount), moving_xy) if len(moving_xy) else np.empty((0, 2))
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, iterations, kept, int(motion.moving.sum()), ms,
-                           static_map, moving_map, motion.moving, motion.doppler is not None, keyframe)
+                           static_map, moving_map, motion.moving, motion.segmented, keyframe)
 
 
 class ImprovedFrontEnd(FrontEnd):
@@ -251,22 +254,23 @@ class ImprovedFrontEnd(FrontEnd):
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
         doppler = self.doppler_stages(sweep, prior.twist)
-        moving = doppler.moving.copy() if doppler is not None else np.zeros(len(sweep.xy), bool)
-        if doppler is None or not doppler.usable:
+        segmented = doppler is not None and self.params.segment
+        moving = doppler.moving.copy() if segmented else np.zeros(len(sweep.xy), bool)
+        if doppler is None or not doppler.usable or not self.params.doppler_twist:
             twist = self.prior_twist(prior)
-            return MotionEstimate(twist, self.predict(ts, prior, twist), moving, doppler)
+            return MotionEstimate(twist, self.predict(ts, prior, twist), moving, doppler, segmented)
         twist = (doppler.v, doppler.omega)
         if self.pose is None:
             predicted = np.zeros(3)
         else:  # the twist at the middle of the interval since the last sweep
             v_mid, w_mid = 0.5 * (twist[0] + self.last_twist[0]), 0.5 * (twist[1] + self.last_twist[1])
             predicted = compose(self.pose, se2_exp(v_mid, 0.0, w_mid, np.array(ts - self.last_stamp)))
-        return MotionEstimate(twist, predicted, moving, doppler)
+        return MotionEstimate(twist, predicted, moving, doppler, segmented)
 
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> tuple[np.ndarray, int, int]:
         prior_info = None
         d = motion.doppler
-        if d is not None and np.isfinite(d.v):
+        if d is not None and np.isfinite(d.v) and self.params.doppler_prior:
             prior_info = doppler_prior_information(motion.predicted[2], d.v_var, d.omega_var,
                                                    stamp - self.last_stamp, self.params)
         res = register(source, self.map.tree, self.map.points, motion.predicted, self.params.icp,

@@ -39,6 +39,13 @@ class FrontEndParams:
         prediction by at most this much (m/s; wheels slip and are miscalibrated
         by far less); see :meth:`fmcwlog.frontend.methods.ImprovedFrontEnd.doppler_stages`.
     seed: seed of the Doppler RANSAC (results are deterministic given it).
+
+    Stage switches of the improved method, for ablation studies (each True by default;
+    ``icp.use_gmmsc`` and ``icp.use_huber`` switch GMMSC and the Huber kernel):
+    segment: remove the points segmentation judges moving (eq. 17-19).
+    deskew: move every point to the sweep's stamp; False matches them where they were seen.
+    doppler_twist: deskew and predict with the Doppler twist; False uses the wheels'.
+    doppler_prior: hold the ICP to the Doppler-predicted motion along the path.
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
@@ -59,6 +66,10 @@ class FrontEndParams:
     residual_sigma: float = 0.03
     doppler_prior_gate: float = 0.3
     seed: int = 0
+    segment: bool = True
+    deskew: bool = True
+    doppler_twist: bool = True
+    doppler_prior: bool = True
 
 
 def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:

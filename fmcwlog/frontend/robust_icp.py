@@ -115,7 +115,7 @@ def register(
         if keep.sum() < params.min_correspondences:
             break
         d = c.distances[keep]
-        w = w[keep] * huber_weights(d, params.huber_delta)  # W = GMM × Huber (NOTES)
+        w = w[keep] * huber_weights(d, params.huber_delta) if params.use_huber else w[keep]  # W = GMM × Huber (NOTES)
         delta, h = gauss_newton_step(
             c.moved[keep], c.target[keep], pose, w, prior_pose, prior_information
         )

@@ -1,0 +1,78 @@
+"""Helpers the tests share: logs read and rewritten with plain ``mcap`` + ``mcap_ros2`` (not fmcwlog's
+reader), ground truth read the same way, and a trajectory error written for the tests (2-D Kabsch),
+not fmcwlog's metrics.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.writer import Writer
+
+
+def decoded(path: Path, topics=None):
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        yield from reader.iter_decoded_messages(topics=topics)
+
+
+def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None, extra_metadata=None) -> None:
+    """Re-encode a log message by message; ``edit(topic, index, msg)`` may change a message or
+    return False to drop it; ``extra_metadata`` records are added."""
+    with open(src, "rb") as fh:
+        meta = {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}
+    counts: dict[str, int] = {}
+    with open(dst, "wb") as out:
+        w = Writer(out)
+        schemas = {}
+        for name, values in meta.items():
+            if name not in drop_metadata:
+                w.add_metadata(name, values)
+        for name, values in (extra_metadata or {}).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(src):
+            if channel.topic in drop_topics:
+                continue
+            i = counts.get(channel.topic, 0)
+            counts[channel.topic] = i + 1
+            if edit is not None and edit(channel.topic, i, msg) is False:
+                continue
+            if schema.name not in schemas:
+                schemas[schema.name] = w.register_msgdef(schema.name, schema.data.decode())
+            w.write_message(channel.topic, schemas[schema.name], msg, log_time=message.log_time,
+                            publish_time=message.publish_time)
+        w.finish()
+
+
+def ground_truth(path: Path):
+    rows = []
+    for _, _, message, m in decoded(path, ["/ground_truth/odom"]):
+        p, q = m.pose.pose.position, m.pose.pose.orientation
+        rows.append([message.log_time * 1e-9, p.x, p.y, math.atan2(2 * q.w * q.z, 1 - 2 * q.z * q.z)])
+    return np.array(rows)
+
+
+def tum(path: Path) -> np.ndarray:
+    a = np.loadtxt(path, ndmin=2)
+    return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2 * np.arctan2(a[:, 6], a[:, 7])])
+
+
+def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
+    """RMSE of positions after the best rigid 2-D alignment (Kabsch), GT interpolated at est stamps."""
+    ref = np.column_stack([np.interp(est[:, 0], gt[:, 0], gt[:, i]) for i in (1, 2)])
+    p = est[:, 1:3] - est[:, 1:3].mean(0)
+    q = ref - ref.mean(0)
+    u, _, vt = np.linalg.svd(p.T @ q)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1, d]) @ u.T
+    return float(np.sqrt(np.mean(np.sum((p @ r.T - q) ** 2, axis=1))))
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)

@@ -19,6 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from . import __version__
 from .errors import CalibrationError, LogError
 from .evaluation.evaluate import Evaluation, evaluate
@@ -32,7 +34,7 @@ from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
 from .io.inputs import choose_topics, iter_inputs
 from .io.mcap_log import LogReader
-from .io.outputs import ProcessOutputs
+from .io.outputs import ProcessOutputs, odom_frame
 from .io.topics import CALIBRATION_KEY
 from .sim.config import SimConfig
 from .sim.recorder import RecordSummary
@@ -63,6 +65,8 @@ class ProcessOptions:
     ticks_topic: default ``/wheel/ticks`` when present.
     odom_topic: an Odometry topic as the motion prior instead of ticks (default ``/odom``
         when the log has no ticks).
+    publish_period: paths and occupancy grids go into ``processed.mcap`` every this many
+        seconds of log (s), and once more at the end.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -70,6 +74,7 @@ class ProcessOptions:
     ticks_topic: str | None = None
     odom_topic: str | None = None
     params: FrontEndParams = field(default_factory=FrontEndParams)
+    publish_period: float = 5.0
 
 
 @dataclass
@@ -107,18 +112,19 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         check_output_folder(out_dir, force)
         with atomic_folder(out_dir) as tmp:
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
-            outputs = ProcessOutputs(tmp, (*opts.methods, WHEEL_ODOMETRY))
+            trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
+            outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
+            grids = {fe.name: fe.grid for fe in runner.fronts}
             try:
                 for step in runner.run(iter_inputs(reader, topics)):
                     for r in step.results:
-                        outputs.add_sweep(r.method, r.stamp_ns, r.pose, r.iterations, r.correspondences,
-                                          r.moving_points, r.ms, r.static_map_xy, r.moving_map_xy,
-                                          r.moving_mask if r.segmented else None)
+                        outputs.add(r)
                     if step.wheel_pose is not None:
-                        outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose)
+                        outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
+                    outputs.end_sweep(step.sweep.stamp_ns, grids)
                     if on_sweep:
                         on_sweep(runner.sweeps, total)
-                outputs.finish({fe.name: fe.grid for fe in runner.fronts})
+                outputs.finish(grids)
             except BaseException:
                 outputs.abort()
                 raise
@@ -139,6 +145,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "prior": summary.prior,
                 "doppler": summary.doppler,
                 "mount": list(cal.mount),
+                "frames": {name: odom_frame(name) for name in trajectories},
                 "params": dataclasses.asdict(opts.params),
                 "sweeps": summary.sweeps,
                 "skipped_sweeps": summary.skipped_sweeps,

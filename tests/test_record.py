@@ -103,17 +103,21 @@ def test_log_follows_the_format(corridor):
         "/wheel/ticks": "fmcwlog_msgs/msg/WheelTicks",
         "/ground_truth/odom": "nav_msgs/msg/Odometry",
         "/ground_truth/point_labels": "fmcwlog_msgs/msg/PointLabels",
+        "/tf_static": "tf2_msgs/msg/TFMessage",  # beyond the contract: for viewers
+        "/ground_truth/tf": "tf2_msgs/msg/TFMessage",
     }
     assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
     # 26 s: 10 Hz sweeps and labels, 50 Hz ticks and ground truth.
     assert len(topics["/fmcw/points"]) == len(topics["/ground_truth/point_labels"]) == 260
-    assert len(topics["/wheel/ticks"]) == len(topics["/ground_truth/odom"]) == 1300
+    assert len(topics["/wheel/ticks"]) == len(topics["/ground_truth/odom"]) == len(topics["/ground_truth/tf"]) == 1300
+    assert len(topics["/tf_static"]) == 1
 
     for topic, msgs in topics.items():
         times = [lt for lt, _, _ in msgs]
         assert times == sorted(times)
         for lt, _, m in msgs:
-            assert stamp_ns(m.header.stamp) == lt, topic
+            header = m.transforms[0].header if topic.endswith("tf") or topic == "/tf_static" else m.header
+            assert stamp_ns(header.stamp) == lt, topic
     assert np.allclose(np.diff([lt for lt, _, _ in topics["/fmcw/points"]]), 100_000_000)
     assert np.allclose(np.diff([lt for lt, _, _ in topics["/wheel/ticks"]]), 20_000_000)
 
@@ -314,3 +318,31 @@ def test_crowd_has_20_to_40_percent_moving_returns(crowd_log):
     topics, _, _, _ = read_log(crowd_log)
     moving = np.concatenate([np.frombuffer(bytes(m.moving), np.uint8) for _, _, m in topics["/ground_truth/point_labels"]])
     assert 0.20 <= moving.mean() <= 0.40
+
+
+def test_rosbags_reads_the_log_and_its_tf_tree(corridor_log):
+    """rosbags (the reader evo and KISS-ICP use) reads every message, and the transforms chain
+    lidar -> base_link (the mount) -> map (the ground truth, equal to /ground_truth/odom)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    with AnyReader([corridor_log], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts["/fmcw/points"] == 260 and counts["/tf_static"] == 1 and counts["/ground_truth/tf"] == 1300
+        static = [reader.deserialize(raw, c.msgtype) for c, _, raw in
+                  reader.messages(connections=[c for c in reader.connections if c.topic == "/tf_static"])]
+        tf = static[0].transforms[0]
+        assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "lidar")
+        odom = {}
+        for c, t, raw in reader.messages(connections=[c for c in reader.connections
+                                                      if c.topic in ("/ground_truth/tf", "/ground_truth/odom")]):
+            msg = reader.deserialize(raw, c.msgtype)
+            if c.topic == "/ground_truth/odom":
+                odom[t] = (msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.orientation.z)
+            else:
+                g = msg.transforms[0]
+                assert (g.header.frame_id, g.child_frame_id) == ("map", "base_link")
+                odom.setdefault(("tf", t), (g.transform.translation.x, g.transform.translation.y, g.transform.rotation.z))
+    assert tf.transform.translation.x == pytest.approx(0.35)  # the default mount (calibration lidar_x)
+    pairs = [(odom[t], odom[("tf", t)]) for t in odom if not isinstance(t, tuple) and ("tf", t) in odom]
+    assert len(pairs) == 1300 and all(np.allclose(a, b) for a, b in pairs)

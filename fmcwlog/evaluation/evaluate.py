@@ -49,6 +49,7 @@ class Evaluation:
     run: dict[str, Any]
     result: dict[str, Any] = field(default_factory=dict)
     # for the plots
+    gt_ns: np.ndarray | None = None  # ground-truth stamps (ns) and poses (N, 3) of base_link in map
     gt_t: np.ndarray | None = None
     gt: np.ndarray | None = None
     aligned: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, est, errors
@@ -169,7 +170,7 @@ def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]
     else:
         gt_ns, gt = np.zeros(0, np.int64), np.zeros((0, 3))
     if len(gt_ns) >= 2:
-        ev.gt_t, ev.gt = gt_ns * 1e-9, gt
+        ev.gt_ns, ev.gt_t, ev.gt = gt_ns, gt_ns * 1e-9, gt
     else:
         notes.append(f"{log} has no {GT_ODOM_TOPIC}: trajectory errors and feature lengths cannot be computed")
     return gt_ns, gt
@@ -234,6 +235,7 @@ def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndar
 
 
 def _speed(r: dict, method: str, ms: np.ndarray) -> None:
+    ms = ms[np.isfinite(ms)]  # the motion prior's rows carry no time
     if len(ms):
         r["ms_per_sweep_median"] = float(np.median(ms))
         r["ms_per_sweep_p95"] = float(np.percentile(ms, 95))

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from ..io.atomic import json_text, write_text
-from ..io.outputs import pgm_pixels, read_tum
+from ..io.atomic import atomic_path, json_text, write_text
+from ..io.outputs import pgm_pixels, read_tum, write_tum
 from .evaluate import Evaluation
 from .published import paper_summary
 
@@ -293,8 +293,14 @@ def _relations_html(r: dict) -> str:
 
 
 def write_report(ev: Evaluation) -> list[Path]:
-    """Write report.json, report.md and report.html into the output folder (each via a temporary name)."""
+    """Write report.json, report.md and report.html into the output folder (each via a temporary name),
+    and the log's ground truth as ``gt.tum`` beside the estimates (``base_link`` in ``map``; evo:
+    ``evo_ape tum gt.tum improved.tum -a``)."""
     out = []
+    if ev.gt_ns is not None and ev.gt is not None:
+        with atomic_path(ev.out_dir / "gt.tum") as tmp:
+            write_tum(tmp, ev.gt_ns, ev.gt)
+        out.append(ev.out_dir / "gt.tum")
     for name, text in (("report.json", json_text(ev.result)), ("report.md", render_markdown(ev)),
                        ("report.html", render_html(ev, ev.walls))):
         write_text(ev.out_dir / name, text)

@@ -51,6 +51,7 @@ from .egomotion import (
     sensor_velocity_from_base_twist,
 )
 from .gmmsc import DistanceMixture
+from .icp import ICPResult
 from .local_map import VoxelMap, voxel_downsample
 from .occupancy import OccupancyGrid, OccupancyParams
 from .params import FrontEndParams
@@ -85,6 +86,7 @@ class Doppler:
     v_var: float
     omega_var: float
     moving: np.ndarray
+    v_omega_cov: float = 0.0
 
     @property
     def usable(self) -> bool:
@@ -100,6 +102,7 @@ class MotionEstimate:
     moving: (N,) points judged moving, left out of matching and the map.
     doppler: the Doppler stages' output (improved method with Doppler), else None.
     segmented: ``moving`` is a segmentation's verdict (else no point was judged).
+    twist_covariance: (2, 2) of ``twist`` when it was measured (the Doppler fit), else None.
     """
 
     twist: tuple[float, float]
@@ -107,23 +110,41 @@ class MotionEstimate:
     moving: np.ndarray
     doppler: Doppler | None = None
     segmented: bool = False
+    twist_covariance: np.ndarray | None = None
 
 
 @dataclass
 class SweepResult:
-    """What one method made of one sweep."""
+    """What one method made of one sweep.
+
+    pose: base_link in the method's own frame (``<method>/odom``) at the sweep's stamp.
+    twist: ``(v, ω)`` of base_link over the sweep (m/s, rad/s), as used to deskew it.
+    twist_covariance: (2, 2) of ``twist`` where it was measured (Doppler), else None.
+    pose_covariance: (3, 3) over (x, y, yaw) of the scan-to-map registration (m², rad²):
+        how well this sweep is pinned to the method's map, not the drift accumulated since
+        the start; None where no registration ran (the first sweeps).
+    static_map_xy, static_velocity: the points it kept (map frame, deskewed) and their
+        radial Doppler velocity (m/s; None without Doppler).
+    moving_map_xy, moving_velocity: the same for the points it judged moving.
+    moving_mask: (N,) over the sweep's points; ``segmented`` says whether it is a verdict.
+    """
 
     method: str
     stamp_ns: int
-    pose: np.ndarray  # base_link in the estimate's map frame at the sweep's stamp
+    pose: np.ndarray
+    twist: tuple[float, float]
+    twist_covariance: np.ndarray | None
+    pose_covariance: np.ndarray | None
     iterations: int
     correspondences: int
     moving_points: int
     ms: float
-    static_map_xy: np.ndarray  # the points it kept, in its map frame, deskewed
-    moving_map_xy: np.ndarray  # the points it judged moving, in its map frame
-    moving_mask: np.ndarray  # (N,) over the sweep's points
-    segmented: bool  # the method judged moving points in this sweep (moving_mask is its verdict)
+    static_map_xy: np.ndarray
+    static_velocity: np.ndarray | None
+    moving_map_xy: np.ndarray
+    moving_velocity: np.ndarray | None
+    moving_mask: np.ndarray
+    segmented: bool
     keyframe: bool
 
 
@@ -153,9 +174,8 @@ class FrontEnd:
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         raise NotImplementedError  # pragma: no cover - abstract
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> tuple[np.ndarray, int, int]:
-        """Match ``source`` (base_link at the sweep's stamp) against the map from
-        ``motion.predicted``; returns the pose, the ICP iterations and the pairs kept."""
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
+        """Match ``source`` (base_link at the sweep's stamp) against the map from ``motion.predicted``."""
         raise NotImplementedError  # pragma: no cover - abstract
 
     # --- what they share ------------------------------------------------------------------
@@ -203,20 +223,38 @@ class FrontEnd:
         pts = transform_points(self.mount, seen)  # base_link at t_k
         source = voxel_downsample(pts, p.source_voxel)
 
+        pose_cov = None
         if self.map.tree is None or len(self.map) < p.icp.min_correspondences:
             pose, iterations, kept = motion.predicted, 0, 0
         else:
-            pose, iterations, kept = self.register(source, motion, ts)
+            res = self.register(source, motion, ts)
+            pose, iterations, kept = res.pose, res.iterations, res.n_correspondences_kept
+            pose_cov = registration_covariance(res.hessian, p.residual_sigma)
         pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
 
         static_map = transform_points(pose, pts)
         keyframe = self._update_maps(pose, static_map)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
-        moving_xy = xy[motion.moving & ~near]
+        moving = motion.moving & ~near
+        moving_xy = xy[moving]
         moving_map = transform_points(compose(pose, self.mount), moving_xy) if len(moving_xy) else np.empty((0, 2))
+        vel = sweep.velocity
         ms = (time.perf_counter() - t0) * 1e3
-        return SweepResult(self.name, sweep.stamp_ns, pose, iterations, kept, int(motion.moving.sum()), ms,
-                           static_map, moving_map, motion.moving, motion.segmented, keyframe)
+        return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
+                           iterations, kept, int(motion.moving.sum()), ms, static_map,
+                           None if vel is None else vel[use], moving_map, None if vel is None else vel[moving],
+                           motion.moving, motion.segmented, keyframe)
+
+
+def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.ndarray | None:
+    """Covariance (3, 3) of a registered pose: ``σ² H⁻¹`` with ``H = JᵀWJ`` (+ the prior's
+    information, already in those units), residuals of standard deviation ``σ`` (m).
+    None when ``H`` is singular (a scan that fixes no direction)."""
+    try:
+        cov = residual_sigma**2 * np.linalg.inv(hessian)
+    except np.linalg.LinAlgError:
+        return None
+    return cov if np.all(np.isfinite(cov)) else None
 
 
 class ImprovedFrontEnd(FrontEnd):
@@ -249,25 +287,27 @@ class ImprovedFrontEnd(FrontEnd):
         eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor)  # NOTES: threshold this, not v_r
         moving = segment_moving(sweep.xy, eps, p.segmentation)
         tw = base_twist_from_sensor_velocity(ego.v_sensor, *self.cal.mount, covariance=ego.covariance)
-        return Doppler(tw.v, tw.omega, float(tw.covariance[0, 0]), float(tw.covariance[1, 1]), moving)
+        return Doppler(tw.v, tw.omega, float(tw.covariance[0, 0]), float(tw.covariance[1, 1]), moving,
+                       float(tw.covariance[0, 1]))
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
         doppler = self.doppler_stages(sweep, prior.twist)
         segmented = doppler is not None and self.params.segment
-        moving = doppler.moving.copy() if segmented else np.zeros(len(sweep.xy), bool)
+        moving = doppler.moving.copy() if doppler is not None and segmented else np.zeros(len(sweep.xy), bool)
         if doppler is None or not doppler.usable or not self.params.doppler_twist:
             twist = self.prior_twist(prior)
             return MotionEstimate(twist, self.predict(ts, prior, twist), moving, doppler, segmented)
         twist = (doppler.v, doppler.omega)
+        twist_cov = np.array([[doppler.v_var, doppler.v_omega_cov], [doppler.v_omega_cov, doppler.omega_var]])
         if self.pose is None:
             predicted = np.zeros(3)
         else:  # the twist at the middle of the interval since the last sweep
             v_mid, w_mid = 0.5 * (twist[0] + self.last_twist[0]), 0.5 * (twist[1] + self.last_twist[1])
             predicted = compose(self.pose, se2_exp(v_mid, 0.0, w_mid, np.array(ts - self.last_stamp)))
-        return MotionEstimate(twist, predicted, moving, doppler, segmented)
+        return MotionEstimate(twist, predicted, moving, doppler, segmented, twist_cov)
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> tuple[np.ndarray, int, int]:
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
         prior_info = None
         d = motion.doppler
         if d is not None and np.isfinite(d.v) and self.params.doppler_prior:
@@ -277,7 +317,7 @@ class ImprovedFrontEnd(FrontEnd):
                        mixture=self.mixture, prior_pose=motion.predicted if prior_info is not None else None,
                        prior_information=prior_info)
         self.mixture = res.mixture
-        return res.pose, res.iterations, res.n_correspondences_kept
+        return res
 
 
 def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: float,
@@ -309,9 +349,8 @@ class BaselineFrontEnd(FrontEnd):
         twist = self.prior_twist(prior)
         return MotionEstimate(twist, self.predict(sweep.stamp_ns * 1e-9, prior, twist), np.zeros(len(sweep.xy), bool))
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> tuple[np.ndarray, int, int]:
-        res = register_point_to_point(source, self.map.tree, self.map.points, motion.predicted, self.params.icp)
-        return res.pose, res.iterations, res.n_correspondences_kept
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
+        return register_point_to_point(source, self.map.tree, self.map.points, motion.predicted, self.params.icp)
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}

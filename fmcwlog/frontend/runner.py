@@ -31,11 +31,13 @@ class SweepStep:
 
     wheel_pose: the motion prior's pose at the sweep's stamp, relative to its pose at
         the first sweep (x, y, yaw); None without a motion prior.
+    wheel_twist: the motion prior's ``(v, ω)`` over the sweep (m/s, rad/s), if it has one.
     """
 
     sweep: SweepInput
     results: list[SweepResult]
     wheel_pose: np.ndarray | None
+    wheel_twist: tuple[float, float] | None
 
 
 class LogRunner:
@@ -127,4 +129,4 @@ class LogRunner:
         self.doppler = sweep.velocity is not None
         self.sweeps += 1
         self._last_stamp = ts
-        return SweepStep(sweep, results, wheel_pose)
+        return SweepStep(sweep, results, wheel_pose, prior.twist)

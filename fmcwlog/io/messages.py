@@ -83,29 +83,77 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
     return out
 
 
-def odometry_message(
-    stamp_ns_: int, frame_id: str, child_frame_id: str, pose: np.ndarray, twist: np.ndarray
-) -> dict:
-    """``nav_msgs/Odometry``: ``pose`` (x, y, yaw) in ``frame_id``, ``twist`` (vx, vy, wz) in ``child_frame_id``."""
+def planar_covariance(cov3: np.ndarray | None) -> list[float]:
+    """A 6x6 row-major ROS covariance (x, y, z, roll, pitch, yaw) from a planar 3x3 one over
+    (x, y, yaw); z, roll and pitch are fixed by the plane (0). All zeros when ``cov3`` is None
+    (unknown), as ROS messages leave it."""
+    out = np.zeros((6, 6))
+    if cov3 is not None:
+        idx = np.array([0, 1, 5])
+        out[np.ix_(idx, idx)] = np.asarray(cov3, dtype=float)
+    return out.reshape(-1).tolist()
+
+
+def pose_dict(pose: np.ndarray) -> dict:
+    """``geometry_msgs/Pose`` of a planar pose ``(x, y, yaw)``."""
     q = yaw_to_quaternion(pose[2])
-    zeros = [0.0] * 36
+    return {"position": {"x": float(pose[0]), "y": float(pose[1]), "z": 0.0},
+            "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}}
+
+
+def odometry_message(
+    stamp_ns_: int, frame_id: str, child_frame_id: str, pose: np.ndarray, twist: np.ndarray,
+    pose_covariance: np.ndarray | None = None, twist_covariance: np.ndarray | None = None,
+) -> dict:
+    """``nav_msgs/Odometry``: ``pose`` (x, y, yaw) in ``frame_id``, ``twist`` (vx, vy, wz) in ``child_frame_id``;
+    covariances (3, 3) over (x, y, yaw) and (vx, vy, wz), zeros where not given."""
     return {
         "header": {"stamp": stamp(stamp_ns_), "frame_id": frame_id},
         "child_frame_id": child_frame_id,
-        "pose": {
-            "pose": {
-                "position": {"x": float(pose[0]), "y": float(pose[1]), "z": 0.0},
-                "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])},
-            },
-            "covariance": zeros,
-        },
+        "pose": {"pose": pose_dict(pose), "covariance": planar_covariance(pose_covariance)},
         "twist": {
             "twist": {
                 "linear": {"x": float(twist[0]), "y": float(twist[1]), "z": 0.0},
                 "angular": {"x": 0.0, "y": 0.0, "z": float(twist[2])},
             },
-            "covariance": zeros,
+            "covariance": planar_covariance(twist_covariance),
         },
+    }
+
+
+def transform_dict(stamp_ns_: int, parent: str, child: str, pose: np.ndarray) -> dict:
+    """``geometry_msgs/TransformStamped``: frame ``child`` at ``pose`` (x, y, yaw) in ``parent``."""
+    p = pose_dict(pose)
+    return {"header": {"stamp": stamp(stamp_ns_), "frame_id": parent}, "child_frame_id": child,
+            "transform": {"translation": p["position"], "rotation": p["orientation"]}}
+
+
+def tf_message(transforms: list[dict]) -> dict:
+    """``tf2_msgs/TFMessage`` of :func:`transform_dict` entries."""
+    return {"transforms": transforms}
+
+
+def path_message(stamp_ns_: int, frame_id: str, stamps_ns: list[int], poses: list[np.ndarray]) -> dict:
+    """``nav_msgs/Path``: the poses (x, y, yaw) at their stamps, in ``frame_id``."""
+    return {"header": {"stamp": stamp(stamp_ns_), "frame_id": frame_id},
+            "poses": [{"header": {"stamp": stamp(ns), "frame_id": frame_id}, "pose": pose_dict(p)}
+                      for ns, p in zip(stamps_ns, poses)]}
+
+
+def occupancy_grid_message(stamp_ns_: int, frame_id: str, resolution: float, width: int, height: int,
+                           origin_xy: np.ndarray, data: np.ndarray) -> dict:
+    """``nav_msgs/OccupancyGrid``: ``data`` (H·W,) int8 row-major from the cell at ``origin_xy`` (m)."""
+    return {
+        "header": {"stamp": stamp(stamp_ns_), "frame_id": frame_id},
+        "info": {
+            "map_load_time": stamp(stamp_ns_),
+            "resolution": float(resolution),
+            "width": int(width),
+            "height": int(height),
+            "origin": {"position": {"x": float(origin_xy[0]), "y": float(origin_xy[1]), "z": 0.0},
+                       "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+        },
+        "data": np.asarray(data, dtype=np.int8),  # written as raw bytes (LogWriter)
     }
 
 

@@ -1,16 +1,26 @@
 """What ``fmcwlog process`` leaves in its output folder, in the field's usual formats.
 
-- ``<method>.tum``: ``t x y z qx qy qz qw`` per sweep (evo, TUM RGB-D format);
-- ``trajectories.parquet``: a row per sweep and method (pandas, pyarrow);
-- ``<method>_map.pgm`` + ``.yaml`` (ROS map_server) and ``<method>_map.png``;
-- ``processed.mcap``: estimated odometry, maps, static/moving points and the per-point
-  moving verdicts (``/<method>/moving_labels``, index for index with the input sweep);
-- ``run.json``: parameters, package version, inputs and counts.
+Frames (REP-105 style, one tree per trajectory so that methods never fight over a frame):
+each method ``M`` (and the motion prior, ``wheel_odometry``) has its own fixed frame
+``M/odom``, with its estimate of the robot as ``M/base_link`` and the sensor as
+``M/lidar``. Estimates start at the origin of ``M/odom``: estimation cannot know where
+in ``map`` (the ground truth's frame) the robot started, so no estimate claims ``map``.
+
+- ``<M>.tum``: ``t x y z qx qy qz qw`` per sweep, ``M/base_link`` in ``M/odom`` (evo);
+- ``trajectories.parquet``: a row per sweep and trajectory (pandas, pyarrow); units,
+  frames and the angle convention are in the schema's metadata (:data:`PARQUET_COLUMNS`);
+- ``<M>_map.pgm`` + ``.yaml`` (ROS map_server) and ``<M>_map.png``, in ``M/odom``;
+- ``processed.mcap`` (Foxglove, rosbags): ``/tf_static`` (each ``M/base_link -> M/lidar``),
+  ``/tf`` (each ``M/odom -> M/base_link``, every sweep), ``/M/odom`` (Odometry with the
+  twist and the registration's covariance), ``/M/path`` and ``/M/map`` (every
+  ``publish_period`` seconds of log and at the end), ``/M/points/static|moving`` (in
+  ``M/odom``, with their ``velocity``), ``/M/moving_labels`` (index for index with the
+  input sweep);
+- ``run.json`` (written by :mod:`fmcwlog.api`): parameters, version, inputs, counts.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,13 +30,51 @@ import pyarrow.parquet as pq
 
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from .mcap_log import LogWriter
-from .messages import odometry_message, pointcloud_message, stamp
+from .messages import (
+    occupancy_grid_message,
+    odometry_message,
+    path_message,
+    pointcloud_message,
+    stamp,
+    tf_message,
+    transform_dict,
+)
+from .topics import TF_STATIC_TOPIC, TF_TOPIC
 
-if TYPE_CHECKING:  # the grid is built by the front end; only its export methods are used here
+if TYPE_CHECKING:  # built by the front end; outputs only read them
+    from ..frontend.methods import SweepResult
     from ..frontend.occupancy import OccupancyGrid
 
-TRAJECTORY_COLUMNS = ("method", "stamp_ns", "t", "x", "y", "yaw", "icp_iterations", "correspondences",
-                      "moving_points", "ms")
+
+def odom_frame(name: str) -> str:
+    return f"{name}/odom"
+
+
+def base_frame(name: str) -> str:
+    return f"{name}/base_link"
+
+
+def lidar_frame(name: str) -> str:
+    return f"{name}/lidar"
+
+
+# column -> (arrow type, unit and meaning); stored in the parquet schema's metadata
+PARQUET_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
+    "method": (pa.string(), "trajectory: a method (improved, baseline) or wheel_odometry (the motion prior)"),
+    "stamp_ns": (pa.int64(), "ns since the epoch: the sweep's stamp (its first beam)"),
+    "t": (pa.float64(), "s since the epoch (stamp_ns as seconds)"),
+    "x": (pa.float64(), "m: base_link in the trajectory's own frame <method>/odom"),
+    "y": (pa.float64(), "m: base_link in <method>/odom"),
+    "yaw": (pa.float64(), "rad in [-pi, pi): heading of base_link in <method>/odom, counter-clockwise from x"),
+    "v": (pa.float64(), "m/s: forward speed of base_link over the sweep (the twist used to deskew it)"),
+    "omega": (pa.float64(), "rad/s: yaw rate over the sweep, counter-clockwise positive"),
+    "icp_iterations": (pa.int64(), "ICP iterations (null for wheel_odometry)"),
+    "correspondences": (pa.int64(), "point pairs kept by the last ICP iteration (null for wheel_odometry)"),
+    "moving_points": (pa.int64(), "points judged moving and left out (null for wheel_odometry)"),
+    "keyframe": (pa.bool_(), "the sweep's points entered the method's map (null for wheel_odometry)"),
+    "ms": (pa.float64(), "ms of processing time for this sweep (null for wheel_odometry)"),
+}
+TRAJECTORY_COLUMNS = tuple(PARQUET_COLUMNS)
 
 
 def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
@@ -34,7 +82,8 @@ def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
     q = yaw_to_quaternion(poses[:, 2])
     t = np.asarray(stamps_ns, dtype=np.int64)
     lines = [
-        f"{s // 1_000_000_000}.{s % 1_000_000_000:09d} {p[0]:.6f} {p[1]:.6f} 0.0 {qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}"
+        f"{s // 1_000_000_000}.{s % 1_000_000_000:09d} {p[0]:.6f} {p[1]:.6f} 0.0 "
+        f"{qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}"
         for s, p, qq in zip(t.tolist(), poses, q)
     ]
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
@@ -49,14 +98,15 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_trajectories_parquet(path: Path, rows: dict[str, list]) -> None:
-    table = pa.table({
-        "method": pa.array(rows["method"], pa.string()),
-        "stamp_ns": pa.array(rows["stamp_ns"], pa.int64()),
-        "t": pa.array(np.asarray(rows["stamp_ns"], dtype=np.int64) * 1e-9, pa.float64()),
-        **{k: pa.array(rows[k], pa.float64()) for k in ("x", "y", "yaw", "ms")},
-        **{k: pa.array(rows[k], pa.int64()) for k in ("icp_iterations", "correspondences", "moving_points")},
-    })
-    pq.write_table(table.select(list(TRAJECTORY_COLUMNS)), path)
+    """A row per sweep and trajectory; the schema's metadata says each column's unit and frame."""
+    cols = dict(rows)
+    cols["t"] = list(np.asarray(rows["stamp_ns"], dtype=np.int64) * 1e-9)
+    table = pa.table({k: pa.array(cols[k], t) for k, (t, _) in PARQUET_COLUMNS.items()})
+    meta = {f"fmcwlog.column.{k}": doc for k, (_, doc) in PARQUET_COLUMNS.items()}
+    meta.update({"fmcwlog.frames": "each trajectory in its own frame <method>/odom, starting at its origin; "
+                                   "base_link is the rear-axle midpoint (REP-105)",
+                 "fmcwlog.angles": "radians, counter-clockwise positive, z up (REP-103)"})
+    pq.write_table(table.replace_schema_metadata(meta), path)
 
 
 def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
@@ -90,107 +140,125 @@ def pgm_pixels(data: bytes) -> np.ndarray:
     return np.frombuffer(data, np.uint8, count=w * h, offset=pos + 1).reshape(h, w)
 
 
-@dataclass
-class ProcessedLog:
-    """Streams the processed MCAP: per sweep the estimated odometry and the split points."""
-
-    path: Path
-    writer: LogWriter = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.writer = LogWriter(self.path)
-
-    def sweep(self, method: str, stamp_ns: int, pose: np.ndarray, static_xy: np.ndarray, moving_xy: np.ndarray) -> None:
-        w = self.writer
-        w.write(f"/{method}/odom", "nav_msgs/msg/Odometry",
-                odometry_message(stamp_ns, "map", "base_link", pose, np.zeros(3)), stamp_ns)
-        for kind, xy in (("static", static_xy), ("moving", moving_xy)):
-            cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy))}
-            w.write(f"/{method}/points/{kind}", "sensor_msgs/msg/PointCloud2", pointcloud_message(stamp_ns, "map", cols),
-                    stamp_ns)
-
-    def moving_labels(self, method: str, stamp_ns: int, moving: np.ndarray) -> None:
-        """The method's per-point verdict, index for index with the input sweep (1 = moving)."""
-        self.writer.write(f"/{method}/moving_labels", "fmcwlog_msgs/msg/PointLabels",
-                          {"header": {"stamp": stamp(stamp_ns), "frame_id": "lidar"},
-                           "moving": np.asarray(moving, np.uint8).tobytes()}, stamp_ns)
-
-    def odometry(self, topic: str, stamp_ns: int, pose: np.ndarray) -> None:
-        self.writer.write(topic, "nav_msgs/msg/Odometry", odometry_message(stamp_ns, "map", "base_link", pose, np.zeros(3)),
-                          stamp_ns)
-
-    def grid(self, method: str, stamp_ns: int, grid: OccupancyGrid) -> None:
-        msg = {
-            "header": {"stamp": stamp(stamp_ns), "frame_id": "map"},
-            "info": {
-                "map_load_time": stamp(stamp_ns),
-                "resolution": float(grid.resolution),
-                "width": int(grid.width),
-                "height": int(grid.height),
-                "origin": {"position": {"x": float(grid.origin[0]), "y": float(grid.origin[1]), "z": 0.0},
-                           "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
-            },
-            "data": grid.to_ros_int8().tolist(),  # int8[]: the CDR writer takes bytes only for uint8
-        }
-        self.writer.write(f"/{method}/map", "nav_msgs/msg/OccupancyGrid", msg, stamp_ns)
-
-    def close(self) -> None:
-        self.writer.close()
-
-    def abort(self) -> None:
-        self.writer.abort()
+def _cloud(stamp_ns: int, frame: str, xy: np.ndarray, velocity: np.ndarray | None) -> dict:
+    cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy))}
+    if velocity is not None:
+        cols["velocity"] = velocity
+    return pointcloud_message(stamp_ns, frame, cols)
 
 
 class ProcessOutputs:
     """Everything ``fmcwlog process`` writes into its (temporary) output folder, fed sweep by sweep.
 
-    ``processed.mcap`` is streamed; trajectories and the parquet rows are kept (a few
-    numbers per sweep) and written by :meth:`finish`, with the maps.
+    ``processed.mcap`` is streamed; trajectories and the parquet rows are kept (a few numbers
+    per sweep) and written by :meth:`finish`, with the maps. ``mount`` (x, y, yaw of the lidar
+    in base_link) goes to ``/tf_static``; paths and maps are published every
+    ``publish_period`` seconds of log.
     """
 
-    def __init__(self, folder: Path, trajectories: tuple[str, ...]):
+    def __init__(self, folder: Path, trajectories: tuple[str, ...], mount: np.ndarray,
+                 publish_period: float = 5.0):
         self.folder = folder
-        self.processed = ProcessedLog(folder / "processed.mcap")
-        self.rows: dict[str, list] = {k: [] for k in ("method", "stamp_ns", "x", "y", "yaw", "icp_iterations",
-                                                      "correspondences", "moving_points", "ms")}
+        self.writer = LogWriter(folder / "processed.mcap")
+        self.rows: dict[str, list] = {k: [] for k in TRAJECTORY_COLUMNS if k != "t"}
         self.trajectories: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
+        self._path: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}  # decimated
+        self.mount = np.asarray(mount, dtype=float)
+        self.publish_period_ns = int(publish_period * 1e9)
+        self._next_publish: int | None = None
+        self._transforms: list[dict] = []
 
-    def add_sweep(self, method: str, stamp_ns: int, pose: np.ndarray, iterations: int, correspondences: int,
-                  moving_points: int, ms: float, static_xy: np.ndarray, moving_xy: np.ndarray,
-                  moving_mask: np.ndarray | None) -> None:
-        """One method's result for one sweep; ``moving_mask`` is its per-point verdict, if it made one."""
-        for k, v in (("method", method), ("stamp_ns", stamp_ns), ("x", pose[0]), ("y", pose[1]), ("yaw", pose[2]),
-                     ("icp_iterations", iterations), ("correspondences", correspondences),
-                     ("moving_points", moving_points), ("ms", ms)):
-            self.rows[k].append(v)
-        self.trajectories[method][0].append(stamp_ns)
-        self.trajectories[method][1].append(pose)
-        self.processed.sweep(method, stamp_ns, pose, static_xy, moving_xy)
-        if moving_mask is not None:
-            self.processed.moving_labels(method, stamp_ns, moving_mask)
+    def _row(self, **values) -> None:
+        for k in self.rows:
+            self.rows[k].append(values.get(k))
 
-    def add_pose(self, name: str, stamp_ns: int, pose: np.ndarray) -> None:
-        """A pose of a trajectory that is not a method's (the motion prior's)."""
+    def _track(self, name: str, stamp_ns: int, pose: np.ndarray) -> None:
+        """Keep the pose; the published paths keep one pose per 0.25 m or 10 deg of motion."""
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
-        self.processed.odometry(f"/{name}/odom", stamp_ns, pose)
+        stamps, poses = self._path[name]
+        if not poses or np.hypot(*(pose[:2] - poses[-1][:2])) >= 0.25 or \
+                abs((pose[2] - poses[-1][2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
+            stamps.append(stamp_ns)
+            poses.append(pose)
+
+    def add(self, r: SweepResult) -> None:
+        """One method's result for one sweep."""
+        if self._next_publish is None:  # the first sweep: the static transforms
+            self._next_publish = r.stamp_ns + self.publish_period_ns
+            self.writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(
+                [transform_dict(r.stamp_ns, base_frame(n), lidar_frame(n), self.mount) for n in self.trajectories]),
+                r.stamp_ns)
+        self._row(method=r.method, stamp_ns=r.stamp_ns, x=r.pose[0], y=r.pose[1], yaw=r.pose[2], v=r.twist[0],
+                  omega=r.twist[1], icp_iterations=r.iterations, correspondences=r.correspondences,
+                  moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms)
+        self._track(r.method, r.stamp_ns, r.pose)
+        w, frame = self.writer, odom_frame(r.method)
+        twist_cov = None
+        if r.twist_covariance is not None:  # (v, ω) -> (vx, vy, wz); vy is 0 by the rear axle's constraint
+            twist_cov = np.zeros((3, 3))
+            twist_cov[np.ix_([0, 2], [0, 2])] = r.twist_covariance
+        w.write(f"/{r.method}/odom", "nav_msgs/msg/Odometry",
+                odometry_message(r.stamp_ns, frame, base_frame(r.method), r.pose, np.array([r.twist[0], 0.0, r.twist[1]]),
+                                 r.pose_covariance, twist_cov), r.stamp_ns)
+        self._transforms.append(transform_dict(r.stamp_ns, frame, base_frame(r.method), r.pose))
+        w.write(f"/{r.method}/points/static", "sensor_msgs/msg/PointCloud2",
+                _cloud(r.stamp_ns, frame, r.static_map_xy, r.static_velocity), r.stamp_ns)
+        w.write(f"/{r.method}/points/moving", "sensor_msgs/msg/PointCloud2",
+                _cloud(r.stamp_ns, frame, r.moving_map_xy, r.moving_velocity), r.stamp_ns)
+        if r.segmented:  # the method's per-point verdict, index for index with the input sweep (1 = moving)
+            w.write(f"/{r.method}/moving_labels", "fmcwlog_msgs/msg/PointLabels",
+                    {"header": {"stamp": stamp(r.stamp_ns), "frame_id": "lidar"},
+                     "moving": np.asarray(r.moving_mask, np.uint8).tobytes()}, r.stamp_ns)
+
+    def add_pose(self, name: str, stamp_ns: int, pose: np.ndarray, twist: tuple[float, float] | None) -> None:
+        """A pose of a trajectory that is not a method's (the motion prior's), and its twist if known."""
+        v, omega = twist if twist is not None else (None, None)
+        self._row(method=name, stamp_ns=stamp_ns, x=pose[0], y=pose[1], yaw=pose[2], v=v, omega=omega)
+        self._track(name, stamp_ns, pose)
+        self.writer.write(f"/{name}/odom", "nav_msgs/msg/Odometry",
+                          odometry_message(stamp_ns, odom_frame(name), base_frame(name), pose,
+                                           np.array([v or 0.0, 0.0, omega or 0.0])), stamp_ns)
+        self._transforms.append(transform_dict(stamp_ns, odom_frame(name), base_frame(name), pose))
+
+    def end_sweep(self, stamp_ns: int, grids: dict[str, OccupancyGrid]) -> None:
+        """All trajectories' transforms of this sweep in one ``/tf`` message; paths and maps when due."""
+        if self._transforms:
+            self.writer.write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(self._transforms), stamp_ns)
+            self._transforms = []
+        if self._next_publish is not None and stamp_ns >= self._next_publish:
+            self._publish(stamp_ns, grids)
+            self._next_publish = stamp_ns + self.publish_period_ns
+
+    def _publish(self, stamp_ns: int, grids: dict[str, OccupancyGrid], final: bool = False) -> None:
+        """Each path so far (decimated; whole when ``final``) and each map."""
+        for name, (stamps, poses) in (self.trajectories if final else self._path).items():
+            if stamps:
+                self.writer.write(f"/{name}/path", "nav_msgs/msg/Path",
+                                  path_message(stamp_ns, odom_frame(name), stamps, poses), stamp_ns)
+        for name, grid in grids.items():
+            if grid.width:
+                self.writer.write(f"/{name}/map", "nav_msgs/msg/OccupancyGrid", occupancy_grid_message(
+                    stamp_ns, odom_frame(name), grid.resolution, grid.width, grid.height, grid.origin,
+                    grid.to_ros_int8()), stamp_ns)
 
     def ms_median(self) -> dict[str, float]:
         method = np.asarray(self.rows["method"])
-        ms = np.asarray(self.rows["ms"], dtype=float)
-        return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows["method"])}
+        ms = np.asarray([np.nan if x is None else x for x in self.rows["ms"]], dtype=float)
+        return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows["method"])
+                if np.isfinite(ms[method == m]).any()}
 
     def finish(self, grids: dict[str, OccupancyGrid]) -> None:
-        """The maps, the trajectories and the parquet; ``processed.mcap`` closed."""
+        """The last paths and maps, ``processed.mcap`` closed; the trajectories, the map files, the parquet."""
         last_ns = int(self.rows["stamp_ns"][-1])
+        self._publish(last_ns, grids, final=True)
+        self.writer.close()
         for method, grid in grids.items():
             write_grid(self.folder, f"{method}_map", grid)
-            self.processed.grid(method, last_ns, grid)
-        self.processed.close()
         for name, (stamps, poses) in self.trajectories.items():
             if stamps:
                 write_tum(self.folder / f"{name}.tum", np.asarray(stamps), np.asarray(poses))
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:
-        self.processed.abort()
+        self.writer.abort()

@@ -8,7 +8,10 @@ POINTS_TOPIC = "/fmcw/points"
 TICKS_TOPIC = "/wheel/ticks"
 GT_ODOM_TOPIC = "/ground_truth/odom"
 GT_LABELS_TOPIC = "/ground_truth/point_labels"
+GT_TF_TOPIC = "/ground_truth/tf"  # the true pose as a transform map -> base_link, for viewers
 GROUND_TRUTH_PREFIX = "/ground_truth/"
+TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
 
 CALIBRATION_KEY = "fmcwlog.calibration"
 WORLD_KEY = "fmcwlog.world"

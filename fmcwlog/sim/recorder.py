@@ -2,7 +2,9 @@
 
 Messages go out in log-time order, a sweep period at a time: the sweep and
 its ground-truth labels at its first beam's stamp, then the encoder counts
-and ground-truth odometry falling in that period. A Ctrl-C (SIGINT) stops
+and ground-truth odometry falling in that period. Beside the contract's topics,
+``/tf_static`` holds the mount (``base_link`` -> ``lidar``) and ``/ground_truth/tf``
+the true pose (``map`` -> ``base_link``), so Foxglove places the points in ``map``. A Ctrl-C (SIGINT) stops
 the loop between two periods, so the log is finished cleanly and is simply
 shorter. Randomness comes from two streams derived from the seed (encoders,
 LiDAR), so the same seed gives the same bytes.
@@ -21,8 +23,21 @@ import numpy as np
 
 from .. import __version__
 from ..io.mcap_log import LogWriter
-from ..io.messages import odometry_message, pointcloud_message, stamp
-from ..io.topics import CALIBRATION_KEY, GT_LABELS_TOPIC, GT_ODOM_TOPIC, POINTS_TOPIC, SIM_KEY, TICKS_TOPIC, WORLD_KEY
+from ..io.messages import odometry_message, pointcloud_message, stamp, tf_message, transform_dict
+from ..io.topics import (
+    BASE_FRAME,
+    CALIBRATION_KEY,
+    GT_LABELS_TOPIC,
+    GT_ODOM_TOPIC,
+    GT_TF_TOPIC,
+    LIDAR_FRAME,
+    MAP_FRAME,
+    POINTS_TOPIC,
+    SIM_KEY,
+    TF_STATIC_TOPIC,
+    TICKS_TOPIC,
+    WORLD_KEY,
+)
 from .chassis import Chassis
 from .config import SimConfig
 from .lidar import FmcwLidar
@@ -132,6 +147,10 @@ def record(
         writer.add_metadata(CALIBRATION_KEY, calibration_metadata(cfg))
         writer.add_metadata(WORLD_KEY, world.metadata())
         writer.add_metadata(SIM_KEY, sim_meta)
+        # the mount, once at the start (a latched topic in ROS 2): Foxglove places lidar in base_link
+        writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage",
+                     tf_message([transform_dict(run.start_time_ns, BASE_FRAME, LIDAR_FRAME, np.array(s_cfg.mount))]),
+                     run.start_time_ns)
         for j in range(n_sweeps):
             if stop.set:
                 break
@@ -141,7 +160,7 @@ def record(
             ns = int(ns_sweeps[j])
             cols = {"x": sweep.x, "y": sweep.y, "z": np.zeros_like(sweep.x), "intensity": sweep.intensity,
                     "velocity": sweep.velocity, "t": sweep.t}
-            writer.write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", pointcloud_message(ns, "lidar", cols), ns)
+            writer.write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", pointcloud_message(ns, LIDAR_FRAME, cols), ns)
             writer.write(GT_LABELS_TOPIC, "fmcwlog_msgs/msg/PointLabels",
                          {"header": {"stamp": stamp(ns), "frame_id": "lidar"}, "moving": sweep.moving.tobytes()}, ns)
             for i in range(tick_bounds[j], tick_bounds[j + 1]):
@@ -152,7 +171,9 @@ def record(
                 pose = np.array([body.x[i], body.y[i], body.yaw[i]])
                 twist = np.array([body.v[i], 0.0, body.omega[i]])
                 writer.write(GT_ODOM_TOPIC, "nav_msgs/msg/Odometry",
-                             odometry_message(tns, "map", "base_link", pose, twist), tns)
+                             odometry_message(tns, MAP_FRAME, BASE_FRAME, pose, twist), tns)
+                writer.write(GT_TF_TOPIC, "tf2_msgs/msg/TFMessage",
+                             tf_message([transform_dict(tns, MAP_FRAME, BASE_FRAME, pose)]), tns)
             done += 1
             points += len(sweep.x)
             moving += int(sweep.moving.sum())

@@ -1,0 +1,123 @@
+"""What ``fmcwlog process`` writes, read back with the field's own tools: evo, pandas, map_server's
+YAML, and rosbags (the reader evo and KISS-ICP use) for ``processed.mcap`` and its tf tree."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+
+def _rosbags(path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    out: dict[str, list] = {}
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for con, t, raw in reader.messages():
+            out.setdefault(con.topic, []).append((t, reader.deserialize(raw, con.msgtype)))
+    return out
+
+
+def _yaw(q) -> float:
+    return 2 * math.atan2(q.z, q.w)
+
+
+def test_tum_parquet_and_maps_open_in_evo_pandas_and_map_server(processed):
+    from evo.tools import file_interface
+
+    out = processed["corridor_30s"]
+    traj = file_interface.read_tum_trajectory_file(str(out / "improved.tum"))
+    assert traj.num_poses == 300
+    table = pq.read_table(out / "trajectories.parquet")
+    df = table.to_pandas()
+    assert list(df.groupby("method").size().sort_index().items()) == [("baseline", 300), ("improved", 300),
+                                                                     ("wheel_odometry", 300)]
+    meta = {k.decode(): v.decode() for k, v in table.schema.metadata.items()}
+    for column in df.columns:  # every column says what it is
+        assert f"fmcwlog.column.{column}" in meta, column
+    assert "rad" in meta["fmcwlog.column.yaw"] and "m/s" in meta["fmcwlog.column.v"]
+    wheel = df[df.method == "wheel_odometry"]
+    assert wheel.ms.isna().all() and wheel.icp_iterations.isna().all() and wheel.v.notna().all()
+    imp = df[df.method == "improved"]
+    assert imp.ms.notna().all() and (imp.v.iloc[100:] > 0.5).all()  # cruising at 1 m/s
+    info = yaml.safe_load((out / "improved_map.yaml").read_text())
+    assert info["image"] == "improved_map.pgm" and info["resolution"] == pytest.approx(0.05)
+    assert (out / "improved_map.pgm").read_bytes().startswith(b"P5")
+    run = json.loads((out / "run.json").read_text())
+    assert run["frames"] == {"improved": "improved/odom", "baseline": "baseline/odom",
+                             "wheel_odometry": "wheel_odometry/odom"}
+
+
+def test_processed_mcap_in_rosbags_has_a_tf_tree_per_trajectory(processed):
+    out = processed["corridor_30s"]
+    msgs = _rosbags(out / "processed.mcap")
+    static = msgs["/tf_static"]
+    assert len(static) == 1
+    links = {(tf.header.frame_id, tf.child_frame_id): tf.transform for tf in static[0][1].transforms}
+    assert set(links) == {(f"{m}/base_link", f"{m}/lidar") for m in ("improved", "baseline", "wheel_odometry")}
+    assert links[("improved/base_link", "improved/lidar")].translation.x == pytest.approx(0.35)
+    # every sweep: one /tf message with each trajectory's odom -> base_link, equal to its TUM pose
+    tf = msgs["/tf"]
+    assert len(tf) == 300
+    tum = np.loadtxt(out / "improved.tum")
+    for (t, m), row in zip(tf, tum):
+        frames = {(x.header.frame_id, x.child_frame_id): x.transform for x in m.transforms}
+        assert set(frames) == {(f"{n}/odom", f"{n}/base_link") for n in ("improved", "baseline", "wheel_odometry")}
+        tr = frames[("improved/odom", "improved/base_link")]
+        assert t == round(row[0] * 1e9, -3) or abs(t * 1e-9 - row[0]) < 1e-6
+        assert (tr.translation.x, tr.translation.y) == pytest.approx((row[1], row[2]), abs=2e-6)
+
+
+def test_processed_mcap_carries_twist_covariance_paths_maps_and_velocity(processed):
+    out = processed["corridor_30s"]
+    msgs = _rosbags(out / "processed.mcap")
+    odom = [m for _, m in msgs["/improved/odom"]]
+    assert all(m.header.frame_id == "improved/odom" and m.child_frame_id == "improved/base_link" for m in odom)
+    v = np.array([m.twist.twist.linear.x for m in odom])
+    assert np.all(v[100:] > 0.5)  # the Doppler twist: 1 m/s cruise
+    cov = np.array([m.pose.covariance for m in odom[20:]]).reshape(-1, 6, 6)
+    assert np.all(cov[:, 0, 0] > 0) and np.all(cov[:, 5, 5] > 0)  # x and yaw variances of the registration
+    assert np.all(np.abs(cov[:, 0, 1]) <= np.sqrt(cov[:, 0, 0] * cov[:, 1, 1]) + 1e-15)  # a covariance
+    tw = np.array([m.twist.covariance for m in odom[5:]]).reshape(-1, 6, 6)
+    assert np.all(tw[:, 0, 0] > 0) and np.all(tw[:, 0, 0] < 0.01**2)  # Doppler speed good to under 1 cm/s
+    # paths and maps as they grow: every 5 s of log, then the whole at the end
+    for name in ("improved", "baseline", "wheel_odometry"):
+        paths = msgs[f"/{name}/path"]
+        assert len(paths) >= 6 and paths[-1][1].header.frame_id == f"{name}/odom"
+        assert len(paths[-1][1].poses) == 300  # the last one is whole
+    maps = msgs["/improved/map"]
+    assert len(maps) >= 6
+    known = [int((m.data >= 0).sum()) for _, m in maps]
+    assert known == sorted(known) and known[-1] > 1.5 * known[0]  # it grows as the robot explores
+    last = maps[-1][1]
+    assert last.header.frame_id == "improved/odom" and len(last.data) == last.info.width * last.info.height
+    assert set(np.unique(last.data)) <= set(range(-1, 101)) and (last.data == 100).any() | (last.data > 65).any()
+    cloud = msgs["/improved/points/static"][50][1]
+    assert {f.name for f in cloud.fields} >= {"x", "y", "z", "velocity"} and cloud.header.frame_id == "improved/odom"
+
+
+def test_report_writes_the_ground_truth_and_evo_ape_agrees(processed, tmp_path):
+    """The README's command, verbatim: evo_ape tum gt.tum improved.tum -a, on what report wrote."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from fmcwlog.api import report
+
+    out = tmp_path / "out"
+    shutil.copytree(processed["corridor_30s"], out)
+    ev = report(out)
+    gt = np.loadtxt(out / "gt.tum")
+    assert gt.shape == (1500, 8)  # 50 Hz over 30 s: the log's /ground_truth/odom
+    evo_ape = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
+    res = subprocess.run([evo_ape, "tum", "gt.tum", "improved.tum", "-a", "--save_results", "ape.zip"],
+                         cwd=out, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    rmse = float(next(line.split()[-1] for line in res.stdout.splitlines() if line.strip().startswith("rmse")))
+    assert rmse == pytest.approx(ev.result["methods"]["improved"]["ate_rmse_m"], abs=1e-5)

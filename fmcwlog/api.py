@@ -13,6 +13,7 @@ half-written behind.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 import warnings
 from collections.abc import Callable
@@ -41,6 +42,8 @@ from .sim.recorder import RecordSummary
 from .sim.recorder import record as _record
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import World
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "scenario", "record",
            "process", "evaluate", "report", "compare", "import_carmen"]
@@ -109,6 +112,9 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         except CalibrationError as exc:
             raise LogError(f"{log}: {exc}") from None
         total = reader.message_count(topics.scan)
+        logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
+                  reader.path, topics.scan, topics.prior or "none",
+                  total if total is not None else "an unknown number of", *cal.mount)
         check_output_folder(out_dir, force)
         with atomic_folder(out_dir) as tmp:
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)

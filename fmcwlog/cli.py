@@ -7,6 +7,7 @@ partial output.
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -20,9 +21,29 @@ from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import load_world
 
+console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (-q, -v)
+
 
 class UserError(click.ClickException):
     exit_code = 2
+
+
+class _ConsoleHandler(logging.Handler):
+    """Information to stdout as it is; warnings and errors to stderr as ``fmcwlog: warning: ...``."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        msg = record.getMessage()
+        if record.levelno >= logging.WARNING:
+            click.echo(f"fmcwlog: {record.levelname.lower()}: {msg}", err=True)
+        else:
+            click.echo(msg)
+
+
+def _configure_logging(quiet: bool, verbose: int) -> None:
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    console.handlers[:] = [_ConsoleHandler()]
+    console.setLevel(level)
+    console.propagate = False
 
 
 class _NoBar:
@@ -37,8 +58,8 @@ class _NoBar:
 
 
 def _progress(total: int | None, label: str, rate_label=None):
-    """A progress bar on stderr when it is a terminal; silent in pipes and CI logs."""
-    if not sys.stderr.isatty():
+    """A progress bar on stderr when it is a terminal (and not --quiet); silent in pipes and CI logs."""
+    if not sys.stderr.isatty() or not console.isEnabledFor(logging.INFO):
         return _NoBar()
     return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True,
                              item_show_func=rate_label or (lambda _: None))
@@ -46,7 +67,9 @@ def _progress(total: int | None, label: str, rate_label=None):
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="fmcwlog")
-def cli() -> None:
+@click.option("-q", "--quiet", is_flag=True, help="Print only warnings and errors (no progress, no tables).")
+@click.option("-v", "--verbose", count=True, help="Also print what each step found (topics, calibration, counts).")
+def cli(quiet: bool, verbose: int) -> None:
     """Record, process and evaluate FMCW LiDAR robot logs (MCAP, ROS 2 messages).
 
     \b
@@ -57,7 +80,12 @@ def cli() -> None:
     fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
+
+    \b
+    Shell completion (bash; zsh_source, fish_source for the others):
+      eval "$(_FMCWLOG_COMPLETE=bash_source fmcwlog)"
     """
+    _configure_logging(quiet, verbose)
 
 
 _RECORD_HELP = f"""Simulate a car-like robot with an FMCW LiDAR among moving people and carts,
@@ -147,7 +175,7 @@ def _record(world, cfg: SimConfig, output: Path) -> None:
         except OSError as exc:
             raise UserError(f"{output}: cannot write ({exc.strerror or exc})") from None
     note = " (stopped early by Ctrl-C)" if summary.interrupted else ""
-    click.echo(
+    console.info(
         f"wrote {summary.path}: {summary.seconds:.1f} s, {summary.sweeps} sweeps, "
         f"{summary.moving_fraction:.1%} of points on movers{note}"
     )
@@ -240,13 +268,13 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
         if bar is not None:
             bar.__exit__(None, None, None)
     wall = time.perf_counter() - started
-    click.echo(f"processed {summary.sweeps} sweeps in {wall:.1f} s ({summary.sweeps / wall:.0f} sweeps/s); "
+    console.info(f"processed {summary.sweeps} sweeps in {wall:.1f} s ({summary.sweeps / wall:.0f} sweeps/s); "
                f"prior: {summary.prior}; Doppler: {'on' if summary.doppler else 'off'}")
     for m, ms in summary.ms_median.items():
-        click.echo(f"  {m:9s} median {ms:.2f} ms per sweep")
+        console.info(f"  {m:9s} median {ms:.2f} ms per sweep")
     for w in summary.warnings:
-        click.echo(f"  warning: {w}")
-    click.echo(f"wrote {summary.out_dir}/")
+        console.warning(w)
+    console.info(f"wrote {summary.out_dir}/")
 
 
 _REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the
@@ -287,9 +315,9 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
     results = [_report(out_dir, log, relations) for out_dir in out_dirs]
     if len(results) > 1:
         header, rows = comparison_rows(results)
-        click.echo("\n" + terminal_table(header, rows))
+        console.info("\n" + terminal_table(header, rows))
         written = api.compare(results, comparison_dir or Path("."))
-        click.echo(f"wrote {written} and comparison.json")
+        console.info(f"wrote {written} and comparison.json")
 
 
 def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
@@ -302,14 +330,14 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     )
 
     ev = api.report(out_dir, log, relations)
-    click.echo(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
-    click.echo(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+    console.info(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
+    console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
     if relations_rows(ev.result):
-        click.echo(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
+        console.info(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
     red = ev.result["feature_avg_rel_error_reduction_pct"]
     if red is not None:
-        click.echo(f"average feature error reduced by {red:.1f} % (the paper: {PAPER_FEATURE_ERROR_REDUCTION_PCT} %)")
-    click.echo(f"wrote {ev.out_dir / 'report.html'} (and report.md, report.json)")
+        console.info(f"average feature error reduced by {red:.1f} % (the paper: {PAPER_FEATURE_ERROR_REDUCTION_PCT} %)")
+    console.info(f"wrote {ev.out_dir / 'report.html'} (and report.md, report.json)")
     return ev.result
 
 
@@ -334,7 +362,7 @@ def run_cmd(out_dir, scenario, duration, seed, force):
     _record(api.scenario(scenario), cfg, log)
     _process(log, out_dir / "results", api.ProcessOptions(), force=False)
     _report(out_dir / "results", None, None)
-    click.echo(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
+    console.info(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
 
 
 @cli.group("import")
@@ -365,18 +393,21 @@ def import_carmen_cmd(source, output, force):
         summary, fmt = api.import_carmen(source, output)
     except (OSError, EOFError, UnicodeDecodeError) as exc:
         raise UserError(f"{source}: cannot read ({exc})") from None
-    click.echo(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
+    console.info(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
                f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {fmt}")
     if summary.bad_lines:
         shown = ", ".join(str(n) for n, _ in summary.bad_lines[:10])
         more = f" and {len(summary.bad_lines) - 10} more" if len(summary.bad_lines) > 10 else ""
-        click.echo(f"skipped {len(summary.bad_lines)} malformed lines: {shown}{more} "
-                   f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})", err=True)
+        console.warning(f"skipped {len(summary.bad_lines)} malformed lines: {shown}{more} "
+                   f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})")
 
 
 def main() -> None:
     try:
         cli.main(standalone_mode=False, prog_name="fmcwlog")
+    except click.exceptions.NoArgsIsHelpError as exc:  # bare 'fmcwlog' (or a bare group): its help, no error
+        click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
+        sys.exit(0)
     except click.exceptions.Abort:
         click.echo("fmcwlog: aborted", err=True)
         sys.exit(130)

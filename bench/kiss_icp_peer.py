@@ -33,7 +33,7 @@ from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
 
 
 def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: float = 0.3,
-                 voxel_size: float | None = None) -> dict:
+                 voxel_size: float | None = None, threads: int = 1) -> dict:
     from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
 
@@ -43,6 +43,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     config = load_config(None)
     config.data.max_range, config.data.min_range = max_range, min_range
     config.mapping.voxel_size = voxel_size or max_range / 100.0  # KISS-ICP's own rule by default
+    config.registration.max_num_threads = threads  # one thread, like fmcwlog's methods, unless asked
     odometry = KissICP(config)
     mount_inv = inverse(np.asarray(cal.mount))
     stamps, poses, ms = [], [], []

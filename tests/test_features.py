@@ -271,3 +271,7 @@ def test_the_reader_places_cells_as_map_server_does(tmp_path):
     assert np.allclose(sorted(img.occupied_centres().tolist()), [[1.025, -1.975], [1.275, -1.825]])
     inv = inverse(np.array([1.0, -2.0, 0.0]))
     assert np.allclose(transform_points(inv, img.occupied_centres()).min(axis=0), [0.025, 0.025])
+    text = (tmp_path / "tiny.yaml").read_text().replace("origin: [1.0, -2.0, 0.0]", "origin: [1.0, -2.0, 1.5707963]")
+    (tmp_path / "tiny.yaml").write_text(text)  # the image turned a quarter about its lower-left corner
+    assert np.allclose(sorted(read_map_server(tmp_path / "tiny.yaml").occupied_centres().tolist()),
+                       [[0.825, -1.725], [0.975, -1.975]])

@@ -182,6 +182,9 @@ def fit_wall(points: np.ndarray, anchor: np.ndarray, direction: np.ndarray, leng
                           f"should be, within {search.halfwidth:g} m across)")
     u0, off0 = _hough(strip, d, search)
     centre, u, inl = _refit(strip, u0, off0, search)
+    if inl.sum() < search.min_points:
+        return _why(none, f"no wall evidence near the end: {len(strip)} occupied cells, no {search.min_points} "
+                          f"of them on one line")
     s = (strip[inl] - centre) @ u
     run = max(_runs(s, search.max_gap), key=len)
     pts, s_run = strip[inl][run], s[run]

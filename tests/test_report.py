@@ -3,7 +3,8 @@
 The hand-made folders hold trajectories derived from the sample log's ground
 truth by a known transform (offset, rotation, scale drift) and maps made of the
 log's static points placed with those poses, so the expected errors are known
-without running any front end.
+without running any front end. (A distortion of the map that feature lengths
+must show is tested in test_features.py, on maps of known geometry.)
 """
 
 from __future__ import annotations
@@ -24,50 +25,64 @@ from conftest import SAMPLE_LOGS
 from fmcwlog.evaluation.evaluate import evaluate
 from fmcwlog.evaluation.ground_truth import read_ground_truth
 from fmcwlog.evaluation.pages import write_report
-from fmcwlog.geometry import compose, interpolate_poses, transform_points
+from fmcwlog.frontend.occupancy import OccupancyGrid
+from fmcwlog.geometry import compose, interpolate_poses, inverse, transform_points
 from fmcwlog.io.mcap_log import LogReader, LogWriter
 from fmcwlog.io.messages import odometry_message, pointcloud_columns, pointcloud_message
-from fmcwlog.io.outputs import write_tum
+from fmcwlog.io.outputs import write_grid, write_tum
 
 LOG = SAMPLE_LOGS / "corridor_30s.mcap"
 TRUE_LENGTHS = [2.344, 6.775, 6.686, 1.064, 8.094, 1.029, 7.901, 26.681, 25.534]
 
 
 def _sweeps_in_world(log: Path):
-    """Per sweep: stamp, GT pose, and its static points (sensor frame -> base_link) ."""
+    """Per sweep: stamp, GT pose at the stamp, its static points in base_link at the stamp (each point
+    moved from the pose of its own beam's time: deskewed with the truth) and the lidar's mount."""
     reader = LogReader(log)
     cal = reader.metadata["fmcwlog.calibration"]
     mount = np.array([float(cal["lidar_x"]), float(cal["lidar_y"]), float(cal["lidar_yaw"])])
     gt_ns, gt = read_ground_truth(reader)
     labels = {m.log_time_ns: np.frombuffer(bytes(m.msg.moving), np.uint8) for m in reader.messages(["/ground_truth/point_labels"])}
     for m in reader.messages(["/fmcw/points"]):
-        cols = pointcloud_columns(m.msg, ("x", "y"))
-        xy = np.column_stack([cols["x"], cols["y"]])[labels[m.log_time_ns] == 0]
+        cols = pointcloud_columns(m.msg, ("x", "y", "t"))
+        static = labels[m.log_time_ns] == 0
+        xy = np.column_stack([cols["x"], cols["y"]])[static]
         pose = interpolate_poses(np.array(m.log_time_ns * 1e-9), gt_ns * 1e-9, gt)
-        yield m.log_time_ns, pose, transform_points(mount, xy)
+        beam = interpolate_poses(m.log_time_ns * 1e-9 + cols["t"][static], gt_ns * 1e-9, gt)
+        sensor = compose(compose(inverse(pose), beam), mount)  # (N, 3): the lidar at each beam, in base_link
+        c, s = np.cos(sensor[:, 2]), np.sin(sensor[:, 2])
+        base_xy = sensor[:, :2] + np.column_stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]])
+        yield m.log_time_ns, pose, base_xy, mount
 
 
 def make_folder(folder: Path, distort) -> Path:
     """``distort(pose, t)`` gives the 'estimated' pose from the true one at t seconds into the log."""
-    # A process-like output folder whose 'improved' and 'baseline' poses are the distorted true ones
-    # and whose maps are the static points placed with those poses.
+    # A process-like output folder whose 'improved' and 'baseline' poses are the distorted true ones,
+    # whose static points are placed with those poses, and whose occupancy maps are built from them
+    # as the front ends build theirs (fmcwlog's grid, a scan every 0.5 m).
     folder.mkdir(parents=True)
     stamps, poses = [], []
+    grid, last = OccupancyGrid(), None
     with LogWriter(folder / "processed.mcap") as w:
         t0 = None
-        for ns, pose, base_xy in _sweeps_in_world(LOG):
+        for ns, pose, base_xy, mount in _sweeps_in_world(LOG):
             t0 = ns if t0 is None else t0
             est = distort(pose, (ns - t0) * 1e-9)
             stamps.append(ns)
             poses.append(est)
+            pts = transform_points(est, base_xy)
+            if last is None or np.hypot(*(est[:2] - last[:2])) >= 0.5:
+                grid.integrate(compose(est, mount)[:2], pts)
+                last = est
             for m in ("improved", "baseline"):
                 w.write(f"/{m}/odom", "nav_msgs/msg/Odometry", odometry_message(ns, "map", "base_link", est, np.zeros(3)), ns)
-                pts = transform_points(est, base_xy)
                 w.write(f"/{m}/points/static", "sensor_msgs/msg/PointCloud2",
                         pointcloud_message(ns, "map", {"x": pts[:, 0], "y": pts[:, 1], "z": np.zeros(len(pts))}), ns)
     stamps, poses = np.array(stamps), np.array(poses)
     for m in ("improved", "baseline", "wheel_odometry"):
         write_tum(folder / f"{m}.tum", stamps, poses)
+    for m in ("improved", "baseline"):
+        write_grid(folder, f"{m}_map", grid)
     n = len(stamps)
     pq.write_table(pa.table({"method": ["improved"] * n + ["baseline"] * n, "stamp_ns": np.tile(stamps, 2),
                              "ms": np.full(2 * n, 2.0)}), folder / "trajectories.parquet")
@@ -88,16 +103,11 @@ def _scaled(p, t):
     return np.array([1.02 * p[0], 1.02 * p[1], p[2]])
 
 
-def _jump(p, t):
-    return p + (np.array([0.3, 0.0, 0.0]) if t >= 15.0 else 0.0)
-
-
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory):
     root = tmp_path_factory.mktemp("report")
     return {name: make_folder(root / name, f) for name, f in
-            (("exact", lambda p, t: p), ("offset", _offset), ("rotated", _rotated), ("scaled", _scaled),
-             ("jump", _jump))}
+            (("exact", lambda p, t: p), ("offset", _offset), ("rotated", _rotated), ("scaled", _scaled))}
 
 
 @pytest.mark.parametrize("name", ["exact", "offset", "rotated"])
@@ -105,13 +115,16 @@ def test_rigid_transforms_of_the_truth_have_no_aligned_error(folders, name):
     r = evaluate(folders[name]).result["methods"]["improved"]
     assert r["ate_rmse_m"] < 1e-5 and r["ate_first_aligned_rmse_m"] < 1e-5
     assert r["rpe_1m_pct"] < 1e-3 and r["rpe_10m_pct"] < 1e-3
-    # a rigid motion of the map changes no length
+    # a rigid motion of the map changes no length: measured in the map, to the map's cells
     assert [f["true_m"] for f in r["features"]] == pytest.approx(TRUE_LENGTHS, abs=1e-9)
     seen = [f for f in r["features"] if f["measured_m"] is not None]
-    assert len(seen) >= 4  # 30 s cover the south corridor and a corner
-    assert all(f["abs_error_m"] < 1e-6 for f in seen)
-    assert r["feature_avg_rel_error_pct"] < 1e-4
-    assert any("not seen at both ends" in n for n in r["notes"])
+    assert {f["id"] for f in seen} >= {4, 5, 6}  # 30 s: the south corridor's openings and the hall's SE corner
+    # measured: at most 2 cm in place, 7 cm turned by 0.7 rad (its walls fall on other cells; one jamb is sparse)
+    assert all(f["measurable"] and f["abs_error_m"] < 0.15 for f in seen)
+    assert r["feature_avg_rel_error_pct"] == pytest.approx(np.mean([f["rel_error_pct"] for f in seen]))
+    unseen = [f for f in r["features"] if f["measured_m"] is None]
+    assert unseen and all(f["reason"] and f["abs_error_m"] is None for f in unseen)
+    assert any("not measurable in this method's map" in n for n in r["notes"])
 
 
 def test_unaligned_offset_is_the_offset(folders):
@@ -129,26 +142,6 @@ def test_scale_drift_shows_in_rpe(folders):
     assert r["rpe_1m_pct"] == pytest.approx(2.0, abs=0.05)  # every step 2 % too long
     assert r["rpe_10m_pct"] == pytest.approx(2.0, abs=0.05)
     assert r["ate_rmse_m"] > 0.01
-
-
-def test_a_jump_in_the_trajectory_moves_only_what_was_seen_after_it(folders):
-    """Poses after t = 15 s are shifted by d = (0.3, 0): a feature's error is bounded by |d·u| (u along it),
-    is nil for a feature across d, and shows for the long walls along d seen both before and after."""
-    r = evaluate(folders["jump"]).result["methods"]["improved"]
-    feats = {f["id"]: f for f in r["features"] if f["measured_m"] is not None}
-    ends = {1: ((10.0, 25.534), (12.344, 25.534)), 8: ((0, 0), (26.681, 0)), 9: ((0, 0), (0, 25.534))}
-    for fid, f in feats.items():
-        a, b = ends.get(fid, (None, None))
-        if a is None:
-            assert abs(f["measured_m"] - f["true_m"]) <= 0.3 + 1e-6
-            continue
-        u = np.subtract(b, a) / np.linalg.norm(np.subtract(b, a))
-        # along: at most the shift's component; across: only second order, |d_perp|^2 / 2L
-        bound = abs(0.3 * u[0]) + (0.3 * u[1]) ** 2 / (2 * f["true_m"]) + 1e-6
-        assert abs(f["measured_m"] - f["true_m"]) <= bound
-    assert abs(feats[8]["measured_m"] - feats[8]["true_m"]) > 0.01  # the south wall runs along d
-    if 9 in feats:
-        assert abs(feats[9]["measured_m"] - feats[9]["true_m"]) < 0.3**2 / (2 * 25.534) + 1e-6  # across d
 
 
 def test_pages_hold_every_table_and_image(folders, tmp_path):

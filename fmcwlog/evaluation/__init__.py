@@ -2,7 +2,8 @@
 
 - ``ground_truth``        the readers of ``/ground_truth/*`` and ``fmcwlog.world``
 - ``metrics``             ATE, RPE (evo's definitions), feature-length errors
-- ``features``            feature lengths in the map each method built (the paper's Tables 2 and 3)
+- ``features``            feature lengths measured in the map each method built (the paper's Tables 2 and 3)
+- ``map_geometry``        walls fitted in a map near a given place: their ends and corners
 - ``segmentation_score``  moving-point precision and recall
 - ``relations``           the relations metric of Kümmerle et al. 2009 (real logs)
 - ``published``           the paper's and the literature's figures, once

@@ -77,7 +77,7 @@ def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, s
         raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
 
 
-def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: float = 0.15,
+def evaluate(out_dir: str | Path, log: str | Path | None = None,
              relations: str | Path | None = None) -> Evaluation:
     """Measure the trajectories and maps in ``out_dir`` against the ground truth of ``log``
     (default: the log ``run.json`` names); ``relations``: a Freiburg relations file."""
@@ -96,8 +96,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None, end_radius: flo
     rel_table = read_relations(relations) if relations is not None else None
     present = _trajectories_in(out_dir)
     measurable = ev.gt is not None and bool(world.features)
-    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, gt_ns, gt,
-                                   end_radius) if measurable else {}
+    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, world.walls,
+                                   gt_ns, gt) if measurable else {}
     labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
 
     methods: dict[str, dict[str, Any]] = {}
@@ -203,28 +203,29 @@ def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev:
 
 
 def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measurable: bool) -> None:
+    """The method's feature rows (measured in its map: :mod:`.features`) with their errors, and
+    their average over the features its map shows."""
     if method == WHEEL_ODOMETRY:
         r["notes"].append("wheel odometry builds no map: no feature lengths")
         return
     if method not in feature_rows:
         if measurable:
-            r["notes"].append("no map points of this method in processed.mcap: no feature lengths")
+            r["notes"].append("not one of fmcwlog's methods: its map is not measured")
         return
     rows = feature_rows[method]
     seen = [row for row in rows if row["measured_m"] is not None]
     errs = dict(zip([row["id"] for row in seen],
                     feature_length_errors(np.array([row["true_m"] for row in seen]),
                                           np.array([row["measured_m"] for row in seen]))))
-    r["features"] = [{"id": row["id"], "name": row["name"], "true_m": row["true_m"], "measured_m": row["measured_m"],
-                      "abs_error_m": errs[row["id"]].abs_error_m if row["id"] in errs else None,
+    r["features"] = [{**row, "abs_error_m": errs[row["id"]].abs_error_m if row["id"] in errs else None,
                       "rel_error_pct": errs[row["id"]].rel_error_pct if row["id"] in errs else None}
                      for row in rows]
     if seen:
         r["feature_avg_rel_error_pct"] = mean_relative_error_pct(list(errs.values()))
     missing = [str(row["id"]) for row in rows if row["measured_m"] is None]
     if missing:
-        r["notes"].append(f"features {', '.join(missing)} were not seen at both ends (the log does not "
-                          f"pass them): the average is over the other {len(seen)}")
+        r["notes"].append(f"features {', '.join(missing)} are not measurable in this method's map (each row "
+                          f"says why): the average is over the other {len(seen)}")
 
 
 def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:

@@ -9,5 +9,6 @@
 - ``carmen``        real 2-D laser logs (CARMEN, CMU course format), parsed
 - ``carmen_import`` those logs written as fmcwlog logs
 - ``outputs``       TUM, parquet, map_server maps, ``processed.mcap``, ``run.json``
+- ``map_files``     map_server maps read back as occupied and free cells
 - ``atomic``        a temporary name, then a rename: nothing is seen half-written
 """

@@ -121,3 +121,15 @@ def test_report_writes_the_ground_truth_and_evo_ape_agrees(processed, tmp_path):
     assert res.returncode == 0, res.stderr
     rmse = float(next(line.split()[-1] for line in res.stdout.splitlines() if line.strip().startswith("rmse")))
     assert rmse == pytest.approx(ev.result["methods"]["improved"]["ate_rmse_m"], abs=1e-5)
+
+
+def test_a_second_report_does_not_score_its_own_ground_truth(processed, tmp_path):
+    import shutil
+
+    from fmcwlog.api import report
+
+    out = tmp_path / "out"
+    shutil.copytree(processed["corridor_30s"], out)
+    first = report(out).result["methods"]
+    second = report(out).result["methods"]  # gt.tum now lies beside the estimates
+    assert list(first) == list(second) == ["improved", "baseline", "wheel_odometry"]

@@ -37,6 +37,7 @@ from .relations import read_relations, relations_error
 from .segmentation_score import segmentation_scores
 
 TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY)  # fmcwlog's own, in the order the report shows them
+GROUND_TRUTH_TUM = "gt"  # report writes the log's ground truth as gt.tum
 _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",
                 "rpe_10m_pct", "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features", "feature_avg_rel_error_pct",
                 "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second")
@@ -160,7 +161,8 @@ def _published_relations(relations: str | Path | None) -> list[dict]:
 def _trajectories_in(out_dir: Path) -> list[str]:
     """fmcwlog's trajectories first, then any other dropped in the folder (a peer, e.g. kiss_icp.tum)."""
     present = [m for m in TRAJECTORIES if (out_dir / f"{m}.tum").is_file()]
-    return present + sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in TRAJECTORIES)
+    # gt.tum is the ground truth a previous report wrote beside the estimates, not a trajectory to score
+    return present + sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in (*TRAJECTORIES, GROUND_TRUTH_TUM))
 
 
 def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:

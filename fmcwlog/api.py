@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import CalibrationError, LogError
+from .backend import BackendResult, PoseGraphBackend
+from .errors import CalibrationError, ConfigError, LogError
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.pages import comparison_rows, markdown_table, write_report
 from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
@@ -70,6 +71,8 @@ class ProcessOptions:
         when the log has no ticks).
     publish_period: paths and occupancy grids go into ``processed.mcap`` every this many
         seconds of log (s), and once more at the end.
+    backend: ``pose-graph`` (loop closures for every method, :mod:`fmcwlog.backend`; the outputs
+        come from the optimised poses) or ``none`` (the front ends alone).
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -78,6 +81,10 @@ class ProcessOptions:
     odom_topic: str | None = None
     params: FrontEndParams = field(default_factory=FrontEndParams)
     publish_period: float = 5.0
+    backend: str = "pose-graph"
+
+
+BACKENDS = ("pose-graph", "none")
 
 
 @dataclass
@@ -91,6 +98,7 @@ class ProcessSummary:
     ms_median: dict[str, float]
     truncated: bool
     warnings: list[str]
+    backend: dict[str, dict] = field(default_factory=dict)  # per method: BackendResult.summary()
 
 
 def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
@@ -101,6 +109,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     outputs are written to a temporary folder that replaces ``out_dir`` when complete.
     """
     opts = opts or ProcessOptions()
+    if opts.backend not in BACKENDS:
+        raise ConfigError(f"unknown back end {opts.backend!r} (known: {', '.join(BACKENDS)})")
     log, out_dir = Path(log), Path(out_dir)
     started = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
@@ -121,15 +131,27 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
+            backends = {m: PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
+                        for m in opts.methods} if opts.backend == "pose-graph" else {}
+            searches = {m: [0, 0] for m in opts.methods}  # correlative searches run, and kept
             try:
                 for step in runner.run(iter_inputs(reader, topics)):
                     for r in step.results:
                         outputs.add(r)
+                        searches[r.method][0] += r.searched
+                        searches[r.method][1] += r.recovered
+                        if r.method in backends:
+                            backends[r.method].add(r)
                     if step.wheel_pose is not None:
                         outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
                     outputs.end_sweep(step.sweep.stamp_ns, grids)
                     if on_sweep:
                         on_sweep(runner.sweeps, total)
+                optimised = {m: be.finish() for m, be in backends.items()}
+                for m, res in optimised.items():
+                    outputs.correct(m, res.poses)
+                    grids[m] = res.grid
+                    write_json(tmp / f"{m}_backend.json", backend_json(res))
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
@@ -141,7 +163,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
             summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, runner.skipped_sweeps,
                                      runner.repeated_prior_stamps, outputs.ms_median(), reader.contents.truncated,
-                                     notes)
+                                     notes, {m: res.summary() for m, res in optimised.items()})
             write_json(tmp / "run.json", {
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
@@ -159,9 +181,27 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "truncated_log": summary.truncated,
                 "warnings": summary.warnings,
                 "ms_per_sweep_median": summary.ms_median,
+                "correlative_searches": {m: {"run": n, "kept": k, "sweeps": summary.sweeps}
+                                         for m, (n, k) in searches.items()},
+                "backend": {"kind": opts.backend, **summary.backend},
                 "wall_seconds": round(time.perf_counter() - started, 3),
             }, sort_keys=True)
     return summary
+
+
+def backend_json(res: BackendResult) -> dict:
+    """What ``<method>_backend.json`` holds: the nodes (optimised poses) and the verified closures."""
+    return {
+        "frame": "the method's own <method>/odom; base_link",
+        "nodes": {"stamp_ns": res.node_stamps_ns.tolist(), "x": res.node_poses[:, 0].round(6).tolist(),
+                  "y": res.node_poses[:, 1].round(6).tolist(), "yaw": res.node_poses[:, 2].round(6).tolist()},
+        "closures": [{"query": c.query, "candidate": c.candidate, "query_stamp_ns": c.query_stamp_ns,
+                      "candidate_stamp_ns": c.candidate_stamp_ns, "relative": [round(float(v), 6) for v in c.relative],
+                      "score": round(c.score, 4), "second_score": round(c.second_score, 4),
+                      "inlier_fraction": round(c.inlier_fraction, 4), "free_directions": c.free_directions,
+                      "whitened_error": round(c.whitened_error, 4), "accepted": c.accepted} for c in res.closures],
+        **res.summary(),
+    }
 
 
 def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:

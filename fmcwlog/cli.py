@@ -97,6 +97,7 @@ Scenarios (--scenario, default {DEFAULT_SCENARIO}):
   static         the same floor with nothing moving
   crowd          a hall where 20-40 % of the returns come from walking people and carts
   long-corridor  100 m bare corridor: geometry alone cannot fix the along-axis position
+  ring           a ring of corridors around a solid block: a lap's drift is left to loop closure
 Or --world FILE: your own walls, features, movers and route (YAML/JSON; see the README).
 
 \b
@@ -228,9 +229,13 @@ Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp]
 @click.option("--odom-topic", default=None,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
+@click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
+              help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
+                   "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is not empty.")
 @click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
-def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, force, show_config):
+def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, backend, force,
+                show_config):
     import dataclasses
     import json
 
@@ -245,7 +250,8 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
     methods = api.ProcessOptions().methods if method == "all" else (method,)
-    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params), force)
+    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, backend=backend),
+             force)
 
 
 def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
@@ -272,6 +278,9 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
                f"prior: {summary.prior}; Doppler: {'on' if summary.doppler else 'off'}")
     for m, ms in summary.ms_median.items():
         console.info(f"  {m:9s} median {ms:.2f} ms per sweep")
+    for m, b in summary.backend.items():
+        console.info(f"  {m:9s} back end: {b['closures_accepted']} loop closures accepted of {b['closures_verified']} "
+                     f"verified, {b['closures_proposed']} proposed; {b['seconds']:.1f} s")
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.out_dir}/")

@@ -200,7 +200,7 @@ def backend_json(res: BackendResult) -> dict:
                       "score": round(c.score, 4), "second_score": round(c.second_score, 4),
                       "inlier_fraction": round(c.inlier_fraction, 4), "free_directions": c.free_directions,
                       "whitened_error": round(c.whitened_error, 4), "accepted": c.accepted} for c in res.closures],
-        **res.summary(),
+        "summary": res.summary(),
     }
 
 

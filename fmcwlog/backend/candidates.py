@@ -14,13 +14,16 @@ import numpy as np
 from .params import BackendParams
 
 
-def closure_candidates(query: int, positions: np.ndarray, path_m: np.ndarray, p: BackendParams) -> list[int]:
-    """Candidate nodes for ``query`` given every node's estimated position (N, 2) and path (N,)."""
+def closure_candidates(query: int, positions: np.ndarray, path_m: np.ndarray, p: BackendParams,
+                       radius: float | None = None) -> list[int]:
+    """Candidate nodes for ``query`` given every node's estimated position (N, 2) and path (N,),
+    within ``radius`` m (default ``p.closure_radius``)."""
+    radius = p.closure_radius if radius is None else radius
     older = np.flatnonzero(path_m[:query] <= path_m[query] - p.closure_min_path)
     if older.size == 0:
         return []
     dist = np.hypot(*(positions[older] - positions[query]).T)
-    near = dist <= p.closure_radius
+    near = dist <= radius
     chosen: list[int] = []
     for j in older[near][np.argsort(dist[near], kind="stable")]:
         if all(abs(path_m[j] - path_m[c]) >= p.candidate_spacing for c in chosen):

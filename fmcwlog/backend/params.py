@@ -42,8 +42,17 @@ class BackendParams:
         ``candidate_spacing`` m of path.
     submap_nodes: the candidate's submap holds the nodes within this many of it (each side).
 
+    Drift: the estimate between the two ends of a loop is only as good as the path since the last
+    closure, so the candidates' radius and the search's window grow with it:
+    drift_per_m, drift_deg_per_m: the front end's assumed drift per metre of path since the
+        query's last closure (m/m, deg/m; ≥ 0): once it exceeds the search's linear or angular
+        window, the window is widened to it and ``closure_radius`` by as much...
+    max_window, max_window_deg: ...up to these (m, deg).
+    wide_every: a widened search runs at most every this many metres of path (m): it costs ten
+        times a narrow one.
+
     Verification (:mod:`.verification`):
-    search: the correlative search around the estimated relative pose.
+    search: the correlative search around the estimated relative pose (before widening).
     icp: the point-to-line ICP after it.
     min_score: the search's best mean likelihood must reach this (0-1).
     inlier_distance, min_inlier_fraction: after the ICP, this fraction of the query's points must
@@ -79,6 +88,11 @@ class BackendParams:
     max_candidates: int = 2
     candidate_spacing: float = 3.0
     submap_nodes: int = 4
+    drift_per_m: float = 0.01
+    drift_deg_per_m: float = 0.05
+    max_window: float = 5.0
+    max_window_deg: float = 30.0
+    wide_every: float = 5.0
     search: CorrelativeParams = field(default_factory=_closure_search)
     icp: LineICPParams = field(default_factory=LineICPParams)
     min_score: float = 0.5

@@ -16,12 +16,14 @@ their optimised poses.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..frontend.correlative import CorrelativeParams
 from ..frontend.local_map import voxel_downsample
 from ..frontend.occupancy import OccupancyGrid, OccupancyParams
 from ..geometry import between, compose, inverse, transform_points
@@ -108,6 +110,8 @@ class PoseGraphBackend:
         self._path_m = 0.0
         self._last_pose: np.ndarray | None = None
         self._last_query_path = -np.inf
+        self._last_wide_path = -np.inf
+        self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
         self._nodes_since_opt = 0
         self._dirty = False
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
@@ -147,13 +151,33 @@ class PoseGraphBackend:
         if self._dirty and self._nodes_since_opt >= self.p.optimize_every:
             self._optimize()
 
+    def _search_window(self, query: int) -> tuple[float, CorrelativeParams] | None:
+        """The candidates' radius and the search for ``query``, widened with the path since the
+        last closure; None when a widened search is due but ran less than ``wide_every`` ago."""
+        p = self.p
+        since = self.nodes[query].path_m - self._last_closure_path
+        window = min(max(p.search.linear_window, p.drift_per_m * since), p.max_window)
+        if window <= p.search.linear_window:
+            return p.closure_radius, p.search
+        if self.nodes[query].path_m - self._last_wide_path < p.wide_every:
+            return None
+        self._last_wide_path = self.nodes[query].path_m
+        angle = min(max(p.search.angular_window_deg, p.drift_deg_per_m * since), p.max_window_deg)
+        levels = p.search.levels + (window > 2 * p.search.linear_window)
+        search = dataclasses.replace(p.search, linear_window=window, angular_window_deg=angle, levels=levels)
+        return p.closure_radius + window - p.search.linear_window, search
+
     def _close_loops(self, query: int) -> None:
         path = np.array([n.path_m for n in self.nodes])
-        for cand in closure_candidates(query, self._estimates[:, :2], path, self.p):
+        window = self._search_window(query)
+        if window is None:
+            return
+        radius, search = window
+        for cand in closure_candidates(query, self._estimates[:, :2], path, self.p, radius):
             self.proposed += 1
             prior = between(self._estimates[cand], self._estimates[query])
             q = voxel_downsample(self.nodes[query].points.astype(float), QUERY_VOXEL)
-            verdict = verify(q, self._submap(cand), prior, self.p)
+            verdict = verify(q, self._submap(cand), prior, self.p, search)
             if not verdict.accepted:
                 self.rejections[verdict.test] = self.rejections.get(verdict.test, 0) + 1
                 continue
@@ -163,6 +187,7 @@ class PoseGraphBackend:
                                               verdict.relative, verdict.score, verdict.second_score, verdict.inlier_fraction,
                                               verdict.free_directions))
             self._dirty = True
+            self._last_closure_path = self.nodes[query].path_m
 
     def _submap(self, cand: int) -> np.ndarray:
         """The points of the nodes within ``submap_nodes`` of ``cand``, in its frame, placed by the

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..frontend.correlative import LikelihoodGrid, correlative_match
+from ..frontend.correlative import CorrelativeParams, correlative_match, grid_for
 from ..geometry import transform_points, wrap_angle
 from .keyframes import to_local
 from .params import BackendParams
@@ -80,15 +80,15 @@ def _in_free_directions(delta: np.ndarray, free: np.ndarray) -> bool:
     return n == 0.0 or float(np.linalg.norm(free.T @ d)) >= 0.9 * n
 
 
-def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: BackendParams) -> Verdict:
+def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: BackendParams,
+           search: CorrelativeParams | None = None) -> Verdict:
     """Verify that ``query_xy`` (N, 2, query node's base_link) matches ``submap_xy`` (M, 2, the
-    candidate's base_link frame) near ``prior`` (3,, the query's pose in that frame)."""
+    candidate's base_link frame) near ``prior`` (3,, the query's pose in that frame); ``search``:
+    the correlative search's window (default ``p.search``; the pipeline widens it with the drift)."""
+    search = search or p.search
     if len(query_xy) < p.min_pairs or len(submap_xy) < p.min_pairs:
         return Verdict(False, "points", f"{len(query_xy)} query and {len(submap_xy)} submap points")
-    sp = p.search
-    reach = int(np.ceil(sp.linear_window / sp.resolution)) + sp.coarse_factor + 1
-    grid = LikelihoodGrid(submap_xy, sp.resolution, sp.sigma, sp.linear_window + 3 * sp.sigma, reach)
-    found = correlative_match(grid, query_xy, prior, sp)
+    found = correlative_match(grid_for(submap_xy, search), query_xy, prior, search)
     base = Verdict(False, "", "", score=found.score, second_score=found.second_score)
     if found.score < p.min_score:
         return _reject(base, "score", f"search score {found.score:.2f} < {p.min_score}")

@@ -81,7 +81,12 @@ def feature_rows(result: dict) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
-RELATIONS_HEADER = ["method", "relations", "translation m (mean ± std)", "rotation deg (mean ± std)"]
+RELATIONS_HEADER = ["method", "relations", "translation m (mean ± std)", "rotation deg (mean ± std)",
+                    "< 20 s: n, translation m", "≥ 20 s: n, translation m", "path length m"]
+
+
+def _span_cell(n: int | None, mean: float | None) -> str:
+    return "—" if not n or mean is None else f"{n}: {mean:.3f}"
 
 
 def relations_rows(result: dict) -> list[list[str]]:
@@ -92,9 +97,13 @@ def relations_rows(result: dict) -> list[list[str]]:
             continue
         rows.append([LABELS.get(m, m), str(rel["n"]),
                      "—" if rel["trans_mean_m"] is None else f"{rel['trans_mean_m']:.3f} ± {rel['trans_std_m']:.3f}",
-                     "—" if rel["rot_mean_deg"] is None else f"{rel['rot_mean_deg']:.2f} ± {rel['rot_std_deg']:.2f}"])
+                     "—" if rel["rot_mean_deg"] is None else f"{rel['rot_mean_deg']:.2f} ± {rel['rot_std_deg']:.2f}",
+                     _span_cell(rel.get("short_n"), rel.get("short_trans_mean_m")),
+                     _span_cell(rel.get("long_n"), rel.get("long_trans_mean_m")),
+                     _fmt(rel.get("path_length_m"), 1)])
     for p in result.get("relations_published") or []:
-        rows.append([f"published: {p['method']}", "all", f"{p['trans_mean_m']:.3f} ± {p['trans_std_m']:.3f}", "—"])
+        rows.append([f"published: {p['method']}", "all", f"{p['trans_mean_m']:.3f} ± {p['trans_std_m']:.3f}", "—",
+                     "—", "—", "—"])
     return rows
 
 
@@ -207,7 +216,41 @@ def _plots(ev: Evaluation, walls: np.ndarray | None) -> dict[str, str]:
         fig = _trajectory_over_own_map(ev.out_dir, m)
         if fig is not None:
             plots[f"map_{m}"] = _png(fig)
+        fig = loop_closures_over_map(ev.out_dir, m)
+        if fig is not None:
+            plots[f"closures_{m}"] = _png(fig)
     return plots
+
+
+def loop_closures_over_map(out_dir: Path, method: str):
+    """The back end's loop closures (``<method>_backend.json``) drawn on the method's map: each a
+    segment between its two nodes at their optimised poses, green where the Cauchy kernel kept it,
+    red where it did not; the front end's own trajectory dashed. None without a back end."""
+    import matplotlib.pyplot as plt
+
+    graph = out_dir / f"{method}_backend.json"
+    fig = _trajectory_over_own_map(out_dir, method) if graph.is_file() else None
+    if fig is None:
+        return None
+    ax = fig.axes[0]
+    data = json.loads(graph.read_text())
+    stamps = np.asarray(data["nodes"]["stamp_ns"], np.int64)
+    xy = np.column_stack([data["nodes"]["x"], data["nodes"]["y"]])
+    at = {int(s): i for i, s in enumerate(stamps)}
+    for kept, color in ((True, "#1565c0"), (False, "#d32f2f")):
+        segs = [(xy[at[c["candidate_stamp_ns"]]], xy[at[c["query_stamp_ns"]]]) for c in data["closures"]
+                if c["accepted"] is kept]
+        for a, b in segs:
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=0.8, alpha=0.8)
+        ax.plot([], [], color=color, lw=0.8, label=f"loop closures {'kept' if kept else 'down-weighted'} ({len(segs)})")
+    front = out_dir / f"{method}_frontend.tum"
+    if front.is_file():
+        _, fposes = read_tum(front)
+        ax.plot(fposes[:, 0], fposes[:, 1], color="#777777", lw=0.7, ls="--", label="front end alone")
+    ax.set_title(f"Loop closures of the {LABELS.get(method, method)} method's back end, on its map")
+    ax.legend(loc="upper right", fontsize=7)
+    plt.figure(fig.number)
+    return fig
 
 
 def _trajectory_over_own_map(out_dir: Path, method: str):
@@ -249,6 +292,7 @@ def render_html(ev: Evaluation, walls: np.ndarray | None) -> str:
     notes = _notes(r)
     maps = "".join(img(f"map_{m}", f"occupancy map built by the {m} method, with its trajectory")
                    for m in ("improved", "baseline"))
+    maps += "".join(img(f"closures_{m}", f"the {m} method's loop closures on its map") for m in ("improved", "baseline"))
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>fmcwlog report: {html.escape(ev.out_dir.name)}</title>
 <style>

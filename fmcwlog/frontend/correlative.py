@@ -44,7 +44,9 @@ class CorrelativeParams:
     linear_window: half-width of the search in x and y around the prior (m, > 0).
     angular_window_deg: half-width of the search in yaw (deg, > 0).
     resolution: fine grid cell and finest translation step (m, > 0).
-    coarse_factor: coarse translation step in fine cells (≥ 1; 4 × 5 cm = 20 cm).
+    coarse_factor: each level's translation step is this many of the next's (≥ 2; 4 × 5 cm = 20 cm).
+    levels: levels of the branch and bound (≥ 1): the coarsest step is ``coarse_factor^(levels-1)``
+        fine cells (use 3 for windows of metres).
     sigma: width of the likelihood around a target point (m, > 0).
     max_points: source points scored (evenly subsampled; ≥ 10): the cost is linear in it.
     max_rotations: cap on the yaw samples (≥ 3); the step grows to respect it.
@@ -56,6 +58,7 @@ class CorrelativeParams:
     angular_window_deg: float = 10.0
     resolution: float = 0.05
     coarse_factor: int = 4
+    levels: int = 2
     sigma: float = 0.075
     max_points: int = 300
     max_rotations: int = 121
@@ -121,6 +124,13 @@ class LikelihoodGrid:
         return offsets[:, 1] * self.fine.shape[1] + offsets[:, 0]
 
 
+def grid_for(target_xy: np.ndarray, p: CorrelativeParams) -> LikelihoodGrid:
+    """The likelihood grid a search with ``p`` needs over ``target_xy``: its cell, its σ, a margin
+    of the window plus 3σ, and a frame for the largest offset (the window plus the coarsest step)."""
+    reach = int(np.ceil(p.linear_window / p.resolution)) + p.coarse_factor ** max(p.levels - 1, 0) + 1
+    return LikelihoodGrid(target_xy, p.resolution, p.sigma, p.linear_window + 3 * p.sigma, reach)
+
+
 @dataclass
 class CorrelativeResult:
     """pose: the best pose (3,) on the search lattice; score: its mean likelihood in [0, 1];
@@ -155,45 +165,95 @@ def _scores(table: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.nda
     return table.ravel().take(cells[:, :, None] + offsets[None, None, :]).mean(axis=1)
 
 
+@dataclass
+class _Search:
+    """What every level of one search shares: the grid, the rotated points' flat cells (R, N),
+    the yaw samples, the prior, the window (fine cells each side) and the steps per level."""
+
+    grid: LikelihoodGrid
+    cells: np.ndarray
+    thetas: np.ndarray
+    prior: np.ndarray
+    n_fine: int
+    steps: list[int]
+    p: CorrelativeParams
+    evaluated: int = 0
+
+    def table(self, level: int) -> np.ndarray:
+        step = self.steps[level]
+        return self.grid.fine if step == 1 else self.grid.coarse(step)
+
+    def scores(self, level: int, r: int, offsets: np.ndarray) -> np.ndarray:
+        self.evaluated += len(offsets)
+        return _scores(self.table(level), self.cells[r:r + 1], self.grid.flat_offsets(offsets))[0]
+
+    def children(self, offset: np.ndarray, level: int) -> np.ndarray:
+        """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window."""
+        n, child = self.steps[level] // self.steps[level + 1], self.steps[level + 1]
+        grid = np.array([(i, j) for j in range(n) for i in range(n)]) * child + offset
+        return grid[(grid <= self.n_fine).all(axis=1)]
+
+    def pose(self, r: int, offset: np.ndarray) -> np.ndarray:
+        return _pose(self.prior, self.thetas, r, offset, self.grid.resolution)
+
+
+def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, best: float, best_at: tuple | None,
+             exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, pruning by the bound;
+    at the finest level a pose not separate from ``exclude`` is skipped (the second-peak search)."""
+    sc = s.scores(level, r, offsets)
+    for i in np.argsort(sc)[::-1]:
+        if sc[i] <= best:
+            break
+        if level == len(s.steps) - 1:
+            if exclude is not None and not _separate(s.pose(r, offsets[i]), exclude, s.p):
+                continue
+            best, best_at = float(sc[i]), (r, offsets[i])
+        else:
+            best, best_at = _descend(s, level + 1, r, s.children(offsets[i], level), best, best_at, exclude)
+    return best, best_at
+
+
+def _search_from_top(s: _Search, upper: np.ndarray, top: np.ndarray, floor: float,
+                     exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    best, best_at = floor, None
+    for flat in np.argsort(upper, axis=None)[::-1]:
+        r, t = np.unravel_index(flat, upper.shape)
+        if upper[r, t] <= best:
+            break
+        if len(s.steps) == 1:
+            if exclude is None or _separate(s.pose(int(r), top[t]), exclude, s.p):
+                best, best_at = float(upper[r, t]), (int(r), top[t])
+            continue
+        best, best_at = _descend(s, 1, int(r), s.children(top[t], 0), best, best_at, exclude)
+    return best, best_at
+
+
 def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.ndarray,
                       p: CorrelativeParams = CorrelativeParams()) -> CorrelativeResult:
     """The pose within the window around ``prior`` that best fits ``source_xy`` to the grid's targets.
 
-    Branch and bound over translations (module docstring); every yaw sample at both levels.
+    Branch and bound over translations, ``levels`` levels of ``coarse_factor`` (module docstring);
+    every yaw sample at every level. Then the same search for the best pose separate from it.
     """
     src = subsample(np.asarray(source_xy, float), p.max_points)
     prior = np.asarray(prior, float)
     thetas = _rotations(float(prior[2]), src, p)
     res, k = grid.resolution, max(int(p.coarse_factor), 1)
-    # rotated points placed at the prior's translation, in fine cells; the window's corner offset
-    c, s = np.cos(thetas)[:, None], np.sin(thetas)[:, None]
-    placed = np.stack([c * src[:, 0] - s * src[:, 1] + prior[0], s * src[:, 0] + c * src[:, 1] + prior[1]], -1)
-    cells = grid.flat_cells(placed)  # (R, N)
+    c, sn = np.cos(thetas)[:, None], np.sin(thetas)[:, None]
+    placed = np.stack([c * src[:, 0] - sn * src[:, 1] + prior[0], sn * src[:, 0] + c * src[:, 1] + prior[1]], -1)
     n_fine = int(np.ceil(p.linear_window / res))
-    n_coarse = int(np.ceil((2 * n_fine + 1) / k))
-    coarse_offsets = np.array([(i, j) for j in range(n_coarse) for i in range(n_coarse)]) * k - n_fine
-    upper = _scores(grid.coarse(k), cells, grid.flat_offsets(coarse_offsets))  # (R, T) bounds
-    order = np.argsort(upper, axis=None)[::-1]
-    fine_steps = np.array([(i, j) for j in range(k) for i in range(k)])
-    best, best_at = -1.0, (0, np.zeros(2, int))
-    evaluated = upper.size
-    fine_by_candidate: list[tuple[float, int, np.ndarray]] = []
-    for flat in order:
-        r, t = np.unravel_index(flat, upper.shape)
-        if upper[r, t] <= best:
-            break
-        offs = coarse_offsets[t] + fine_steps
-        offs = offs[(np.abs(offs) <= n_fine).all(axis=1)]
-        s = _scores(grid.fine, cells[r:r + 1], grid.flat_offsets(offs))[0]
-        evaluated += len(offs)
-        i = int(np.argmax(s))
-        fine_by_candidate.append((float(s[i]), int(r), offs[i]))
-        if s[i] > best:
-            best, best_at = float(s[i]), (int(r), offs[i])
-    pose = _pose(prior, thetas, best_at[0], best_at[1], res)
-    second, second_pose, more = _second_peak(grid, cells, thetas, prior, upper, coarse_offsets, fine_steps,
-                                             n_fine, pose, fine_by_candidate, p)
-    return CorrelativeResult(pose, best, second, second_pose, evaluated + more)
+    steps = [k**e for e in range(max(p.levels, 1) - 1, -1, -1)]
+    s = _Search(grid, grid.flat_cells(placed), thetas, prior, n_fine, steps, p)
+    n_top = int(np.ceil((2 * n_fine + 1) / steps[0]))
+    top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
+    upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
+    s.evaluated += upper.size
+    best, best_at = _search_from_top(s, upper, top, -1.0, None)
+    assert best_at is not None
+    pose = s.pose(*best_at)
+    second, second_at = _search_from_top(s, upper, top, 0.0, pose)
+    return CorrelativeResult(pose, best, second, None if second_at is None else s.pose(*second_at), s.evaluated)
 
 
 def _pose(prior: np.ndarray, thetas: np.ndarray, r: int, offset: np.ndarray, res: float) -> np.ndarray:
@@ -204,37 +264,3 @@ def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:
     """Whether poses (..., 3) lie on another peak than pose ``b`` (3,)."""
     dyaw = np.abs((a[..., 2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
     return (np.hypot(a[..., 0] - b[0], a[..., 1] - b[1]) > p.peak_separation) | (dyaw > np.radians(p.peak_separation_deg))
-
-
-def _second_peak(grid: LikelihoodGrid, cells: np.ndarray, thetas: np.ndarray, prior: np.ndarray, upper: np.ndarray,
-                 coarse_offsets: np.ndarray, fine_steps: np.ndarray, n_fine: int, best_pose: np.ndarray,
-                 refined: list[tuple[float, int, np.ndarray]], p: CorrelativeParams) -> tuple[float, np.ndarray | None, int]:
-    """The best fine score among poses separate from ``best_pose``: the refined candidates first,
-    then the coarse candidates whose centre is separate, best bound first, until the bound
-    drops below it."""
-    res = grid.resolution
-    second, second_pose = 0.0, None
-    for s, r, off in refined:
-        q = _pose(prior, thetas, r, off, res)
-        if s > second and _separate(q, best_pose, p):
-            second, second_pose = s, q
-    half = (np.sqrt(len(fine_steps)) - 1) / 2
-    centres = np.empty(upper.shape + (3,))
-    centres[..., 0] = prior[0] + (coarse_offsets[None, :, 0] + half) * res
-    centres[..., 1] = prior[1] + (coarse_offsets[None, :, 1] + half) * res
-    centres[..., 2] = thetas[:, None]
-    bound = np.where(_separate(centres, best_pose, p), upper, -1.0)
-    evaluated = 0
-    for flat in np.argsort(bound, axis=None)[::-1]:
-        r, t = np.unravel_index(flat, upper.shape)
-        if bound[r, t] <= second:
-            break
-        offs = coarse_offsets[t] + fine_steps
-        offs = offs[(np.abs(offs) <= n_fine).all(axis=1)]
-        s = _scores(grid.fine, cells[r:r + 1], grid.flat_offsets(offs))[0]
-        evaluated += len(offs)
-        i = int(np.argmax(s))
-        q = _pose(prior, thetas, int(r), offs[i], res)
-        if s[i] > second and _separate(q, best_pose, p):
-            second, second_pose = float(s[i]), q
-    return second, second_pose, evaluated

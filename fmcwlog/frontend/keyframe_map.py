@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .correlative import CorrelativeParams, LikelihoodGrid
+from .correlative import CorrelativeParams, LikelihoodGrid, grid_for
 from .local_map import voxel_keys
 
 
@@ -91,9 +91,7 @@ class KeyframeMap:
         """The likelihood grid of the map's points for a correlative search with ``p`` (cached
         until the map changes)."""
         if self._grid is None or self._grid[0] != p:
-            reach = int(np.ceil(p.linear_window / p.resolution)) + p.coarse_factor + 1
-            grid = LikelihoodGrid(self.points, p.resolution, p.sigma, p.linear_window + 3 * p.sigma, reach)
-            self._grid = (p, grid)
+            self._grid = (p, grid_for(self.points, p))
         return self._grid[1]
 
     @property

@@ -95,8 +95,13 @@ def _system(src: np.ndarray, pose: np.ndarray, sub: Submap, max_distance: float,
 
 
 def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.ndarray,
-                           p: LineICPParams = LineICPParams()) -> LineICPResult:
-    """Gauss-Newton with Cauchy weights from ``initial`` (module docstring)."""
+                           p: LineICPParams = LineICPParams(),
+                           prior: tuple[np.ndarray, np.ndarray] | None = None) -> LineICPResult:
+    """Gauss-Newton with Cauchy weights from ``initial`` (module docstring).
+
+    ``prior``: a pose (3,) and an information (3, 3) in the units of ``JᵀWJ`` (m⁻² and rad⁻² times
+    m²) added to every step, e.g. to hold a direction the scene leaves free where an estimate put
+    it; the returned ``hessian`` does not include it."""
     pose = np.asarray(initial, float).copy()
     c = p.kernel_scale
     converged, it = False, 0
@@ -106,6 +111,10 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
             break
         h = (j * w[:, None]).T @ j
         g = (j * w[:, None]).T @ r
+        if prior is not None:
+            dp = pose - prior[0]
+            dp[2] = wrap_angle(dp[2])
+            h, g = h + prior[1], g + prior[1] @ dp
         try:
             delta = -np.linalg.solve(h + 1e-9 * np.eye(3), g)
         except np.linalg.LinAlgError:

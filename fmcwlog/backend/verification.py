@@ -101,6 +101,12 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
     if base.inlier_fraction < p.min_inlier_fraction:
         return _reject(base, "inliers", f"inlier fraction {base.inlier_fraction:.2f} < {p.min_inlier_fraction}")
     determined, free = split_information(icp.hessian)
+    if free.shape[1]:
+        # the scene leaves a direction free, so the search put the pose anywhere along it; measure
+        # the other directions where the estimate puts that one (far structures seen from a pose
+        # slid along a corridor would otherwise tilt the yaw)
+        icp = register_point_to_line(query_xy, sub, icp.pose, p.icp, (prior, _hold(free, icp.hessian)))
+        determined, free = split_information(icp.hessian)
     if found.second_pose is not None and found.second_score >= p.max_ambiguity * found.score:
         delta = found.second_pose - found.pose
         delta[2] = wrap_angle(delta[2])
@@ -115,6 +121,16 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
     base.relative, base.covariance = icp.pose, to_local(cov, float(icp.pose[2]))
     base.free_directions = int(free.shape[1])
     return base
+
+
+def _hold(free: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """An information (3, 3) that holds the free directions (lever-scaled columns) as firmly as the
+    scene holds its best-determined one."""
+    s = np.diag([1.0, 1.0, 1.0 / LEVER])
+    scaled = s @ h @ s
+    strength = float(np.linalg.eigvalsh(0.5 * (scaled + scaled.T))[-1])
+    si = np.linalg.inv(s)
+    return si @ (strength * free @ free.T) @ si
 
 
 def _reject(v: Verdict, test: str, reason: str) -> Verdict:

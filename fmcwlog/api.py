@@ -133,25 +133,10 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             grids = {fe.name: fe.grid for fe in runner.fronts}
             backends = {m: PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
                         for m in opts.methods} if opts.backend == "pose-graph" else {}
-            searches = {m: [0, 0] for m in opts.methods}  # correlative searches run, and kept
             try:
-                for step in runner.run(iter_inputs(reader, topics)):
-                    for r in step.results:
-                        outputs.add(r)
-                        searches[r.method][0] += r.searched
-                        searches[r.method][1] += r.recovered
-                        if r.method in backends:
-                            backends[r.method].add(r)
-                    if step.wheel_pose is not None:
-                        outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
-                    outputs.end_sweep(step.sweep.stamp_ns, grids)
-                    if on_sweep:
-                        on_sweep(runner.sweeps, total)
-                optimised = {m: be.finish() for m, be in backends.items()}
-                for m, res in optimised.items():
-                    outputs.correct(m, res.poses)
-                    grids[m] = res.grid
-                    write_json(tmp / f"{m}_backend.json", backend_json(res))
+                searches = _feed(runner, iter_inputs(reader, topics), outputs, backends, grids,
+                                 lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
+                optimised = _optimise(backends, outputs, grids, tmp)
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
@@ -187,6 +172,37 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "wall_seconds": round(time.perf_counter() - started, 3),
             }, sort_keys=True)
     return summary
+
+
+def _feed(runner: LogRunner, inputs, outputs: ProcessOutputs, backends: dict[str, PoseGraphBackend],
+          grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
+    """Every sweep through the front ends, into the outputs and the back ends. Returns, per method,
+    how many correlative searches ran and how many of them replaced the ICP's match."""
+    searches = {fe.name: [0, 0] for fe in runner.fronts}
+    for step in runner.run(inputs):
+        for r in step.results:
+            outputs.add(r)
+            searches[r.method][0] += r.searched
+            searches[r.method][1] += r.recovered
+            if r.method in backends:
+                backends[r.method].add(r)
+        if step.wheel_pose is not None:
+            outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
+        outputs.end_sweep(step.sweep.stamp_ns, grids)
+        after_sweep()
+    return searches
+
+
+def _optimise(backends: dict[str, PoseGraphBackend], outputs: ProcessOutputs, grids: dict,
+              folder: Path) -> dict[str, BackendResult]:
+    """Each back end's last optimisation: its trajectory replaces the front end's in the outputs,
+    its map the front end's grid, and ``<method>_backend.json`` records its graph."""
+    optimised = {m: be.finish() for m, be in backends.items()}
+    for m, res in optimised.items():
+        outputs.correct(m, res.poses)
+        grids[m] = res.grid
+        write_json(folder / f"{m}_backend.json", backend_json(res))
+    return optimised
 
 
 def backend_json(res: BackendResult) -> dict:

@@ -98,7 +98,7 @@ class LikelihoodGrid:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.fine.shape  # type: ignore[return-value]
+        return (int(self.fine.shape[0]), int(self.fine.shape[1]))
 
     def cell(self, xy: np.ndarray) -> np.ndarray:
         """Integer (ix, iy) of the cells holding points (N, 2)."""

@@ -217,9 +217,12 @@ def render_markdown(ev: Evaluation) -> str:
     return "\n".join(parts)
 
 
-def _html_table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+def _html_table(header: list[str], rows: list[list[str]], text_columns: int = 1) -> str:
+    """A table whose first ``text_columns`` columns are text (left-aligned), the others numbers."""
+    left = ' class="text"'
+    head = "".join(f"<th{left if i < text_columns else ''}>{html.escape(h)}</th>" for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(f"<td{left if i < text_columns else ''}>{html.escape(c)}</td>"
+                                    for i, c in enumerate(r)) + "</tr>" for r in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -227,7 +230,7 @@ _STYLE = """
 body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }
-th { background: #f3f3f3; } td:first-child, th:first-child { text-align: left; }
+th { background: #f3f3f3; } .text { text-align: left; }
 table.header td { text-align: left; border: none; padding: 0.1em 1em 0.1em 0; }
 table.header td:first-child { color: #666; }
 figure { margin: 1em 0; } img { max-width: 100%; border: 1px solid #eee; }
@@ -298,7 +301,7 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 {f"<h2>Time per sweep</h2>{_html_table(SPEED_HEADER, speed)}" if speed else ""}
 {img("sweep_times", "time per sweep of each method")}
 <h2>Map feature lengths (the paper's Tables 2 and 3)</h2>
-{_html_table(fh, fr) if fr else "<p>No feature lengths (see the notes).</p>"}
+{_html_table(fh, fr, text_columns=2) if fr else "<p>No feature lengths (see the notes).</p>"}
 <p>{html.escape(_summary_line(r))}</p>
 {img("features", "relative error of each feature, both methods")}
 <p>How a feature is measured: the points each method kept for its map that saw an end of the feature

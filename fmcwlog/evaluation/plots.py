@@ -16,6 +16,7 @@ them. Figures are rendered at :data:`DPI` for a page about 1100 px wide.
 from __future__ import annotations
 
 import base64
+import inspect
 import io
 from collections.abc import Callable
 from functools import partial
@@ -28,7 +29,7 @@ from ..io.outputs import pgm_pixels, read_tum
 from .evaluate import Evaluation
 
 LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry"}
-COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#8c8c8c", "truth": "#000000"}
+COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#6e6e6e", "truth": "#000000"}
 _OTHER_COLORS = ("#1f77b4", "#ff7f0e", "#9467bd", "#17becf", "#bcbd22")
 DPI = 100
 ERROR_CMAP = "turbo"  # dark at both ends, so low and high errors both stand out on white
@@ -69,8 +70,10 @@ def _walls(ax, walls: np.ndarray | None) -> None:
         ax.add_collection(LineCollection(list(walls.reshape(-1, 2, 2)), colors="#b0b0b0", linewidths=1.5, zorder=1))
 
 
-def _legend_below(ax, ncol: int) -> None:
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=max(1, ncol), fontsize=9, frameon=False)
+def _legend_below(fig, ax, ncol: int) -> None:
+    """A legend under the axes and their x label (the figure must use the constrained layout)."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, ncol), fontsize=9, frameon=False)
 
 
 def _t0(ev: Evaluation) -> float:
@@ -81,7 +84,7 @@ def trajectories_over_walls(ev: Evaluation):
     """All SE(2)-aligned trajectories and the ground truth, over the world's walls."""
     plt = _pyplot()
     assert ev.gt is not None
-    fig, ax = plt.subplots(figsize=(7.5, 7.5))
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
     _walls(ax, ev.walls)
     ax.plot(ev.gt[:, 0], ev.gt[:, 1], color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
     for m, (_, est, _) in ev.aligned.items():
@@ -90,7 +93,7 @@ def trajectories_over_walls(ev: Evaluation):
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title("Trajectories (SE(2)-aligned to ground truth) over the world's walls")
-    _legend_below(ax, len(ev.aligned) + 1)
+    _legend_below(fig, ax, len(ev.aligned) + 1)
     return fig
 
 
@@ -124,7 +127,7 @@ def error_colored(ev: Evaluation, method: str):
 def ate_over_time(ev: Evaluation):
     plt = _pyplot()
     t0 = _t0(ev)
-    fig, ax = plt.subplots(figsize=(10, 3.4))
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, (t, _, err) in ev.aligned.items():
         ax.plot(t - t0, np.maximum(err * 100, 1e-3), color=color(m), lw=1,
                 label=f"{label(m)} (RMSE {100 * np.sqrt(np.mean(err**2)):.1f} cm)")
@@ -133,7 +136,7 @@ def ate_over_time(ev: Evaluation):
     ax.set_yscale("log")
     ax.set_title("Absolute position error along the path (SE(2)-aligned, as evo_ape -a)")
     ax.grid(True, which="major", alpha=0.3)
-    _legend_below(ax, len(ev.aligned))
+    _legend_below(fig, ax, len(ev.aligned))
     return fig
 
 
@@ -141,7 +144,8 @@ def rpe_over_distance(ev: Evaluation):
     """Per-pair RPE (translation % of delta, yaw deg/m) against the distance where each pair starts."""
     plt = _pyplot()
     deltas = sorted({s.delta for series in ev.rpe.values() for s in series})
-    fig, axes = plt.subplots(len(deltas), 2, figsize=(11, 2.9 * len(deltas) + 0.6), squeeze=False)
+    fig, axes = plt.subplots(len(deltas), 2, figsize=(11, 2.9 * len(deltas) + 0.6), squeeze=False,
+                             layout="constrained")
     for row, delta in enumerate(deltas):
         for m, series in ev.rpe.items():
             for s in series:
@@ -160,26 +164,24 @@ def rpe_over_distance(ev: Evaluation):
         ax.set_xlabel("distance travelled where the pair starts (m)")
     fig.suptitle("Relative pose error of each pair (as evo_rpe --delta_unit m, pairs on ground truth; log scale)")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=max(1, len(labels)), frameon=False)
-    fig.subplots_adjust(left=0.1, right=0.98, top=0.92, bottom=0.16 if len(deltas) == 1 else 0.12, hspace=0.25,
-                        wspace=0.28)
+    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, len(labels)), frameon=False)
     return fig
 
 
 def heading_over_time(ev: Evaluation):
     plt = _pyplot()
     t0 = _t0(ev)
-    fig, ax = plt.subplots(figsize=(10, 3.4))
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, h in ev.heading.items():
         ax.plot(ev.aligned[m][0] - t0, h, color=color(m), lw=1,
-                label=f"{label(m)} (RMSE {np.sqrt(np.mean(h**2)):.2f}°, max |{np.max(np.abs(h)):.2f}|°)")
+                label=f"{label(m)} (RMSE {np.sqrt(np.mean(h**2)):.2f}°, largest {np.max(np.abs(h)):.2f}°)")
     ax.axhline(0.0, color="#444444", lw=0.6)
     ax.set_yscale("symlog", linthresh=0.1)  # tenths of a degree and tens of degrees on one axis
     ax.set_xlabel("time since the first sweep (s)")
     ax.set_ylabel("heading error (deg)\nlinear within ±0.1, log beyond")
     ax.set_title("Heading error (estimate − ground truth, after SE(2) alignment)")
     ax.grid(True, which="major", alpha=0.3)
-    _legend_below(ax, len(ev.heading))
+    _legend_below(fig, ax, len(ev.heading))
     return fig
 
 
@@ -189,7 +191,9 @@ def sweep_times(ev: Evaluation):
     items = [(m, ms) for m, ms in ev.sweep_ms.items() if len(ms)]
     fig, ax = plt.subplots(figsize=(10, 0.9 * len(items) + 1.3))
     data = [ms for _, ms in items]
-    ax.boxplot(data, vert=False, whis=(0, 95), widths=0.5, medianprops={"color": "#000000", "lw": 2},
+    # matplotlib >= 3.10 says `orientation`, older ones only `vert` (deprecated from 3.11)
+    flat = {"orientation": "horizontal"} if "orientation" in inspect.signature(ax.boxplot).parameters else {"vert": False}
+    ax.boxplot(data, **flat, whis=(0, 95), widths=0.5, medianprops={"color": "#000000", "lw": 2},
                flierprops={"marker": ".", "markersize": 3, "markerfacecolor": "#666666", "markeredgecolor": "none"})
     ax.set_yticks(range(1, len(items) + 1), [label(m) for m, _ in items])
     hi = max(float(ms.max()) for ms in data)
@@ -199,8 +203,15 @@ def sweep_times(ev: Evaluation):
         ax.plot([mx], [i], marker="^", ms=7, color=color(m))
         ax.annotate(f"median {med:.1f} · p95 {p95:.1f} · max {mx:.1f} ms", (1.0, i), xycoords=("axes fraction", "data"),
                     xytext=(8, 0), textcoords="offset points", va="center", fontsize=9)
-    if hi > 20 * min(float(np.median(ms)) for ms in data):
+    if hi > 20 * min(float(np.median(ms)) for ms in data):  # a long tail: log, with plain-number ticks
+        from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+
         ax.set_xscale("log")
+        lo = min(float(ms.min()) for ms in data)
+        ticks = [v for e in range(-2, 6) for v in (10.0**e, 2 * 10.0**e, 5 * 10.0**e) if lo / 2 <= v <= hi * 2]
+        ax.xaxis.set_major_locator(FixedLocator(ticks))
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
     ax.invert_yaxis()
     ax.set_xlabel("time per sweep (ms)")
     ax.grid(True, axis="x", which="major", alpha=0.3)
@@ -214,7 +225,7 @@ def feature_errors(result: dict):
              if (result["methods"].get(m) or {}).get("features")}
     if not feats:
         return None
-    fig, ax = plt.subplots(figsize=(10, 3.4))
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     first = next(iter(feats.values()))
     x = np.arange(len(first))
     width = 0.8 / len(feats)
@@ -225,7 +236,7 @@ def feature_errors(result: dict):
     ax.set_xlabel("feature (id; a missing bar: not measured)", labelpad=2)
     ax.set_ylabel("relative error (%)")
     ax.set_title("Relative error of the feature lengths (as the paper's Figure 4)")
-    _legend_below(ax, len(feats))
+    _legend_below(fig, ax, len(feats))
     return fig
 
 
@@ -266,17 +277,18 @@ def aligned_over_reference_map(ev: Evaluation):
         return None
     image = _map_image(ev.out_dir, ref)
     _, ref_poses = read_tum(ev.out_dir / f"{ref}.tum")
-    fig, ax = plt.subplots(figsize=(7.5, 7.5))
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
     if image is not None:
         ax.imshow(image[0], cmap="gray", vmin=0, vmax=255, extent=image[1], interpolation="nearest", alpha=0.6)
-    ax.plot(ref_poses[:, 0], ref_poses[:, 1], color=color(ref), lw=1.4, label=f"{label(ref)} (reference)")
+    ax.plot(ref_poses[:, 0], ref_poses[:, 1], color=color(ref), lw=1.4, label=f"{label(ref)} (reference)",
+            zorder=3)
     for m, d in ev.disagreements.items():
         ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), lw=1.1, label=f"{label(m)}, aligned")
     ax.set_aspect("equal")
     ax.set_xlabel(f"x in {ref}/odom (m)")
     ax.set_ylabel(f"y in {ref}/odom (m)")
     ax.set_title(f"Trajectories SE(2)-aligned onto the {label(ref)} one, over its map")
-    _legend_below(ax, len(ev.disagreements) + 1)
+    _legend_below(fig, ax, len(ev.disagreements) + 1)
     return fig
 
 
@@ -285,7 +297,7 @@ def disagreement_along(ev: Evaluation):
     ref = ev.disagreement_reference
     if ref is None or not ev.disagreements:
         return None
-    fig, ax = plt.subplots(figsize=(10, 3.4))
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, d in ev.disagreements.items():
         ax.plot(d.along_m, d.gap_m, color=color(m), lw=1, label=f"{label(m)} (RMSE {d.stats.rmse:.2f} m)")
     ax.set_xlabel(f"distance travelled along the {label(ref)} trajectory (m)")
@@ -294,7 +306,7 @@ def disagreement_along(ev: Evaluation):
                  "no ground truth)", fontsize=10)
     ax.set_ylim(bottom=0)
     ax.grid(True, alpha=0.3)
-    _legend_below(ax, len(ev.disagreements))
+    _legend_below(fig, ax, len(ev.disagreements))
     return fig
 
 

@@ -4,8 +4,11 @@
 - ``metrics``             ATE, RPE (evo's definitions), feature-length errors
 - ``features``            feature lengths in the map each method built (the paper's Tables 2 and 3)
 - ``segmentation_score``  moving-point precision and recall
+- ``along_path``          per-pose and per-pair series (heading error, RPE per pair) and the
+                          methods' disagreement, which needs no ground truth
 - ``relations``           the relations metric of Kümmerle et al. 2009 (real logs)
 - ``published``           the paper's and the literature's figures, once
 - ``evaluate``            an output folder measured against its log
+- ``plots``               the report's figures
 - ``pages``               report.html, report.md, report.json and the terminal tables
 """

@@ -47,7 +47,7 @@ RPE_DELTAS_M = (1.0, 10.0)
 _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",
                 "rpe_10m_pct", "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features", "feature_avg_rel_error_pct",
                 "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second",
-               "heading_rmse_deg", "heading_max_deg", "ms_per_sweep_mean", "ms_per_sweep_max")
+                "heading_rmse_deg", "heading_max_deg", "ms_per_sweep_mean", "ms_per_sweep_max")
 
 
 @dataclass

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 
 from .. import __version__
 from ..errors import LogError, ReportError
-from ..frontend.methods import METHOD_NAMES, METHODS, WHEEL_ODOMETRY, BaselineFrontEnd, ImprovedFrontEnd
+from ..frontend.names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
 from ..io.mcap_log import LogReader
 from ..io.outputs import read_tum
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, SIM_KEY, WORLD_KEY
@@ -109,7 +109,7 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
     rel_table = read_relations(relations) if relations is not None else None
     present = _trajectories_in(out_dir)
     measurable = ev.gt is not None and bool(world.features)
-    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, world.walls,
+    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHOD_NAMES], world.features, world.walls,
                                    gt_ns, gt) if measurable else {}
     labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
 
@@ -128,7 +128,7 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
         methods[m] = r
 
     reduction = _reduction(methods)
-    if reduction is None and measurable and {ImprovedFrontEnd.name, BaselineFrontEnd.name} <= set(methods):
+    if reduction is None and measurable and {IMPROVED, BASELINE} <= set(methods):
         notes.append("no reduction of the average feature error: no feature was measured by both methods")
     ev.result = {
         "schema": "fmcwlog.report/1",
@@ -169,7 +169,7 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
         "log": str(log),
         "scenario": sim.get("scenario"),
         "seed": int(seed) if seed is not None and str(seed).lstrip("-").isdigit() else None,
-        "methods": list(run.get("methods") or [m for m in present if m in METHODS]),
+        "methods": list(run.get("methods") or [m for m in present if m in METHOD_NAMES]),
         "trajectories": list(present),
         "params_sha256_12": params_digest(run.get("params")),
     }
@@ -298,7 +298,7 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
 
 
 def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:
-    if method in METHODS and METHODS[method].segments:
+    if method in SEGMENTING_METHODS:
         r["segmentation"] = segmentation_scores(out_dir, method, labels, r["notes"])
     elif method != WHEEL_ODOMETRY:
         r["notes"].append(f"{method} does not segment moving points")
@@ -321,8 +321,8 @@ def _speed(r: dict, method: str, ms: np.ndarray) -> np.ndarray:
 def _reduction(methods: dict[str, dict[str, Any]]) -> float | None:
     """% by which the improved method cuts the baseline's average relative feature error,
     over the features both measured."""
-    imp = (methods.get(ImprovedFrontEnd.name) or {}).get("features") or []
-    base = (methods.get(BaselineFrontEnd.name) or {}).get("features") or []
+    imp = (methods.get(IMPROVED) or {}).get("features") or []
+    base = (methods.get(BASELINE) or {}).get("features") or []
     pairs = [(a["rel_error_pct"], b["rel_error_pct"]) for a, b in zip(imp, base)
              if a["rel_error_pct"] is not None and b["rel_error_pct"] is not None]
     if not pairs:

@@ -53,13 +53,12 @@ from .egomotion import (
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .local_map import VoxelMap, voxel_downsample
+from .names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY  # noqa: F401 (re-exported)
 from .occupancy import OccupancyGrid, OccupancyParams
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .robust_icp import register
 from .segmentation import segment_moving
-
-WHEEL_ODOMETRY = "wheel_odometry"  # the motion prior's own trajectory, written beside the methods'
 
 
 @dataclass(frozen=True)
@@ -260,7 +259,7 @@ def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.nd
 class ImprovedFrontEnd(FrontEnd):
     """The paper's front end (§4): Doppler ego-motion and segmentation, GMMSC, robust ICP."""
 
-    name = "improved"
+    name = IMPROVED
     segments = True
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
@@ -343,7 +342,7 @@ def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: fl
 class BaselineFrontEnd(FrontEnd):
     """The classic ICP baseline: all points, the wheel-odometry prior, point-to-point ICP."""
 
-    name = "baseline"
+    name = BASELINE
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         twist = self.prior_twist(prior)
@@ -354,4 +353,3 @@ class BaselineFrontEnd(FrontEnd):
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}
-METHOD_NAMES = tuple(METHODS)

@@ -406,6 +406,12 @@ def import_carmen_cmd(source, output, force):
                    f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})")
 
 
+def _one_line(message: str) -> str:
+    """A message as one printable line: a line break or control character a user's input carried in
+    (a file name, a key) is shown escaped, never breaking the line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+
+
 def main() -> None:
     try:
         cli.main(standalone_mode=False, prog_name="fmcwlog")
@@ -416,14 +422,14 @@ def main() -> None:
         click.echo("fmcwlog: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:
-        click.echo(f"fmcwlog: error: {exc.format_message()}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
     except FmcwlogError as exc:  # bad input or parameters: the message names the file or parameter
-        click.echo(f"fmcwlog: error: {exc}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(str(exc))}", err=True)
         sys.exit(2)
     except OSError as exc:  # a file system refusal no command caught: still one line
         where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"fmcwlog: error: {where}{os_reason(exc)}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(where + os_reason(exc))}", err=True)
         sys.exit(2)
 
 

@@ -17,7 +17,6 @@ structure the readers take, so whatever ``--show-config`` prints, ``--config`` t
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import tomllib
@@ -86,9 +85,20 @@ def range_of(f: dataclasses.Field) -> Range | None:
     return f.metadata.get(_RANGE_KEY)
 
 
-@functools.cache
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
 def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
+    """The field types of a dataclass, resolved once per class (construction checks every field)."""
+    if cls not in _HINTS:
+        _HINTS[cls] = typing.get_type_hints(cls)
+    return _HINTS[cls]
+
+
+def _word(name: Any) -> str:
+    """A parameter or section name as typed, quoted where it holds spaces or characters that do not print."""
+    text = str(name)
+    return text if text and text.isprintable() and " " not in text else repr(text)
 
 
 def _show(value: Any) -> str:
@@ -230,6 +240,7 @@ def _split_dotted(values: dict[Any, Any], where: str) -> dict[str, Any]:
     for key, value in values.items():
         if not isinstance(key, str) or not key:
             raise ConfigError(f"{where or 'a config'}: parameter names must be words, got {_show(key)}")
+        key = key if key.isprintable() else _word(key)  # reported as unknown, quoted
         head, dot, rest = key.partition(".")
         if dot:
             value = {rest: value}
@@ -237,7 +248,7 @@ def _split_dotted(values: dict[Any, Any], where: str) -> dict[str, Any]:
         if isinstance(old, dict) and isinstance(value, dict):
             nested[head] = {**old, **value}
         elif head in nested:
-            raise ConfigError(f"{where + '.' if where else ''}{head} is given twice")
+            raise ConfigError(f"{where + '.' if where else ''}{_word(head)} is given twice")
         else:
             nested[head] = value
     return nested
@@ -257,7 +268,8 @@ def apply_to_dataclass(obj: Any, values: dict[str, Any], where: str = "") -> Any
     for key, value in _split_dotted(values, where).items():
         name = f"{where}.{key}" if where else key
         if key not in fields:
-            raise ConfigError(f"unknown parameter {name} (known: {', '.join(sorted(fields))})")
+            known = ", ".join(sorted(fields))
+            raise ConfigError(f"unknown parameter {where + '.' if where else ''}{_word(key)} (known: {known})")
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current):
             if not isinstance(value, dict):

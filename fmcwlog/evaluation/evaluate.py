@@ -76,8 +76,10 @@ def load_run(out_dir: Path) -> dict[str, Any]:
         run = json.loads(run_json.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ReportError(f"{run_json}: malformed ({exc.msg})") from None
-    except (OSError, UnicodeDecodeError, RecursionError) as exc:
-        raise ReportError(f"{run_json}: cannot read ({getattr(exc, 'strerror', None) or 'not UTF-8 JSON'})") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ReportError(f"{run_json}: malformed (not UTF-8 JSON text)") from None
+    except OSError as exc:
+        raise ReportError(f"{run_json}: cannot read ({exc.strerror})") from None
     if not isinstance(run, dict):
         raise ReportError(f"{run_json}: malformed (expected a JSON object)")
     for key, kinds in _RUN_KEYS.items():

@@ -148,7 +148,8 @@ def write_json(path: str | os.PathLike, obj: Any, sort_keys: bool = False) -> No
 
 @contextmanager
 def created_parents(path: str | os.PathLike) -> Iterator[None]:
-    """Create ``path``'s missing parent folders; remove those it created if the block fails."""
+    """Create ``path``'s missing parent folders; if the block fails, remove ``path``'s temporary
+    file (:func:`partial_path`, whatever stage its writer failed at) and the folders made here."""
     parent = _named(path).parent
     missing = [p for p in (parent, *parent.parents) if not p.exists()]
     try:
@@ -158,6 +159,8 @@ def created_parents(path: str | os.PathLike) -> Iterator[None]:
     try:
         yield
     except BaseException:
+        # a writer that fails while it opens (an MCAP header on a full disk) never gets to remove its file
+        partial_path(path).unlink(missing_ok=True)
         for p in missing:  # deepest first; each is empty unless someone else wrote there meanwhile
             try:
                 p.rmdir()

@@ -16,24 +16,35 @@ import dataclasses
 import logging
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__
-from .errors import CalibrationError, LogError
+from .errors import CalibrationError, CarmenImportError, LogError, MapSizeError
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.pages import comparison_rows, markdown_table, write_report
 from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
 from .frontend.params import FrontEndParams
-from .frontend.runner import LogRunner
-from .io.atomic import atomic_folder, check_output_folder, json_text, write_json, write_text
+from .frontend.runner import LogRunner, SweepStep
+from .io.atomic import (
+    add_to_marker,
+    atomic_batch,
+    atomic_folder,
+    created_parents,
+    json_text,
+    os_reason,
+    reported_write_errors,
+    write_json,
+    write_text,
+)
 from .io.calibration import parse_calibration
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
-from .io.inputs import choose_topics, iter_inputs
+from .io.digest import file_sha256
+from .io.inputs import InputTopics, choose_topics, iter_inputs
 from .io.mcap_log import LogReader
 from .io.outputs import ProcessOutputs, odom_frame
 from .io.topics import CALIBRATION_KEY
@@ -56,8 +67,10 @@ def scenario(name: str = DEFAULT_SCENARIO) -> World:
 
 def record(world: World, cfg: SimConfig, out: str | Path,
            on_progress: Callable[[int], None] | None = None) -> RecordSummary:
-    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``."""
-    return _record(world, cfg, out, on_progress)
+    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``
+    (and the folders it needs: removed again if the recording fails)."""
+    with reported_write_errors(out), created_parents(out):
+        return _record(world, cfg, out, on_progress)
 
 
 @dataclass
@@ -99,6 +112,9 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
 
     ``on_sweep(done, total)`` is called after each sweep (total None when unknown). The
     outputs are written to a temporary folder that replaces ``out_dir`` when complete.
+    ``out_dir`` must be empty or absent; with ``force`` it may also be an output folder
+    fmcwlog made, but never one holding anything else or the log itself
+    (:func:`fmcwlog.io.atomic.check_output_folder`).
     """
     opts = opts or ProcessOptions()
     log, out_dir = Path(log), Path(out_dir)
@@ -115,14 +131,14 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
                   total if total is not None else "an unknown number of", *cal.mount)
-        check_output_folder(out_dir, force)
-        with atomic_folder(out_dir) as tmp:
+        with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp:
+            digest = file_sha256(log)  # report refuses a --log whose bytes differ
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
             try:
-                for step in runner.run(iter_inputs(reader, topics)):
+                for step in _steps(runner, reader, topics, log):
                     for r in step.results:
                         outputs.add(r)
                     if step.wheel_pose is not None:
@@ -146,6 +162,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
                 "log_size_bytes": log.stat().st_size,
+                "log_sha256": digest,
                 "methods": list(opts.methods),
                 "scan_topic": topics.scan,
                 "prior": summary.prior,
@@ -164,6 +181,14 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
+def _steps(runner: LogRunner, reader: LogReader, topics: InputTopics, log: Path) -> Iterator[SweepStep]:
+    """The runner's steps; a map that outgrows its budget is an error about this log."""
+    try:
+        yield from runner.run(iter_inputs(reader, topics))
+    except MapSizeError as exc:
+        raise LogError(f"{log}: {exc}") from None
+
+
 def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
     notes = []
     if not runner.doppler:
@@ -177,23 +202,30 @@ def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
 
 def report(out_dir: str | Path, log: str | Path | None = None,
            relations: str | Path | None = None) -> Evaluation:
-    """:func:`evaluate` ``out_dir`` and write report.html, report.md and report.json into it."""
+    """:func:`evaluate` ``out_dir`` and write report.html, report.md and report.json into it:
+    all of them or, if any write fails (a full disk), none."""
     ev = evaluate(out_dir, log, relations=relations)
-    write_report(ev)
+    with reported_write_errors(ev.out_dir), atomic_batch():
+        add_to_marker(ev.out_dir, write_report(ev))
     return ev
 
 
 def compare(results: list[dict], target: str | Path) -> Path:
     """comparison.md and comparison.json of several reports' results in ``target``; returns the .md."""
     target = Path(target)
-    target.mkdir(parents=True, exist_ok=True)
     header, rows = comparison_rows(results)
-    write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
-    write_text(target / "comparison.json", json_text(results))
+    with reported_write_errors(target), created_parents(target / "comparison.md"), atomic_batch():
+        write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
+        write_text(target / "comparison.json", json_text(results))
     return target / "comparison.md"
 
 
 def import_carmen(source: str | Path, output: str | Path) -> tuple[ImportSummary, str]:
     """Convert a CARMEN or CMU course log into an fmcwlog MCAP log; returns the summary and the format."""
-    parsed = parse_log(Path(source))
-    return write_mcap(parsed, Path(output)), parsed.format
+    try:
+        parsed = parse_log(Path(source))
+    except (OSError, EOFError, UnicodeDecodeError) as exc:  # a damaged .gz/.xz stream is an EOFError or OSError
+        reason = os_reason(exc) if isinstance(exc, OSError) else str(exc) or type(exc).__name__
+        raise CarmenImportError(f"{source}: cannot read ({reason})") from None
+    with reported_write_errors(output), created_parents(output):
+        return write_mcap(parsed, Path(output)), parsed.format

@@ -17,6 +17,7 @@ from . import __version__, api
 from .config import parse_set_option, read_config_file
 from .errors import FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
+from .io.atomic import check_output_file, os_reason, replacing_folder
 from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import load_world
@@ -26,6 +27,15 @@ console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (
 
 class UserError(click.ClickException):
     exit_code = 2
+
+
+def _path(ctx: click.Context, param: click.Parameter, value: str | None) -> Path | None:
+    """A path option or argument as a Path; an empty one is refused (``Path('')`` would be ``.``)."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise click.BadParameter("empty path", ctx=ctx, param=param)
+    return Path(value)
 
 
 class _ConsoleHandler(logging.Handler):
@@ -109,7 +119,8 @@ Sensor defaults are the paper's Table 1: 1550 nm, 270 deg FOV, 0.25 deg beams (1
 30 m range, range noise 2 cm and resolution 2 cm, Doppler resolution 0.1 m/s, 10 Hz.
 Any parameter can be changed with --config FILE ([sensor], [robot], [run] tables in
 TOML, YAML or JSON) or --set SECTION.NAME=VALUE, e.g. --set sensor.range_sigma=0.03
---set robot.speed=1.5. 'fmcwlog record --show-config' prints them all with their values.
+--set robot.speed=1.5. 'fmcwlog record --show-config' prints them all as TOML, each
+with its unit and valid range (a value outside it is refused); --config takes it back.
 
 \b
 The same --seed gives a byte-identical log. Ctrl-C stops early and still leaves a
@@ -118,7 +129,7 @@ valid, shorter log.
 
 
 @cli.command("record", help=_RECORD_HELP)
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), help="Log to write (.mcap).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=_path, help="Log to write (.mcap).")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=None,
               help=f"Built-in world.  [default: {DEFAULT_SCENARIO}]")
 @click.option("--world", "world_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -130,11 +141,11 @@ valid, shorter log.
               help="Parameter file: [sensor], [robot], [run] tables (TOML, YAML or JSON).")
 @click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
               help="Override one parameter; repeatable. Applied after --config.")
-@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
-@click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never an input file).")
+@click.option("--show-config", is_flag=True,
+              help="Print the parameters that would be used as TOML (each with its unit and valid range; "
+                   "--config takes it back), and exit.")
 def record_cmd(output, scenario, world_file, duration, seed, speed, config_file, set_items, force, show_config):
-    import json
-
     if scenario and world_file:
         raise UserError("give --scenario or --world, not both")
     cfg = SimConfig()
@@ -151,17 +162,15 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
     cfg = apply_overrides(cfg, parse_set_option(set_items)).validate()
     world = load_world(world_file) if world_file else api.scenario(scenario or DEFAULT_SCENARIO)
     if show_config:
-        click.echo(json.dumps(cfg.as_dict(), indent=2))
+        click.echo(cfg.toml(), nl=False)
         return
     if output is None:
         raise UserError("missing -o/--output: the log file to write")
-    if output.exists() and not force:
-        raise UserError(f"{output}: exists; use --force to overwrite it")
+    check_output_file(output, force, (world_file, config_file))
     _record(world, cfg, output)
 
 
 def _record(world, cfg: SimConfig, output: Path) -> None:
-    output.parent.mkdir(parents=True, exist_ok=True)
     n = int(cfg.run.duration * cfg.sensor.scan_rate + 1e-9)
     with _progress(n, f"recording {world.name}") as bar:
         last = [0]
@@ -170,10 +179,7 @@ def _record(world, cfg: SimConfig, output: Path) -> None:
             bar.update(done - last[0])
             last[0] = done
 
-        try:
-            summary = api.record(world, cfg, output, on_progress=step)
-        except OSError as exc:
-            raise UserError(f"{output}: cannot write ({exc.strerror or exc})") from None
+        summary = api.record(world, cfg, output, on_progress=step)
     note = " (stopped early by Ctrl-C)" if summary.interrupted else ""
     console.info(
         f"wrote {summary.path}: {summary.seconds:.1f} s, {summary.sweeps} sweeps, "
@@ -209,13 +215,19 @@ Writes to OUT_DIR:
 \b
 Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp],
 [icp.gmmsc] tables) or --set, e.g. --set segmentation.v_th=0.25 --set icp.huber_delta=0.05.
-'fmcwlog process --show-config' lists them all with their defaults.
+'fmcwlog process --show-config' prints them all as TOML, each with its unit and valid
+range (a value outside it is refused); --config takes it back, and so does a previous
+output's run.json (--config OUT/run.json).
+
+\b
+--force replaces OUT_DIR only if fmcwlog made it (its .fmcwlog-output lists everything
+in it), never a folder holding anything else or the LOG.
 """
 
 
 @cli.command("process", help=_PROCESS_HELP)
-@click.argument("log", type=click.Path(path_type=Path), required=False)
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+@click.argument("log", type=click.Path(), callback=_path, required=False)
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path,
               help="Output folder (created; must be empty unless --force).")
 @click.option("--method", type=click.Choice(["improved", "baseline", "all"]), default="all", show_default=True,
               help="Which front end(s) to run; 'all' runs both in one pass over the log.")
@@ -228,17 +240,16 @@ Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp]
 @click.option("--odom-topic", default=None,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
-@click.option("--force", is_flag=True, help="Replace OUT_DIR if it is not empty.")
-@click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
+@click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
+@click.option("--show-config", is_flag=True,
+              help="Print the parameters that would be used as TOML (each with its unit and valid range; "
+                   "--config takes it back), and exit.")
 def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, force, show_config):
-    import dataclasses
-    import json
-
-    from .frontend.params import load_frontend_params
+    from .frontend.params import frontend_params_toml, load_frontend_params
 
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
     if show_config:
-        click.echo(json.dumps(dataclasses.asdict(params), indent=2))
+        click.echo(frontend_params_toml(params), nl=False)
         return
     if log is None:
         raise UserError("missing LOG: the .mcap file to process")
@@ -300,11 +311,11 @@ written to comparison.md/.json in --output (default: the current folder).
 
 @cli.command("report", help=_REPORT_HELP)
 @click.argument("out_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--log", "log", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--log", "log", type=click.Path(dir_okay=False), callback=_path, default=None,
               help="The log the folder was processed from (default: the one run.json names).")
-@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=_path, default=None,
               help="Where comparison.md/.json go when several folders are given.  [default: .]")
-@click.option("--relations", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--relations", type=click.Path(dir_okay=False), callback=_path, default=None,
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
 def report_cmd(out_dirs, log, comparison_dir, relations=None):
@@ -342,26 +353,22 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
 
 
 @cli.command("run")
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("fmcwlog-run"),
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True)
 @click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.option("--force", is_flag=True, help="Replace OUT if 'fmcwlog run' made it (never a folder holding anything else).")
 def run_cmd(out_dir, scenario, duration, seed, force):
     """Record a built-in scenario, process it with both front ends and report, into one folder:
-    OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html."""
-    import shutil
-
-    if out_dir.exists() and any(out_dir.iterdir()):
-        if not force:
-            raise UserError(f"{out_dir}: exists and is not empty; use --force to replace it")
-        shutil.rmtree(out_dir)
-    log = out_dir / "log.mcap"
+    OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html.
+    If any step fails, OUT is removed again (and what was there before put back)."""
     cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
-    _record(api.scenario(scenario), cfg, log)
-    _process(log, out_dir / "results", api.ProcessOptions(), force=False)
-    _report(out_dir / "results", None, None)
+    with replacing_folder(out_dir, force, "fmcwlog run") as folder:
+        log = folder / "log.mcap"
+        _record(api.scenario(scenario), cfg, log)
+        _process(log, folder / "results", api.ProcessOptions(), force=False)
+        _report(folder / "results", None, None)
     console.info(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
 
 
@@ -371,9 +378,10 @@ def import_group() -> None:
 
 
 @import_group.command("carmen")
-@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Log to write (.mcap).")
-@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
+@click.argument("source", type=click.Path(dir_okay=False), callback=_path)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=_path, required=True,
+              help="Log to write (.mcap).")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never SOURCE).")
 def import_carmen_cmd(source, output, force):
     """Convert a CARMEN log (plain, .xz or .gz) into an MCAP log.
 
@@ -387,12 +395,8 @@ def import_carmen_cmd(source, output, force):
     """
     if not source.is_file():
         raise UserError(f"{source}: no such file")
-    if output.exists() and not force:
-        raise UserError(f"{output}: exists; use --force to overwrite it")
-    try:
-        summary, fmt = api.import_carmen(source, output)
-    except (OSError, EOFError, UnicodeDecodeError) as exc:
-        raise UserError(f"{source}: cannot read ({exc})") from None
+    check_output_file(output, force, (source,))
+    summary, fmt = api.import_carmen(source, output)
     console.info(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
                f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {fmt}")
     if summary.bad_lines:
@@ -400,6 +404,12 @@ def import_carmen_cmd(source, output, force):
         more = f" and {len(summary.bad_lines) - 10} more" if len(summary.bad_lines) > 10 else ""
         console.warning(f"skipped {len(summary.bad_lines)} malformed lines: {shown}{more} "
                    f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})")
+
+
+def _one_line(message: str) -> str:
+    """A message as one printable line: a line break or control character a user's input carried in
+    (a file name, a key) is shown escaped, never breaking the line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 
 
 def main() -> None:
@@ -412,14 +422,14 @@ def main() -> None:
         click.echo("fmcwlog: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:
-        click.echo(f"fmcwlog: error: {exc.format_message()}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
     except FmcwlogError as exc:  # bad input or parameters: the message names the file or parameter
-        click.echo(f"fmcwlog: error: {exc}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(str(exc))}", err=True)
         sys.exit(2)
     except OSError as exc:  # a file system refusal no command caught: still one line
         where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"fmcwlog: error: {where}{exc.strerror or exc}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(where + os_reason(exc))}", err=True)
         sys.exit(2)
 
 

@@ -76,3 +76,35 @@ def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
+
+
+def run_cli_here(*args: str) -> tuple[int, str, str]:
+    """``fmcwlog ARGS`` in this process (exit status, stdout, stderr): the real ``cli.main``, with its
+    error handling, but without a new interpreter, so that tests can patch what it calls (a full
+    disk) and fuzz it quickly. An exception that escapes ``main`` escapes this too: a traceback."""
+    import contextlib
+    import io
+
+    from fmcwlog import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    argv, sys.argv = sys.argv, ["fmcwlog", *args]
+    code = 0
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            cli.main()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        sys.argv = argv
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_one_line_error(code: int, stderr: str, *words: str) -> str:
+    """Exit status 2 and a single ``fmcwlog: error: ...`` line holding ``words``; returns the line."""
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("fmcwlog: error: "), (code, stderr)
+    assert "Traceback" not in stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]

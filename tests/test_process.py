@@ -8,6 +8,7 @@ not fmcwlog's metrics.
 from __future__ import annotations
 
 import json
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -166,7 +167,7 @@ def test_repeated_sweep_stamp_is_skipped_with_a_warning(tmp_path):
     assert any("repeated stamp" in w for w in json.loads((out / "run.json").read_text())["warnings"])
 
 
-def test_non_empty_output_folder_is_refused_without_force(tmp_path):
+def test_non_empty_output_folder_is_refused_without_force_and_a_foreign_one_even_with_it(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
@@ -174,9 +175,9 @@ def test_non_empty_output_folder_is_refused_without_force(tmp_path):
     proc = run_cli("process", str(log), "-o", str(out))
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert (out / "keep.txt").read_text() == "mine"
-    proc = run_cli("process", str(log), "-o", str(out), "--force")
-    assert proc.returncode == 0, proc.stderr
-    assert not (out / "keep.txt").exists() and (out / "improved.tum").exists()
+    proc = run_cli("process", str(log), "-o", str(out), "--force")  # fmcwlog did not make it: still refused
+    assert proc.returncode == 2 and "not made by fmcwlog" in proc.stderr, proc.stderr
+    assert [p.name for p in out.iterdir()] == ["keep.txt"] and (out / "keep.txt").read_text() == "mine"
 
 
 def test_config_file_and_set_reach_nested_stages(tmp_path):
@@ -192,4 +193,4 @@ def test_config_file_and_set_reach_nested_stages(tmp_path):
     with pytest.raises(ConfigError, match="icp.gmmsc.nope"):
         load_params(None, parse_set_option(("icp.gmmsc.nope=1",)))
     proc = run_cli("process", "--config", str(cfg), "--show-config")
-    assert proc.returncode == 0 and json.loads(proc.stdout)["icp"]["gmmsc"]["w_th"] == 0.6
+    assert proc.returncode == 0 and tomllib.loads(proc.stdout)["icp"]["gmmsc"]["w_th"] == 0.6

@@ -19,11 +19,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .. import __version__
 from ..errors import LogError, ReportError
 from ..frontend.names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
+from ..io.digest import file_sha256
 from ..io.mcap_log import LogReader
 from ..io.outputs import read_tum
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, SIM_KEY, WORLD_KEY
@@ -69,19 +71,71 @@ class Evaluation:
     disagreement_reference: str | None = None
 
 
+# what report reads of run.json, and the type each must have when present (peers write their own run.json)
+_RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
+                                          "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
+                                          "doppler": (bool, type(None)), "prior": (str, type(None))}
+_PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
+
+
 def load_run(out_dir: Path) -> dict[str, Any]:
+    """``out_dir``'s run.json, once it and trajectories.parquet are checked to be readable and whole."""
     run_json = out_dir / "run.json"
     if not out_dir.is_dir():
         raise ReportError(f"{out_dir}: no such folder")
     if not run_json.is_file() or not (out_dir / "trajectories.parquet").is_file():
         raise ReportError(f"{out_dir}: not a 'fmcwlog process' output (no run.json or trajectories.parquet)")
     try:
-        return json.loads(run_json.read_text())
+        run = json.loads(run_json.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ReportError(f"{run_json}: malformed ({exc.msg})") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ReportError(f"{run_json}: malformed (not UTF-8 JSON text)") from None
+    except OSError as exc:
+        raise ReportError(f"{run_json}: cannot read ({exc.strerror})") from None
+    if not isinstance(run, dict):
+        raise ReportError(f"{run_json}: malformed (expected a JSON object)")
+    for key, kinds in _RUN_KEYS.items():
+        value = run.get(key)
+        if key in run and (not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds)
+                           or (isinstance(value, float) and not np.isfinite(value))):
+            raise ReportError(f"{run_json}: {key!r} is {value!r}, not a {' or '.join(k.__name__ for k in kinds)}")
+    if isinstance(run.get("sweeps"), int) and run["sweeps"] < 0:
+        raise ReportError(f"{run_json}: 'sweeps' is negative")
+    if abs(run.get("stamp_shift_s", 0.0)) > 3600.0:  # a shift within a sweep's period, not hours
+        raise ReportError(f"{run_json}: 'stamp_shift_s' of {run['stamp_shift_s']} s is beyond an hour")
+    _check_parquet(out_dir / "trajectories.parquet")
+    return run
+
+
+def _check_parquet(path: Path) -> None:
+    """A trajectories.parquet that can be read whole, with the columns report needs."""
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ReportError(f"{path}: damaged, cannot be read ({first})") from None
+    for name, is_kind in _PARQUET_COLUMNS.items():
+        if name not in table.column_names:
+            raise ReportError(f"{path}: has no column {name!r}")
+        if not is_kind(table.schema.field(name).type):
+            raise ReportError(f"{path}: column {name!r} is {table.schema.field(name).type}, not what fmcwlog writes")
+    if table.column("stamp_ns").null_count or table.column("method").null_count:
+        raise ReportError(f"{path}: a row has no stamp_ns or method")
 
 
 def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
+    """Refuse a log other than the one ``out_dir`` was processed from: by its sha256 where run.json
+    records it (another run, scenario or seed can share every stamp), else by its sweep stamps."""
+    recorded = run.get("log_sha256")
+    if recorded is not None:
+        try:
+            digest = file_sha256(log)
+        except OSError as exc:
+            raise ReportError(f"{log}: cannot read ({exc.strerror})") from None
+        if digest != recorded:
+            raise ReportError(f"{log}: is not the log {out_dir} was processed from ({run.get('log', 'see run.json')}): "
+                              f"their sha256 differ ({digest[:12]}... here, {recorded[:12]}... in run.json)")
     scan = run.get("scan_topic", "/fmcw/points")
     log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
     # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
@@ -198,7 +252,10 @@ def _disagreements(ev: Evaluation, tums: dict[str, tuple[np.ndarray, np.ndarray]
 
 def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, LogReader]:
     """The log the folder was processed from: ``log`` if given, else the one run.json names."""
-    path = Path(log) if log is not None else Path(run.get("log", ""))
+    named = log if log is not None else run.get("log")
+    if named is None or not str(named).strip():
+        raise ReportError(f"{out_dir}: its run.json names no log; name it with --log")
+    path = Path(named)
     if not path.is_file():
         raise ReportError(f"{out_dir}: its log {path} is not there; name it with --log")
     try:

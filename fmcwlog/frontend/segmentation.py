@@ -22,9 +22,11 @@ import sklearn
 from scipy.spatial import cKDTree
 from sklearn.cluster import DBSCAN
 
+from ..config import Checked, param
+
 
 @dataclass(frozen=True)
-class SegmentationParams:
+class SegmentationParams(Checked):
     """Parameters of :func:`segment_moving`.
 
     alpha: weight of the velocity difference in eq. 17, s² (so ``√α·ε`` is in m).
@@ -45,13 +47,14 @@ class SegmentationParams:
         point with ``|ε| ≥ v_th`` (see :func:`segment_moving`); 0 looks at all.
     """
 
-    alpha: float = 1.0
-    eps: float = 0.3
-    min_samples: int = 5
-    v_th: float = 0.3
-    min_moving_fraction: float = 0.3
+    # 0 clusters by position alone; at 100 s² one Doppler quantum (0.1 m/s) already counts as 1 m
+    alpha: float = param(1.0, "s^2", ge=0.0, le=100.0)
+    eps: float = param(0.3, "m", gt=0.0, le=10.0)  # a radius beyond a room's size joins everything
+    min_samples: int = param(5, "points", ge=1, le=10_000)
+    v_th: float = param(0.3, "m/s", gt=0.0, le=50.0)
+    min_moving_fraction: float = param(0.3, "", gt=0.0, le=1.0)  # 0 would call every cluster moving
     keep_strong_points: bool = True
-    neighbourhood: float = 2.0
+    neighbourhood: float = param(2.0, "m", ge=0.0, le=1000.0)
 
 
 def cluster_points(

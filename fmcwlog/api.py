@@ -30,10 +30,10 @@ from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
 from .frontend.params import FrontEndParams
 from .frontend.runner import LogRunner
 from .io.atomic import atomic_folder, check_output_folder, json_text, write_json, write_text
-from .io.calibration import parse_calibration
+from .io.calibration import calibration_record, parse_calibration
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
-from .io.inputs import choose_topics, iter_inputs
+from .io.inputs import InputTopics, LogInputs, choose_topics
 from .io.mcap_log import LogReader
 from .io.outputs import ProcessOutputs, odom_frame
 from .io.topics import CALIBRATION_KEY
@@ -88,6 +88,7 @@ class ProcessSummary:
     prior: str
     skipped_sweeps: int
     repeated_prior_stamps: int
+    skipped_inputs: dict[str, int]
     ms_median: dict[str, float]
     truncated: bool
     warnings: list[str]
@@ -108,9 +109,10 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         reader = LogReader(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
         try:
-            cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=topics.ticks is not None)
+            record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
+            cal = parse_calibration(record, need_wheels=topics.ticks is not None)
         except CalibrationError as exc:
-            raise LogError(f"{log}: {exc}") from None
+            raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
@@ -118,11 +120,12 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         check_output_folder(out_dir, force)
         with atomic_folder(out_dir) as tmp:
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
+            inputs = LogInputs(reader, topics, cal)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
             try:
-                for step in runner.run(iter_inputs(reader, topics)):
+                for step in runner.run(inputs):
                     for r in step.results:
                         outputs.add(r)
                     if step.wheel_pose is not None:
@@ -134,14 +137,14 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             except BaseException:
                 outputs.abort()
                 raise
-            notes = [str(w.message) for w in caught] + _process_notes(runner, topics.scan)
+            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics)
             if topics.ticks:
                 prior = f"wheel ticks ({topics.ticks})"
             else:
                 prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, runner.skipped_sweeps,
-                                     runner.repeated_prior_stamps, outputs.ms_median(), reader.contents.truncated,
-                                     notes)
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
+                                     inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
+                                     reader.contents.truncated, notes)
             write_json(tmp / "run.json", {
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
@@ -156,6 +159,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "sweeps": summary.sweeps,
                 "skipped_sweeps": summary.skipped_sweeps,
                 "repeated_prior_stamps": summary.repeated_prior_stamps,
+                "skipped_inputs": summary.skipped_inputs,
                 "truncated_log": summary.truncated,
                 "warnings": summary.warnings,
                 "ms_per_sweep_median": summary.ms_median,
@@ -164,14 +168,14 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
+def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) -> list[str]:
     notes = []
     if not runner.doppler:
-        notes.append(f"{scan_topic} carries no Doppler velocity: ego-motion and segmentation are off")
-    if runner.skipped_sweeps:
-        notes.append(f"{runner.skipped_sweeps} sweeps with a repeated stamp were skipped")
-    if runner.repeated_prior_stamps:
-        notes.append(f"{runner.repeated_prior_stamps} motion-prior messages with a repeated stamp were skipped")
+        notes.append(f"{topics.scan} carries no Doppler velocity: ego-motion and segmentation are off")
+    notes += inputs.notes()
+    if runner.beyond_prior:
+        notes.append(f"{runner.beyond_prior} sweeps were processed with the motion prior held at its last pose: "
+                     f"{topics.prior} stopped while {topics.scan} went on")
     return notes
 
 

@@ -39,7 +39,16 @@ def _ns(t: float) -> int:
 def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     scans = [s for s in parsed.scans if s.topic == "/scan"] + [s for s in parsed.scans if s.topic != "/scan"]
     if not parsed.scans:
-        raise CarmenImportError(f"{parsed.path}: no laser scans found ({len(parsed.bad_lines)} malformed lines)")
+        readable = sorted(k for k in parsed.ignored if k.isascii() and k.isprintable())
+        if len(readable) < len(parsed.ignored):
+            other = f", {sum(parsed.ignored.values())} of binary data or unknown records: not a text log?"
+        else:
+            kinds = ", ".join(readable[:5]) + (", ..." if len(readable) > 5 else "")
+            other = f", {sum(parsed.ignored.values())} of kinds not imported: {kinds}" if readable else ""
+        first = f"; first malformed: line {parsed.bad_lines[0][0]}: {parsed.bad_lines[0][1]}" if parsed.bad_lines else ""
+        stopped = f"; {parsed.stopped}" if parsed.stopped else ""
+        raise CarmenImportError(f"{parsed.path}: no laser scans found in {parsed.lines} lines "
+                                f"({len(parsed.bad_lines)} malformed{other}){first}{stopped}")
     if parsed.odometry:
         odom = [(o.stamp, o.pose) for o in parsed.odometry]
         source = "odometry messages"
@@ -57,6 +66,8 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     info = {"source": str(parsed.path), "format": parsed.format, "scans": str(len(scans)), "odometry": str(len(odom)),
             "odometry_source": source, "bad_lines": json.dumps(parsed.bad_lines[:1000]),
             "ignored": json.dumps(parsed.ignored), "params": json.dumps(parsed.params)}
+    if parsed.stopped:
+        info["stopped"] = parsed.stopped
     last: dict[str, int] = {}
     with LogWriter(out) as w:
         w.add_metadata(CALIBRATION_KEY, calibration)

@@ -174,8 +174,8 @@ def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) ->
         notes.append(f"{topics.scan} carries no Doppler velocity: ego-motion and segmentation are off")
     notes += inputs.notes()
     if runner.beyond_prior:
-        notes.append(f"{runner.beyond_prior} sweeps were processed with the motion prior held at its last pose: "
-                     f"{topics.prior} stopped while {topics.scan} went on")
+        notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
+                     "processed with the motion prior held at its last pose")
     return notes
 
 

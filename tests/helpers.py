@@ -5,6 +5,8 @@ not fmcwlog's metrics.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import subprocess
 import sys
@@ -76,3 +78,24 @@ def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
+
+
+def run_cli_here(*args: str) -> tuple[int, str]:
+    """``fmcwlog ARGS`` in this process (``fmcwlog.cli.main``, as ``python -m fmcwlog`` runs it, without
+    its seconds of start-up): the exit status and stderr. Any exception but the exit propagates: it is
+    the traceback a user would see."""
+    from fmcwlog.cli import main
+
+    err = io.StringIO()
+    argv = sys.argv
+    sys.argv = ["fmcwlog", *args]
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                main()
+                code = 0
+            except SystemExit as exc:
+                code = int(exc.code or 0)
+    finally:
+        sys.argv = argv
+    return code, err.getvalue()

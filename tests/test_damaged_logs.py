@@ -4,25 +4,24 @@ Logs are damaged here byte by byte (cut off, bits flipped) or re-encoded with im
 plain ``mcap`` / ``mcap_ros2`` (``helpers.copy_log``), never through fmcwlog's writer. What survives is
 judged against the intact log processed the same way and against the container's own index read by
 ``mcap``'s reader: a cut keeps the sweeps before it, a skipped chunk costs exactly its own sweeps.
-The command line runs in this process (``fmcwlog.cli.main`` with its arguments; an exception that
-escapes it is the traceback a user would see), which keeps the fuzz tests at about a second a case;
-a few cases also run as ``python -m fmcwlog`` to check the real entry point.
+The command line runs in this process (``helpers.run_cli_here``: an exception that escapes it is the
+traceback a user would see), which keeps the fuzz tests at about a second a case; one case also runs
+as ``python -m fmcwlog``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import math
 import struct
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from helpers import copy_log, run_cli
+from helpers import run_cli_here as cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -38,25 +37,6 @@ FUZZ = settings(max_examples=15, deadline=None, derandomize=True, database=None,
 
 
 # ----------------------------------------------------------------------------- the command line, judged
-
-
-def cli(*args: str) -> tuple[int, str]:
-    """``fmcwlog ARGS`` in this process: exit status and stderr. Exceptions other than the exit propagate."""
-    from fmcwlog.cli import main
-
-    err = io.StringIO()
-    argv = sys.argv
-    sys.argv = ["fmcwlog", *args]
-    try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            try:
-                main()
-                code = 0
-            except SystemExit as exc:
-                code = int(exc.code or 0)
-    finally:
-        sys.argv = argv
-    return code, err.getvalue()
 
 
 def _no_leftovers(out: Path) -> None:
@@ -390,6 +370,53 @@ def test_a_motion_prior_a_day_from_the_scans_is_refused_naming_both_clocks(short
     code, err = cli("process", str(log), "-o", str(tmp_path / "out"))
     judged(code, err, log, tmp_path / "out")
     assert code == 2 and "clocks of /fmcw/points and /wheel/ticks are 8640" in err, err
+
+
+def test_a_lone_stamp_a_day_ahead_is_skipped_and_a_gap_the_next_message_confirms_is_kept(short_logs, intact,
+                                                                                        tmp_path):
+    def ahead(topic, i, msg):
+        if (topic, i) in (("/fmcw/points", 12), ("/wheel/ticks", 40)):
+            msg.header.stamp.sec += 86_400
+    est, warnings = process(edited(short_logs, tmp_path, ahead, "ahead.mcap"), tmp_path / "ahead", "baseline")
+    run = json.loads((tmp_path / "ahead" / "run.json").read_text())
+    assert run["skipped_inputs"] == {"stamp_jump": 1, "prior_stamp_jump": 1}, run["skipped_inputs"]
+    full = stamps(intact["zstd"])
+    assert stamps(est) == full[:12] + full[13:]
+    assert [w for w in warnings if w.startswith("skipped 1 messages on /fmcw/points whose stamps jump")], warnings
+
+    def paused(topic, i, msg):  # the recording paused for 100 s after sweep 15 (and tick 75)
+        if (topic == "/fmcw/points" and i >= 15) or (topic == "/wheel/ticks" and i >= 75):
+            msg.header.stamp.sec += 100
+    est, warnings = process(edited(short_logs, tmp_path, paused, "paused.mcap"), tmp_path / "paused", "baseline")
+    assert len(stamps(est)) == 30 and not [w for w in warnings if "skipped" in w], warnings
+
+
+def test_sweeps_wait_for_a_motion_prior_that_stopped_at_most_the_clock_gap(short_logs, tmp_path, monkeypatch):
+    """Ticks stop after 1 s of 3: the later sweeps are processed with the prior held at its last pose
+    once they have waited the gap (0.5 s here, 60 s by default), not all at the end of the log, and
+    the estimates are those of waiting to the end."""
+    import fmcwlog.frontend.runner as runner
+
+    log = edited(short_logs, tmp_path, lambda topic, i, msg: False if topic == "/wheel/ticks" and i >= 50 else None)
+    waited, warnings = process(log, tmp_path / "waited", "baseline")
+    held = "20 sweeps on /fmcw/points began after the last message on /wheel/ticks"  # sweeps 10 to 29
+    assert [w for w in warnings if w.startswith(held)], warnings
+    queued: list[int] = []
+    ready = runner.LogRunner._ready
+
+    def watched(self, sweep):
+        queued.append(len(self._pending))
+        return ready(self, sweep)
+
+    monkeypatch.setattr(runner.LogRunner, "_ready", watched)
+    process(log, tmp_path / "unbounded", "baseline")
+    assert max(queued) == 20  # every sweep after the ticks stop waits to the end
+    queued.clear()
+    monkeypatch.setattr(runner, "MAX_CLOCK_GAP_S", 0.5)
+    est, warnings = process(log, tmp_path / "out", "baseline")
+    assert max(queued) <= 7  # 0.5 s of sweeps at 10 Hz, and the one that arrived
+    assert [w for w in warnings if w.startswith(held)], warnings
+    assert est == waited and len(stamps(est)) == 30
 
 
 # ----------------------------------------------------------------------------- LaserScan and Odometry

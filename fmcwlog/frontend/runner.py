@@ -13,7 +13,8 @@ increasing per topic, so a sweep that breaks that is a bug upstream (a
 queue is: a motion prior that stops mid-log (its clock checked at the start by
 the inputs) would hold every later sweep in the queue until the log ends, so a
 sweep waits at most :data:`fmcwlog.io.inputs.MAX_CLOCK_GAP_S` of log and is then
-processed with the prior held at its last pose, and counted.
+processed with the prior held at its last pose. Sweeps that begin after the prior's
+last message are counted (a warning), whether they waited or came at the end of the log.
 """
 
 from __future__ import annotations
@@ -50,8 +51,8 @@ class SweepStep:
 
 
 class LogRunner:
-    """Feeds a log's inputs to the front ends named in ``methods``; counts the sweeps it processed
-    without waiting for the motion prior (:attr:`beyond_prior`).
+    """Feeds a log's inputs to the front ends named in ``methods``; counts the sweeps that began after
+    the motion prior's last message (:attr:`beyond_prior`: for them it held its last pose).
 
     ``topics`` are those the inputs come from (without a motion-prior topic the
     prior is a constant velocity); ``source`` names the log in error messages.
@@ -65,7 +66,7 @@ class LogRunner:
         self.prior = PoseTrack() if topics.prior else None
         self.source = source
         self.sweeps = 0
-        self.beyond_prior = 0  # sweeps processed after waiting MAX_CLOCK_GAP_S for the prior
+        self.beyond_prior = 0  # sweeps that began after the prior's last message (it held its last pose)
         self.doppler: bool | None = None  # whether the last sweep carried Doppler
         self._pending: deque[SweepInput] = deque()
         self._sweep_span = 0.0  # the longest sweep seen, s
@@ -90,14 +91,11 @@ class LogRunner:
             raise LogError(f"{self.source}: no messages on {self.topics.prior}, the motion prior")
 
     def _ready(self, sweep: SweepInput) -> bool:
-        """Whether the prior covers ``sweep``, or it has waited its longest (then counted)."""
+        """Whether the prior covers ``sweep``, or it has waited its longest."""
         if self.prior is None or self.prior.latest_time >= sweep.stamp_ns * 1e-9 + self._sweep_span:
             return True
         assert self._last_queued_ns is not None
-        if (self._last_queued_ns - sweep.stamp_ns) * 1e-9 > MAX_CLOCK_GAP_S:
-            self.beyond_prior += 1
-            return True
-        return False
+        return (self._last_queued_ns - sweep.stamp_ns) * 1e-9 > MAX_CLOCK_GAP_S
 
     def _queue(self, sweep: SweepInput) -> None:
         last = self._last_queued_ns
@@ -130,6 +128,8 @@ class LogRunner:
 
     def _process(self, sweep: SweepInput) -> SweepStep:
         ts = sweep.stamp_ns * 1e-9
+        if self.prior is not None and len(self.prior) and ts > self.prior.latest_time:
+            self.beyond_prior += 1
         prior = self._prior_motion(ts, max(float(sweep.t.max()), 1e-3))
         results = [fe.step(sweep, prior) for fe in self.fronts]
         wheel_pose = None

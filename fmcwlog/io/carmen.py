@@ -28,7 +28,6 @@ damage may be garbage too (gzip and xz check their CRC only at the end).
 from __future__ import annotations
 
 import gzip
-import logging
 import lzma
 import math
 import zlib
@@ -39,8 +38,6 @@ import numpy as np
 
 from ..errors import CarmenImportError
 from ..geometry import between
-
-logger = logging.getLogger(__name__)
 
 MAX_STAMP_S = 2**31 - 1  # builtin_interfaces/Time.sec is an int32
 MAX_POSITION_M = 1e6
@@ -180,7 +177,8 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
     lx, ly, lth = _pose(rest[0:3], "laser pose")
     rx, ry, rth = _pose(rest[3:6], "robot pose")
     stamp = _stamp(rest[11])
-    mount = tuple(float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
+    mx, my, mth = (float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
+    mount = (mx, my, mth)
     ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
     return ScanRecord(stamp, start, res, ranges, max_range, mount, (rx, ry, rth))
 
@@ -192,7 +190,8 @@ def _cmu_laser(tok: list[str]) -> ScanRecord:
     laser = _pose(tok[4:7], "laser pose", 0.01)
     ranges = _ranges(tok[7:187]) / 100.0
     stamp = _stamp(tok[187])
-    mount = tuple(float(v) for v in between(np.array(robot), np.array(laser)))
+    mx, my, mth = (float(v) for v in between(np.array(robot), np.array(laser)))
+    mount = (mx, my, mth)
     ranges = np.where(ranges >= 81.8, np.inf, ranges)  # 8183-8191 cm: no return
     # 180 beams over 180 degrees from the right, 1 degree apart (instruct.txt); -90 deg first (see SOURCE.md)
     return ScanRecord(stamp, -math.pi / 2, math.pi / 180, ranges, 81.8, mount, robot)
@@ -236,8 +235,8 @@ def _carmen_line(tok: list[str], out: ParsedLog) -> None:
 def parse_log(path: str | Path) -> ParsedLog:
     """Parse a CARMEN or CMU course log; the format is recognised from its first data line.
 
-    A compressed file cut off is parsed up to its end (:attr:`ParsedLog.stopped` says so, and a
-    warning); damaged compressed data raise :class:`CarmenImportError`.
+    A compressed file cut off is parsed up to its end (:attr:`ParsedLog.stopped` says so; the
+    importer warns); damaged compressed data raise :class:`CarmenImportError`.
     """
     path = Path(path)
     out = ParsedLog(path, "carmen")
@@ -259,7 +258,6 @@ def parse_log(path: str | Path) -> ParsedLog:
                     out.bad_lines.append((lineno, why))
     except EOFError:
         out.stopped = f"the compressed file ends early, after line {out.lines}"
-        logger.warning(f"{path}: {out.stopped}; imported the lines before it")
     except (lzma.LZMAError, gzip.BadGzipFile, zlib.error) as exc:
         where = f"after line {out.lines}" if out.lines else "from its start"
         raise CarmenImportError(f"{path}: its compressed data are damaged {where} ({exc})") from None

@@ -8,10 +8,15 @@ touches ``/ground_truth/*`` or ``fmcwlog.world``.
 
 The skipping policy lives here (:class:`LogInputs`). A message whose fields are
 inconsistent with its schema or physically impossible is damage local to that
-message: it is skipped and counted, one warning per kind with its count. A log
-with nothing usable left is one :class:`LogError` saying what was skipped. What
-cannot be skipped away is refused: a motion prior whose clock is far from the
-scans' (:data:`MAX_CLOCK_GAP_S`), since every sweep would get an extrapolated prior.
+message: it is skipped and counted, one warning per kind with its count. So is a
+message out of order on its topic (a stamp repeated or going backwards), and one
+whose stamp jumps more than :data:`MAX_CLOCK_GAP_S` ahead when the next message
+comes back before it (held back until then: otherwise one damaged stamp would
+make every later message go backwards); a jump the next message confirms is a
+gap in the recording. A log with nothing usable left is one :class:`LogError`
+saying what was skipped. What cannot be skipped away is refused: a motion prior
+whose clock is far from the scans' (:data:`MAX_CLOCK_GAP_S`), since every sweep
+would get an extrapolated prior.
 
 The bounds (:class:`InputLimits`) and why:
 
@@ -227,41 +232,40 @@ class _TickGate(_Gate):
     def __init__(self, wheels: WheelCalibration):
         super().__init__()
         # ticks per metre of each wheel
-        self.per_m = np.array([wheels.ticks_per_revolution / (2 * math.pi * r)
-                               for r in (wheels.wheel_radius_left, wheels.wheel_radius_right)])
-        self.offset = np.zeros(2, dtype=object)  # python ints: counts are int64 and so are offsets
+        self.per_m = tuple(wheels.ticks_per_revolution / (2 * math.pi * r)
+                           for r in (wheels.wheel_radius_left, wheels.wheel_radius_right))
+        self.offset = (0, 0)  # added to the counts read (python ints, as the int64 counts are)
         self.wraps = 0
 
-    def _plausible(self, t0: float, c0: np.ndarray, t1: float, c1: np.ndarray) -> bool:
-        return bool(np.all(np.abs((c1 - c0).astype(float)) <= self.per_m * MAX_SPEED * (t1 - t0) + 2))
+    def _plausible(self, t0: float, c0: tuple[int, int], t1: float, c1: tuple[int, int]) -> bool:
+        return all(abs(b - a) <= k * MAX_SPEED * (t1 - t0) + 2 for a, b, k in zip(c0, c1, self.per_m))
 
     def feed(self, t: float, left: int, right: int) -> tuple[int, int] | None:
         """The counts to integrate (unwrapped, rebased), or None to skip this message."""
-        raw = np.array([left, right], dtype=object)
-        counts = raw + self.offset
+        counts = (left + self.offset[0], right + self.offset[1])
         if self.last is None:
             return self._accept(t, counts)
         t0, c0 = self.last
         if self._plausible(t0, c0, t, counts):
             return self._accept(t, counts)
-        d = counts - c0
-        unwrapped = np.array([(int(x) + (_WRAP >> 1)) % _WRAP - (_WRAP >> 1) for x in d], dtype=object)
-        if all(abs(int(x)) in (0, _WRAP) for x in unwrapped - d) and self._plausible(t0, c0, t, c0 + unwrapped):
-            self.wraps += int(sum(int(x) != 0 for x in unwrapped - d))
-            self.offset = self.offset + (unwrapped - d)
-            return self._accept(t, c0 + unwrapped)
+        # the nearest counts modulo 2^32: the same if the jump was exactly one 32-bit wrap
+        near = tuple(a + (b - a + _WRAP // 2) % _WRAP - _WRAP // 2 for a, b in zip(c0, counts))
+        if all(abs(n - c) in (0, _WRAP) for n, c in zip(near, counts)) and self._plausible(t0, c0, t, near):
+            self.wraps += sum(n != c for n, c in zip(near, counts))
+            self.offset = (self.offset[0] + near[0] - counts[0], self.offset[1] + near[1] - counts[1])
+            return self._accept(t, (near[0], near[1]))
+        raw = (left, right)
         if self.pending is not None and self._plausible(self.pending[0], self.pending[1], t, raw):
-            self.offset = c0 - self.pending[1]
+            self.offset = (c0[0] - self.pending[1][0], c0[1] - self.pending[1][1])
             self.rebases += 1
-            self.pending = None
-            return self._accept(t, raw + self.offset)
+            return self._accept(t, (left + self.offset[0], right + self.offset[1]))
         self.pending = (t, raw)
         return None
 
-    def _accept(self, t: float, counts: np.ndarray) -> tuple[int, int]:
+    def _accept(self, t: float, counts: tuple[int, int]) -> tuple[int, int]:
         self.last = (t, counts)
         self.pending = None
-        return int(counts[0]), int(counts[1])
+        return counts
 
 
 class _PoseGate(_Gate):
@@ -303,6 +307,7 @@ _SKIP_TEXT = {
     "sweep_repeated": "{n} sweeps with a repeated stamp were skipped",
     "prior_backwards": "{n} motion-prior messages on {topic} whose stamps go backwards",
     "prior_repeated": "{n} motion-prior messages with a repeated stamp were skipped",
+    "stamp_jump": "{n} messages on {topic} whose stamps jump more than {max_gap:g} s ahead of their neighbours",
     "ticks_jump": "{n} wheel-tick messages on {topic} whose counts jump farther than a wheel rolls at "
                   "{max_speed:g} m/s",
     "odom_invalid": "{n} odometry messages on {topic} with a NaN, infinite or absurd pose",
@@ -318,6 +323,7 @@ class _Stream:
     first_ns: int | None = None
     last_ns: int | None = None
     accepted: int = 0
+    held: tuple[int, Any] | None = None  # a message whose stamp jumped forward, until the next one says
     skipped: dict[str, int] = field(default_factory=dict)
     first_detail: dict[str, str] = field(default_factory=dict)
 
@@ -367,78 +373,96 @@ class LogInputs:
             assert stream is not None
             try:
                 m = self.reader.decode(schema, channel, rec)
-                item = self._sweep(m) if stream is self.scan else self._prior(m)
+                ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
             except UndecodableMessage as exc:
                 self._skip(stream, "undecodable", str(exc))
                 continue
             except Rejected as exc:
                 self._skip(stream, exc.kind, exc.detail)
                 continue
-            if item is None:
+            if not self._order(stream, ns):
                 continue
-            stream.accepted += 1
-            self._check_clocks()
-            yield item
+            if stream.held is not None:  # a jump held back: this message decides
+                held, stream.held = stream.held, None
+                if ns < held[0]:
+                    self._skip(stream, "stamp_jump", f"{held[0] * 1e-9:.3f} s between {(stream.last_ns or 0) * 1e-9:.3f} "
+                                                     f"s and {ns * 1e-9:.3f} s")
+                else:
+                    yield from self._accept(stream, *held)
+            if stream.last_ns is not None and (ns - stream.last_ns) * 1e-9 > MAX_CLOCK_GAP_S:
+                stream.held = (ns, fields)  # a lone damaged stamp, or a gap in the recording: the next says
+                continue
+            yield from self._accept(stream, ns, fields)
+        for stream in (self.scan, self.prior):
+            if stream is not None and stream.held is not None:  # the log ends after the jump: a gap
+                held, stream.held = stream.held, None
+                yield from self._accept(stream, *held)
         self._check_usable()
+
+    def _accept(self, stream: _Stream, ns: int, fields: Any) -> Iterator[SweepInput | TicksInput | OdomInput]:
+        item = fields if stream is self.scan else self._prior_item(ns, fields)
+        if item is None:
+            return
+        stream.last_ns = ns
+        if stream.first_ns is None:
+            stream.first_ns = ns
+        stream.accepted += 1
+        self._check_clocks()
+        yield item
 
     def _skip(self, stream: _Stream, kind: str, detail: str) -> None:
         stream.skipped[kind] = stream.skipped.get(kind, 0) + 1
         stream.first_detail.setdefault(kind, detail)
 
-    def _order(self, stream: _Stream, ns: int, kind: str) -> bool:
+    def _order(self, stream: _Stream, ns: int) -> bool:
         """Whether ``ns`` comes after the stream's last accepted stamp (else skipped and counted)."""
+        kind = "sweep" if stream is self.scan else "prior"
         if stream.last_ns is not None and ns <= stream.last_ns:
             self._skip(stream, f"{kind}_repeated" if ns == stream.last_ns else f"{kind}_backwards",
-                       f"{ns} ns after {stream.last_ns} ns")
+                       f"{ns * 1e-9:.3f} s after {stream.last_ns * 1e-9:.3f} s")
             return False
         return True
 
-    def _sweep(self, m: Any) -> SweepInput | None:
+    def _read_sweep(self, m: Any) -> tuple[int, SweepInput]:
         if m.datatype.endswith("PointCloud2"):
             sweep = sweep_from_pointcloud(self.path, m.msg, self.limits)
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
-        if not self._order(self.scan, sweep.stamp_ns, "sweep"):
-            return None
-        self.scan.last_ns = sweep.stamp_ns
-        if self.scan.first_ns is None:
-            self.scan.first_ns = sweep.stamp_ns
-        return sweep
+        return sweep.stamp_ns, sweep
 
-    def _prior(self, m: Any) -> TicksInput | OdomInput | None:
-        assert self.prior is not None
+    def _read_prior(self, m: Any) -> tuple[int, tuple[int, int] | np.ndarray]:
+        """The stamp and the counts (ticks) or pose (odometry) of a motion-prior message."""
         ns = _stamp(self.path, "motion prior", m.msg.header)
-        if not self._order(self.prior, ns, "prior"):
-            return None
-        item: TicksInput | OdomInput
         if self._ticks is not None:
-            counts = self._ticks.feed(ns * 1e-9, int(m.msg.left), int(m.msg.right))
+            return ns, (int(m.msg.left), int(m.msg.right))
+        pose, _ = odometry_pose_twist(m.msg)
+        q = m.msg.pose.pose.orientation
+        qnorm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
+        if not (np.all(np.isfinite(pose)) and np.all(np.abs(pose[:2]) <= MAX_ODOM_POSITION) and qnorm > 1e-6):
+            raise Rejected(self.path, "Odometry", ns, "odom_invalid", f"pose {pose.tolist()}")
+        return ns, pose
+
+    def _prior_item(self, ns: int, fields: Any) -> TicksInput | OdomInput | None:
+        """The prior message through its jump gate (None: skipped and counted)."""
+        assert self.prior is not None
+        if self._ticks is not None:
+            counts = self._ticks.feed(ns * 1e-9, *fields)
             if counts is None:
-                self._skip(self.prior, "ticks_jump", f"counts {int(m.msg.left)}, {int(m.msg.right)} at {ns} ns")
+                self._skip(self.prior, "ticks_jump", f"at {ns * 1e-9:.3f} s: counts {fields[0]}, {fields[1]}")
                 return None
-            item = TicksInput(ns, *counts)
-        else:
-            pose, _ = odometry_pose_twist(m.msg)
-            q = m.msg.pose.pose.orientation
-            qnorm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
-            if not (np.all(np.isfinite(pose)) and np.all(np.abs(pose[:2]) <= MAX_ODOM_POSITION) and qnorm > 1e-6):
-                self._skip(self.prior, "odom_invalid", f"pose {pose.tolist()} at {ns} ns")
-                return None
-            gated = self._poses.feed(ns * 1e-9, pose)
-            if gated is None:
-                self._skip(self.prior, "odom_jump", f"pose {pose.tolist()} at {ns} ns")
-                return None
-            item = OdomInput(ns, gated)
-        self.prior.last_ns = ns
-        if self.prior.first_ns is None:
-            self.prior.first_ns = ns
-        return item
+            return TicksInput(ns, *counts)
+        gated = self._poses.feed(ns * 1e-9, fields)
+        if gated is None:
+            self._skip(self.prior, "odom_jump", f"at {ns * 1e-9:.3f} s: pose {fields.tolist()}")
+            return None
+        return OdomInput(ns, gated)
 
     def _check_clocks(self) -> None:
         """Refuse a motion prior whose clock is far from the scans': it would never cover a sweep."""
         p, s = self.prior, self.scan
         if p is None or s.first_ns is None:
             return
+        assert s.last_ns is not None
         if p.first_ns is None:
             if (s.last_ns - s.first_ns) * 1e-9 > MAX_CLOCK_GAP_S:
                 raise LogError(f"{self.path}: no usable message on {p.topic}, the motion prior, in the first "
@@ -469,7 +493,7 @@ class LogInputs:
     def notes(self) -> list[str]:
         """One warning per kind of skipped message, with its count and the first case."""
         values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
-                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED}
+                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
         out = []
         for stream in (self.scan, self.prior):
             if stream is None:

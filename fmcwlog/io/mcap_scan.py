@@ -57,6 +57,7 @@ _PREFIX = 9  # a record's opcode (uint8) and body length (uint64)
 _FOOTER = _PREFIX + 20  # summary_start, summary_offset_start (uint64), summary_crc (uint32)
 _KNOWN = {int(op) for op in Opcode}
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_MAX_CUT_CHUNK = 256 << 20  # bytes of a cut chunk decoded for its whole records (writers chunk at 1-4 MiB)
 
 # What parsing damaged bytes raises: mcap's EndOfFile and friends, struct.error, UnicodeDecodeError
 # and CRC mismatches (ValueError), zstandard's ZstdError, lz4's RuntimeError.
@@ -318,9 +319,9 @@ class McapScan:
             raise Damaged(f"a record of unknown opcode 0x{op:02x}")
         if pos + _PREFIX + length > end:
             if self.footer_at is None:  # no footer: the file was cut off, not damaged
-                body = fh.read(self.size - pos - _PREFIX)
-                raise _Cut(f"the log ends early, at byte {self.size}, inside the {record_name(op)} at byte {pos}",
-                           read_partial_chunk(body) if op == Opcode.CHUNK else [])
+                rest = self.size - pos - _PREFIX  # a cut chunk holds a few MB; a damaged length may claim the file
+                kept = read_partial_chunk(fh.read(rest)) if op == Opcode.CHUNK and rest <= _MAX_CUT_CHUNK else []
+                raise _Cut(f"the log ends early, at byte {self.size}, inside the {record_name(op)} at byte {pos}", kept)
             raise Damaged(f"its length ({length} bytes) runs past the data section")
         return op, fh.read(length)
 

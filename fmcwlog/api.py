@@ -40,11 +40,11 @@ from .io.atomic import (
     write_json,
     write_text,
 )
-from .io.calibration import parse_calibration
+from .io.calibration import calibration_record, parse_calibration
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
 from .io.digest import file_sha256
-from .io.inputs import InputTopics, choose_topics, iter_inputs
+from .io.inputs import InputTopics, LogInputs, choose_topics
 from .io.mcap_log import LogReader
 from .io.outputs import ProcessOutputs, odom_frame
 from .io.topics import CALIBRATION_KEY
@@ -101,6 +101,7 @@ class ProcessSummary:
     prior: str
     skipped_sweeps: int
     repeated_prior_stamps: int
+    skipped_inputs: dict[str, int]
     ms_median: dict[str, float]
     truncated: bool
     warnings: list[str]
@@ -124,9 +125,10 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         reader = LogReader(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
         try:
-            cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=topics.ticks is not None)
+            record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
+            cal = parse_calibration(record, need_wheels=topics.ticks is not None)
         except CalibrationError as exc:
-            raise LogError(f"{log}: {exc}") from None
+            raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
@@ -134,11 +136,12 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp:
             digest = file_sha256(log)  # report refuses a --log whose bytes differ
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
+            inputs = LogInputs(reader, topics, cal)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
             try:
-                for step in _steps(runner, reader, topics, log):
+                for step in _steps(runner, inputs, log):
                     for r in step.results:
                         outputs.add(r)
                     if step.wheel_pose is not None:
@@ -150,14 +153,14 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             except BaseException:
                 outputs.abort()
                 raise
-            notes = [str(w.message) for w in caught] + _process_notes(runner, topics.scan)
+            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics)
             if topics.ticks:
                 prior = f"wheel ticks ({topics.ticks})"
             else:
                 prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, runner.skipped_sweeps,
-                                     runner.repeated_prior_stamps, outputs.ms_median(), reader.contents.truncated,
-                                     notes)
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
+                                     inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
+                                     reader.contents.truncated, notes)
             write_json(tmp / "run.json", {
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
@@ -173,6 +176,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "sweeps": summary.sweeps,
                 "skipped_sweeps": summary.skipped_sweeps,
                 "repeated_prior_stamps": summary.repeated_prior_stamps,
+                "skipped_inputs": summary.skipped_inputs,
                 "truncated_log": summary.truncated,
                 "warnings": summary.warnings,
                 "ms_per_sweep_median": summary.ms_median,
@@ -181,22 +185,22 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def _steps(runner: LogRunner, reader: LogReader, topics: InputTopics, log: Path) -> Iterator[SweepStep]:
+def _steps(runner: LogRunner, inputs: LogInputs, log: Path) -> Iterator[SweepStep]:
     """The runner's steps; a map that outgrows its budget is an error about this log."""
     try:
-        yield from runner.run(iter_inputs(reader, topics))
+        yield from runner.run(inputs)
     except MapSizeError as exc:
         raise LogError(f"{log}: {exc}") from None
 
 
-def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
+def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) -> list[str]:
     notes = []
     if not runner.doppler:
-        notes.append(f"{scan_topic} carries no Doppler velocity: ego-motion and segmentation are off")
-    if runner.skipped_sweeps:
-        notes.append(f"{runner.skipped_sweeps} sweeps with a repeated stamp were skipped")
-    if runner.repeated_prior_stamps:
-        notes.append(f"{runner.repeated_prior_stamps} motion-prior messages with a repeated stamp were skipped")
+        notes.append(f"{topics.scan} carries no Doppler velocity: ego-motion and segmentation are off")
+    notes += inputs.notes()
+    if runner.beyond_prior:
+        notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
+                     "processed with the motion prior held at its last pose")
     return notes
 
 

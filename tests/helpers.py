@@ -5,6 +5,8 @@ not fmcwlog's metrics.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import subprocess
 import sys
@@ -82,8 +84,6 @@ def run_cli_here(*args: str) -> tuple[int, str, str]:
     """``fmcwlog ARGS`` in this process (exit status, stdout, stderr): the real ``cli.main``, with its
     error handling, but without a new interpreter, so that tests can patch what it calls (a full
     disk) and fuzz it quickly. An exception that escapes ``main`` escapes this too: a traceback."""
-    import contextlib
-    import io
 
     from fmcwlog import cli
 

@@ -144,15 +144,24 @@ def _empty(topic, i, msg):
         (lambda p: _junk(p / "junk.mcap"), ["junk.mcap", "not an MCAP"]),
         (lambda p: _short(p, "noscan.mcap", drop_topics=("/fmcw/points",)), ["noscan.mcap", "scan topic"]),
         (lambda p: _short(p, "nocal.mcap", drop_metadata=("fmcwlog.calibration",)), ["nocal.mcap", "calibration"]),
-        (lambda p: _short(p, "nan.mcap", edit=_nan_points), ["nan.mcap", "NaN"]),
-        (lambda p: _short(p, "back.mcap", edit=_backwards), ["back.mcap", "backwards"]),
-        (lambda p: _short(p, "empty.mcap", edit=_empty), ["empty.mcap", "no points"]),
     ],
 )
 def test_bad_input_is_one_line_and_leaves_nothing(tmp_path, make, words):
     log = make(tmp_path)
     out = tmp_path / "out"
     _assert_clean_failure(run_cli("process", str(log), "-o", str(out)), out, *words)
+
+
+@pytest.mark.parametrize("edit, kind, words", [(_nan_points, "nonfinite", "NaN"),
+                                               (_backwards, "sweep_backwards", "backwards"),
+                                               (_empty, "empty", "no points")])
+def test_a_damaged_sweep_is_skipped_and_counted(tmp_path, edit, kind, words):
+    """One bad sweep among 20 is damage local to it: the other 19 are processed, and run.json says so."""
+    log = _short(tmp_path, f"{kind}.mcap", edit=edit)
+    s = process_log(log, tmp_path / "out", ProcessOptions())
+    run = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert s.sweeps == 19 and run["skipped_inputs"] == {kind: 1} and run["skipped_sweeps"] == 1
+    assert [w for w in run["warnings"] if words in w and w.startswith("skipped 1 sweeps")], run["warnings"]
 
 
 def test_repeated_sweep_stamp_is_skipped_with_a_warning(tmp_path):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -49,8 +50,14 @@ class _ConsoleHandler(logging.Handler):
             click.echo(msg)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A library's ``warnings.warn`` (a damaged log read by ``report``, say): one line, no source line."""
+    console.warning(str(message))
+
+
 def _configure_logging(quiet: bool, verbose: int) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    warnings.showwarning = _show_warning
     console.handlers[:] = [_ConsoleHandler()]
     console.setLevel(level)
     console.propagate = False

@@ -50,7 +50,7 @@ from ..errors import LogError
 from ..geometry import compose, inverse
 from .calibration import Calibration, WheelCalibration
 from .mcap_log import LogReader, UndecodableMessage
-from .messages import _POINTFIELD_DTYPES, odometry_pose_twist, pointcloud_columns, stamp_ns
+from .messages import POINTFIELD_DTYPES, odometry_pose_twist, pointcloud_columns, stamp_ns
 from .topics import GROUND_TRUTH_PREFIX, POINTS_TOPIC, TICKS_TOPIC
 
 MAX_SPEED = 100.0  # m/s
@@ -123,7 +123,7 @@ def _cloud_layout_problem(msg: Any, wanted: list[str]) -> str | None:
     step, n = int(msg.point_step), int(msg.width) * int(msg.height)
     spans = []
     for f in msg.fields:
-        dtype = _POINTFIELD_DTYPES.get(f.datatype)
+        dtype = POINTFIELD_DTYPES.get(f.datatype)
         if dtype is None:
             if f.name in wanted:
                 return f"field {f.name!r} has unknown datatype {f.datatype}"

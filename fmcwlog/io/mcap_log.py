@@ -53,9 +53,13 @@ class LogWriter:
         self.path = Path(path)
         self._tmp = partial_path(self.path)
         self._file: IO[bytes] = open(self._tmp, "wb")
-        self._writer = McapWriter(self._file, chunk_size=chunk_size,
-                                  compression=CompressionType[compression.upper() or "NONE"])
-        self._writer.start(profile="ros2", library=f"fmcwlog {__version__}")
+        try:
+            self._writer = McapWriter(self._file, chunk_size=chunk_size,
+                                      compression=CompressionType[compression.upper() or "NONE"])
+            self._writer.start(profile="ros2", library=f"fmcwlog {__version__}")
+        except BaseException:  # the header could not be written (a full disk): leave nothing behind
+            self.abort()
+            raise
         self._schemas: dict[str, tuple[int, Callable[[Any], bytes]]] = {}
         self._channels: dict[str, int] = {}
 

@@ -16,6 +16,9 @@ from ..config import apply_to_dataclass
 from ..errors import ConfigError
 from .icp import ICPParams
 from .segmentation import SegmentationParams
+from .self_calibration import SelfCalibrationParams
+from .sensor_checks import CheckParams
+from .twist_fusion import WheelNoise
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,18 @@ class FrontEndParams:
         prediction by at most this much (m/s; wheels slip and are miscalibrated
         by far less); see :meth:`fmcwlog.frontend.methods.ImprovedFrontEnd.doppler_stages`.
     seed: seed of the Doppler RANSAC (results are deterministic given it).
+    doppler_sigma_min: added in quadrature to each component of a sweep's Doppler
+        velocity before it is fused with the wheels (m/s): the fit's own covariance
+        assumes independent points, which 0.1 m/s quantisation and speed changing within
+        the sweep are not (measured: 2.5 mm/s rms error against 1.7 mm/s claimed).
+    min_lever: a lever arm ``|lidar_x|`` below this (m) is reported as "Doppler does not
+        observe ω" (the fusion itself needs no threshold).
+    wheel_noise: how far the wheels' twist is trusted in the fusion
+        (:class:`fmcwlog.frontend.twist_fusion.WheelNoise`).
+    sensor_checks: Doppler against the wheels and the scans
+        (:class:`fmcwlog.frontend.sensor_checks.CheckParams`).
+    self_calibration: the calibration check
+        (:class:`fmcwlog.frontend.self_calibration.SelfCalibrationParams`).
 
     Stage switches of the improved method, for ablation studies (each True by default;
     ``icp.use_gmmsc`` and ``icp.use_huber`` switch GMMSC and the Huber kernel):
@@ -66,6 +81,11 @@ class FrontEndParams:
     residual_sigma: float = 0.03
     doppler_prior_gate: float = 0.3
     seed: int = 0
+    doppler_sigma_min: float = 0.002
+    min_lever: float = 0.05
+    wheel_noise: WheelNoise = field(default_factory=WheelNoise)
+    sensor_checks: CheckParams = field(default_factory=CheckParams)
+    self_calibration: SelfCalibrationParams = field(default_factory=SelfCalibrationParams)
     segment: bool = True
     deskew: bool = True
     doppler_twist: bool = True

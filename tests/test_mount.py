@@ -78,7 +78,7 @@ def test_reported_twist_matches_the_truth_within_its_uncertainty(runs, name):
     moving = truth[:, 0] > 0.2
     z = (tw[moving, 1:3] - truth[moving]) / tw[moving, 3:5]
     inside = np.mean(np.abs(z) < 3.0, axis=0)
-    assert np.all(inside > 0.95), (name, inside)  # measured 1.000 (v) and 0.993 (ω) at every mount
+    assert np.all(inside > 0.95), (name, inside)  # measured 1.000 (v) and 0.985-1.000 (ω)
 
 
 @pytest.mark.parametrize("name", list(MOUNTS))
@@ -108,7 +108,7 @@ def test_improved_method_stays_accurate_at_every_mount(runs, name):
     log, out = runs[name]
     gt = ground_truth(log)
     ate = ate_rmse(tum(out / "improved.tum"), gt)
-    assert ate < 0.012, (name, ate)  # measured 3.4-5.4 mm over these six mounts
+    assert ate < 0.013, (name, ate)  # measured 3.4-6.7 mm over these six mounts
 
 
 @pytest.mark.parametrize("name", list(MOUNTS))

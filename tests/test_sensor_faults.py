@@ -40,7 +40,7 @@ def _ticks(change):
 
 # name -> (edit, the source that must be dropped, by when (s since the first sweep), improved ATE bound (m))
 # measured on this 14 s log: dropped after 1.6, 1.6, 1.3 and 10.5 s (the corner starts at ~9 s); improved
-# ATE 30.5, 7.4, 4.5 and 4.8 mm against 5.0 mm on the clean log (without Doppler the improved method is
+# ATE 34.0, 5.9, 4.5 and 5.6 mm against 4.2 mm on the clean log (without Doppler the improved method is
 # the robust ICP on the wheels' prior, which drifts more)
 FAULTS = {
     "doppler_sign_flipped": (_flip_doppler, "doppler", 3.0, 0.06),

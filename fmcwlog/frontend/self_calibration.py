@@ -73,10 +73,10 @@ class SelfCalibrationParams:
         many of its standard deviations (``fmcwlog calibrate`` writes it), and *disagrees*
         (a warning) when it also is off by more than ...
     tol_mount_xy, tol_mount_yaw_deg, tol_radius_rel, tol_track_rel: ... these (m, deg,
-        fraction, fraction): a difference too small to matter is not worth a warning. The
-        radii's 1 % is the wheel noise the twist fusion assumes (``wheel_noise.speed_rel``);
-        the simulator's radii are 0.5 % and 0.3 % off their calibration, which ``calibrate``
-        corrects but ``process`` does not warn about.
+        fraction, fraction): a difference too small to matter is not worth a warning. For the
+        radii 1 %: worn or soft tyres are that far off, and the simulator's radii are 0.5 %
+        and 0.3 % off their calibration, which ``calibrate`` corrects but ``process`` does
+        not warn about on every log.
     max_sigma_mount_xy, max_sigma_mount_yaw_deg, max_sigma_rel: a value whose standard
         deviation exceeds these (m, deg, fraction of the value) is "not observable in this
         log" (no turns, standing still) and is neither reported as a number nor written.

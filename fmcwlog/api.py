@@ -216,7 +216,8 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
     values: dict[str, str | float] = dict(read_calibration_file(opts.calibration) if opts.calibration
                                           else reader.metadata.get(CALIBRATION_KEY, {}))
     lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check['sweeps_used']['doppler']} moving "
-             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} passes), "
+             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} "
+             f"pass{'es' if passes > 1 else ''}), "
              f"starting from the {cal_source}"]
     for name, c in first.items():
         if name in adopted:

@@ -204,6 +204,8 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
     log, output = Path(log), Path(output)
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; use --force to overwrite it")
+    if not output.parent.is_dir():
+        raise OutputError(f"{output}: no folder {output.parent} to write it in")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         reader = LogReader(log)

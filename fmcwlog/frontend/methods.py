@@ -431,12 +431,13 @@ class ImprovedFrontEnd(FrontEnd):
         return out, warnings + check_warnings
 
     def _why_no_calibration(self) -> str | None:
-        if self.cal.wheels is None or not self.samples.doppler and self.sources.with_wheels == 0:
+        """Why there can be no calibration estimate; None when only too little motion would explain it."""
+        if self.cal.wheels is None:
             return "needs wheel ticks (and the calibration's wheels)"
-        if self.sources.with_doppler == 0 and not self.samples.doppler:
-            return "needs Doppler"
         if self.checks.dropped_at:
             return f"a source was dropped as faulty ({', '.join(sorted(self.checks.dropped_at))})"
+        if not self.samples.doppler:
+            return "needs Doppler and wheel ticks in the same sweeps"
         return None
 
 

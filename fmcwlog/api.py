@@ -23,12 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import CalibrationError, CarmenImportError, LogError, MapSizeError
+from .errors import CalibrationError, CarmenImportError, LogError, MapSizeError, OutputError
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.pages import comparison_rows, markdown_table, write_report
 from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
 from .frontend.params import FrontEndParams
 from .frontend.runner import LogRunner, SweepStep
+from .frontend.self_calibration import adopt, converged, recheck, with_estimate
 from .io.atomic import (
     add_to_marker,
     atomic_batch,
@@ -40,7 +41,8 @@ from .io.atomic import (
     write_json,
     write_text,
 )
-from .io.calibration import calibration_record, parse_calibration
+from .io.calibration import Calibration, calibration_record, parse_calibration
+from .io.calibration_file import read_calibration_file, write_calibration_file
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
 from .io.digest import file_sha256
@@ -57,7 +59,7 @@ from .sim.world import World
 logger = logging.getLogger(__name__)
 
 __all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "scenario", "record",
-           "process", "evaluate", "report", "compare", "import_carmen"]
+           "process", "evaluate", "report", "compare", "import_carmen", "calibrate", "CalibrateSummary"]
 
 
 def scenario(name: str = DEFAULT_SCENARIO) -> World:
@@ -83,6 +85,8 @@ class ProcessOptions:
         when the log has no ticks).
     publish_period: paths and occupancy grids go into ``processed.mcap`` every this many
         seconds of log (s), and once more at the end.
+    calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
+        the log's ``fmcwlog.calibration`` record.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -91,6 +95,7 @@ class ProcessOptions:
     odom_topic: str | None = None
     params: FrontEndParams = field(default_factory=FrontEndParams)
     publish_period: float = 5.0
+    calibration: Path | None = None
 
 
 @dataclass
@@ -124,11 +129,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         warnings.simplefilter("always")
         reader = LogReader(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
-        try:
-            record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
-            cal = parse_calibration(record, need_wheels=topics.ticks is not None)
-        except CalibrationError as exc:
-            raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+        cal, cal_source = _calibration(reader, log, topics.ticks is not None, opts.calibration)
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
@@ -153,7 +154,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             except BaseException:
                 outputs.abort()
                 raise
-            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics)
+            diagnostics, diagnostic_notes = runner.diagnostics()
+            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
             if topics.ticks:
                 prior = f"wheel ticks ({topics.ticks})"
             else:
@@ -171,6 +173,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "prior": summary.prior,
                 "doppler": summary.doppler,
                 "mount": list(cal.mount),
+                "calibration_source": cal_source,
+                **diagnostics,
                 "frames": {name: odom_frame(name) for name in trajectories},
                 "params": dataclasses.asdict(opts.params),
                 "sweeps": summary.sweeps,
@@ -191,6 +195,93 @@ def _steps(runner: LogRunner, inputs: LogInputs, log: Path) -> Iterator[SweepSte
         yield from runner.run(inputs)
     except MapSizeError as exc:
         raise LogError(f"{log}: {exc}") from None
+
+
+def _calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
+    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source."""
+    if path is not None:
+        try:
+            return parse_calibration(read_calibration_file(path), need_wheels), str(path)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+    try:
+        record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
+        return parse_calibration(record, need_wheels), f"log record {CALIBRATION_KEY}"
+    except CalibrationError as exc:
+        raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+
+
+@dataclass
+class CalibrateSummary:
+    """What :func:`calibrate` found: the file written, the check (as in ``run.json``) and warnings."""
+
+    output: Path
+    check: dict
+    warnings: list[str]
+
+
+def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None = None,
+              force: bool = False) -> CalibrateSummary:
+    """Estimate the lidar's mount and the wheels from ``log`` itself and write them as a calibration file.
+
+    Runs the improved method over the log (nothing else is written), then
+    :mod:`fmcwlog.frontend.self_calibration`. The file holds the calibration's keys (the
+    log's record, or ``opts.calibration``) with the estimated values in place of its own,
+    each value's standard deviation in a comment; values the log cannot fix keep theirs.
+    """
+    opts = opts or ProcessOptions()
+    log, output = Path(log), Path(output)
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; use --force to overwrite it")
+    if not output.parent.is_dir():
+        raise OutputError(f"{output}: no folder {output.parent} to write it in")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = LogReader(log)
+        topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
+        if topics.ticks is None:
+            raise LogError(f"{log}: no wheel ticks: the wheels' radii and the mount are estimated against them")
+        cal0, cal_source = _calibration(reader, log, True, opts.calibration)
+        check, adopted, passes, notes = _self_calibrate(reader, topics, cal0, opts)
+    first = recheck(check["values"], cal0, opts.params.self_calibration)  # against the calibration we started from
+    values: dict[str, str | float] = dict(read_calibration_file(opts.calibration) if opts.calibration
+                                          else reader.metadata.get(CALIBRATION_KEY, {}))
+    lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check['sweeps_used']['doppler']} moving "
+             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} "
+             f"pass{'es' if passes > 1 else ''}), "
+             f"starting from the {cal_source}"]
+    for name, c in first.items():
+        if name in adopted:
+            values[name] = c["estimate"]
+        kept = "" if name in adopted else "; kept the calibration's: it agrees within 3 standard deviations"
+        lines.append(f"{name}: {c['estimate']:.6g} +- {c['sigma']:.2g} (was {c['calibration']:.6g}){kept}")
+    lines += [f"{name}: kept the calibration's: {why}" for name, why in check["not_estimated"].items()]
+    write_calibration_file(output, values, lines)
+    check = {**check, "values": first, "disagrees": sorted(n for n, c in first.items() if c["disagrees"]),
+             "adopted": sorted(adopted), "passes": passes}
+    return CalibrateSummary(output, check, [str(w.message) for w in caught] + notes)
+
+
+def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
+                    opts: ProcessOptions) -> tuple[dict, set[str], int, list[str]]:
+    """The calibration check over the whole log, repeated with the values it adopts
+    (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most
+    ``self_calibration.passes`` times); returns the last check, the adopted names, the passes, the notes."""
+    prm = opts.params.self_calibration
+    passes, adopted = 0, set()
+    while True:
+        passes += 1
+        runner = LogRunner(("improved",), opts.params, cal, topics, reader.path)
+        for _ in runner.run(LogInputs(reader, topics, cal)):
+            pass
+        diagnostics, notes = runner.diagnostics()
+        check = diagnostics.get("calibration_check", {})
+        if not check.get("checked"):
+            raise LogError(f"{reader.path}: cannot estimate the calibration: {check.get('reason', 'no Doppler')}")
+        adopted = adopt(check["values"], adopted)
+        if not adopted or converged(check["values"], adopted) or passes >= prm.passes:
+            return check, adopted, passes, notes
+        cal = with_estimate(cal, {n: check["values"][n] for n in adopted})
 
 
 def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) -> list[str]:

@@ -95,6 +95,7 @@ def cli(quiet: bool, verbose: int) -> None:
     fmcwlog report   measure them against ground truth: a page, Markdown and JSON
     fmcwlog run      all three on a built-in scenario, into one folder
     fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
+    fmcwlog calibrate  the LiDAR's mount and the wheel radii from a log -> calib.yaml
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
 
@@ -247,11 +248,15 @@ in it), never a folder holding anything else or the LOG.
 @click.option("--odom-topic", default=None,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
+@click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys) "
+                   "to use instead of the log's record.")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
 @click.option("--show-config", is_flag=True,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
                    "--config takes it back), and exit.")
-def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, force, show_config):
+def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
+                force, show_config):
     from .frontend.params import frontend_params_toml, load_frontend_params
 
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
@@ -263,7 +268,8 @@ def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
     methods = api.ProcessOptions().methods if method == "all" else (method,)
-    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params), force)
+    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params,
+                                              calibration=calibration_file), force)
 
 
 def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
@@ -293,6 +299,53 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.out_dir}/")
+
+
+_CALIBRATE_HELP = """Estimate the LiDAR's mount (lidar_x, lidar_y, lidar_yaw) and the wheels' effective
+radii and track width from LOG itself, and write them as a calibration file that
+'fmcwlog process LOG --calibration FILE' takes instead of the log's record.
+
+\b
+Doppler gives the LiDAR's velocity every sweep, the wheel ticks each wheel's rotation,
+and scan matching the heading changes; their differences are the lever arm, the radii
+and the track width (robust least squares over the sweeps where the robot moves). The
+log needs Doppler, wheel ticks, and some turns (the lever arm shows only when turning);
+what it cannot fix, and what agrees with the calibration within the estimate's
+uncertainty, keeps the calibration's value; the file's comments give every estimate.
+
+\b
+'fmcwlog process' runs the same check and warns (run.json: calibration_check) when the
+calibration disagrees with the log beyond the estimate's uncertainty; this command writes
+the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
+"""
+
+
+@cli.command("calibrate", help=_CALIBRATE_HELP)
+@click.argument("log", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Calibration file to write (.yaml).")
+@click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Start from this calibration file instead of the log's record.")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Parameter file (TOML, YAML or JSON), as for 'process'.")
+@click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
+              help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
+def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
+    from .frontend.params import load_frontend_params
+
+    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
+                                                             calibration=calibration_file), force=force)
+    for name, c in summary.check["values"].items():
+        flag = "  <- disagrees" if c["disagrees"] else ""
+        what = "written" if name in summary.check["adopted"] else "kept   "
+        console.info(f"  {name:18s} {what} {c['estimate']:+.5f} +- {c['sigma']:.5f}   (was {c['calibration']:+.5f}){flag}")
+    for name, why in summary.check["not_estimated"].items():
+        console.info(f"  {name:18s} kept: {why}")
+    for w in summary.warnings:
+        console.warning(w)
+    console.info(f"wrote {summary.output}")
 
 
 _REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the

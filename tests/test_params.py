@@ -133,7 +133,7 @@ def test_library_construction_is_checked_too():
 def _frontend_as_tables(p: FrontEndParams) -> dict:
     """FrontEndParams as the TOML tables its printer must produce: the front end's own keys in [frontend]."""
     d = dataclasses.asdict(p)
-    nested = {k: d.pop(k) for k in ("segmentation", "icp")}
+    nested = {k: d.pop(k) for k in [k for k, v in d.items() if isinstance(v, dict)]}
     return {"frontend": d, **nested}
 
 

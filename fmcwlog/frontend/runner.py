@@ -97,6 +97,22 @@ class LogRunner:
         assert self._last_queued_ns is not None
         return (self._last_queued_ns - sweep.stamp_ns) * 1e-9 > MAX_CLOCK_GAP_S
 
+    def diagnostics(self) -> tuple[dict, list[str]]:
+        """For ``run.json``: per method where its twist came from and what the sensor checks found
+        (``motion_sources``), and the calibration check (``calibration_check``); and the warnings."""
+        name = "wheel ticks" if self.topics.ticks else ("odometry" if self.topics.odom else "no motion prior")
+        sources: dict[str, dict] = {}
+        warnings: list[str] = []
+        out: dict = {"motion_sources": sources}
+        for fe in self.fronts:
+            found, said = fe.diagnostics(name)
+            if found:
+                if "calibration_check" in found:
+                    out["calibration_check"] = found.pop("calibration_check")
+                sources[fe.name] = found
+            warnings += [f"{fe.name}: {w}" for w in said]
+        return out, warnings
+
     def _queue(self, sweep: SweepInput) -> None:
         last = self._last_queued_ns
         if last is not None and sweep.stamp_ns <= last:
@@ -119,12 +135,19 @@ class LogRunner:
             raise LogError(f"{self.source}: {exc}") from None
 
     def _prior_motion(self, ts: float, span: float) -> PriorMotion:
-        """The prior's twist over [ts, ts + span] and its motion since the last sweep."""
+        """The prior's twist over [ts, ts + span], its motion since the last sweep, and the wheels' turns."""
         if self.prior is None or len(self.prior) < 2:
             return PriorMotion()
         d = self.prior.delta(ts, ts + span)
         since_last = self.prior.delta(self._last_stamp, ts) if self._last_stamp is not None else None
-        return PriorMotion((d[0] / span, d[2] / span), since_last)
+        turns = turns_since = None
+        if self.cal.wheels is not None:
+            rad = 2.0 * np.pi / self.cal.wheels.ticks_per_revolution
+            ticks = self.prior.ticks_between(ts, ts + span)
+            turns = None if ticks is None else (ticks[0] * rad, ticks[1] * rad)
+            if self._last_stamp is not None and (ticks := self.prior.ticks_between(self._last_stamp, ts)):
+                turns_since = (ticks[0] * rad, ticks[1] * rad)
+        return PriorMotion((d[0] / span, d[2] / span), since_last, span, turns, turns_since)
 
     def _process(self, sweep: SweepInput) -> SweepStep:
         ts = sweep.stamp_ns * 1e-9

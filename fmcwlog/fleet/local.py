@@ -35,12 +35,15 @@ _STDERR_KEPT = 4000  # characters of a failed worker's stderr kept in batch.json
 
 
 def worker_env() -> dict[str, str]:
-    """The parent's environment, with one BLAS/OpenMP thread, and this fmcwlog first on the path
-    (the worker must run the same code as the parent, wherever it was imported from)."""
+    """The parent's environment, with one BLAS/OpenMP thread. When this fmcwlog was imported from
+    a source tree, that tree goes first on the worker's path: the worker must run the same code
+    as the parent (an installed fmcwlog is found as usual; a site-packages folder put first
+    would shadow the standard library)."""
     env = dict(os.environ)
     env.update({v: "1" for v in THREAD_VARIABLES})
-    package_root = str(Path(__file__).resolve().parents[2])
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    package_root = Path(__file__).resolve().parents[2]
+    if package_root.name not in ("site-packages", "dist-packages"):
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(package_root), env.get("PYTHONPATH")) if p)
     return env
 
 

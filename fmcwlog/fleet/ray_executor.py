@@ -112,7 +112,9 @@ def run_on_ray(tasks: list[LogTask], limits: Limits, address: str | None, jobs: 
         _check_memory(ray, limits)
         remote = ray.remote(process_on_node).options(
             num_cpus=1, memory=limits.memory_limit_mb * 2**20 or None, max_retries=retries, retry_exceptions=False)
-        pending = {remote.remote(t, limits): t for t in sorted(tasks, key=lambda t: -t.size_bytes)}
+        # absolute paths: a node's worker does not run in this process's folder
+        pending = {remote.remote(dataclasses.replace(t, log=t.log.resolve(), out_dir=t.out_dir.resolve()), limits): t
+                   for t in sorted(tasks, key=lambda t: -t.size_bytes)}
         outcomes: list[LogOutcome] = []
         try:
             while pending:

@@ -48,7 +48,12 @@ def _configure_logging(quiet: bool, verbose: int) -> None:
 
 
 class _NoBar:
+    current_item = None
+
     def update(self, n: int, current_item=None) -> None:
+        pass
+
+    def render_progress(self) -> None:
         pass
 
     def __enter__(self):
@@ -320,8 +325,12 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
         if bar is None:  # logs done of those to run, then: done, failed, sweeps/s over all workers, time left
             bar = _progress(p.total, "logs", lambda p: p and _progress_line(p), show_eta=False)
             bar.__enter__()
-        bar.update(p.finished - shown, current_item=p)
-        shown = p.finished
+        if p.finished > shown:
+            bar.update(p.finished - shown, current_item=p)
+            shown = p.finished
+        else:  # a worker's sweeps: the same count of logs, new figures
+            bar.current_item = p
+            bar.render_progress()
 
     try:
         summary = api.process_many(logs, out_dir, opts, force=force, jobs=jobs, limits=limits,

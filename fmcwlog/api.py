@@ -4,6 +4,8 @@
     api.record(api.scenario("corridor"), api.SimConfig(), "corridor.mcap")
     summary = api.process("corridor.mcap", "out/")
     ev = api.report("out/")                  # ev.result["methods"]["improved"]["ate_rmse_m"]
+    batch = api.process_many(["logs/"], "results/", jobs=4)   # results/<log>/; batch.failed: their reasons
+    fleet = api.report_fleet("results/")     # fleet["flagged"]; results/fleet.html
 
 Every function raises :class:`fmcwlog.errors.FmcwlogError` (with a one-line message
 naming the file and the problem) for input it cannot use, and leaves nothing

@@ -273,6 +273,8 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     if show_config:
         click.echo(json.dumps(dataclasses.asdict(params), indent=2))
         return
+    if ray_address not in (None, "local") and Path(ray_address).exists():
+        raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
     if not logs:
         raise UserError("missing LOG: the .mcap file(s) or folder(s) to process")
     if out_dir is None:
@@ -282,8 +284,6 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
         _process(logs[0], out_dir, opts, force)
         return
-    if ray_address is not None and ray_address != "local" and Path(ray_address).exists():
-        raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
     _process_many(list(logs), out_dir, opts, force, jobs, Limits(memory_limit_mb, timeout_s), ray_address, retries)
 
 

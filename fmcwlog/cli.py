@@ -282,6 +282,9 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     methods = api.ProcessOptions().methods if method == "all" else (method,)
     opts = api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params)
     if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
+        if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
+            console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
+                            "here, in this process, without them")
         _process(logs[0], out_dir, opts, force)
         return
     _process_many(list(logs), out_dir, opts, force, jobs, Limits(memory_limit_mb, timeout_s), ray_address, retries)

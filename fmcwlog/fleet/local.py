@@ -108,7 +108,7 @@ class WorkerProcess:
         self.stdout.close()
         wall = time.monotonic() - self.started
         t = self.task
-        if self.result is not None and self.result[0] == "done" and rc == 0 and self.killed_for is None:
+        if self.result is not None and self.result[0] == "done":  # said only once the results are in place
             info = self.result[1]
             self._stderr.close()
             return LogOutcome(t.name, t.log, "done", sweeps=int(info.get("sweeps", 0)), wall_s=wall,

@@ -30,7 +30,7 @@ from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
 
 from fmcwlog import api
 from fmcwlog.cli import cli
-from fmcwlog.errors import ConfigError, LogError
+from fmcwlog.errors import ConfigError, FmcwlogError, LogError
 from fmcwlog.evaluation.fleet import flag_logs
 from fmcwlog.fleet.inputs import find_logs, unique_names
 from fmcwlog.fleet.local import run_one
@@ -228,7 +228,8 @@ def test_the_same_batch_on_a_local_ray(fleet, local_ray):
     out = fleet["root"] / "out-ray"
     killed: dict = {}
     watcher = _kill_when_writing(local_ray, "long", killed)
-    summary = api.process_many([fleet["logs"]], out, ray=True)
+    # 2 GB declared per task: a small CI machine's Ray still has a node that holds one
+    summary = api.process_many([fleet["logs"]], out, ray=True, limits=Limits(memory_limit_mb=2048))
     watcher.join(1)
     assert "pid" in killed, "the long log's worker was never seen writing"
     status = {o.name: o.status for o in summary.outcomes}
@@ -238,9 +239,11 @@ def test_the_same_batch_on_a_local_ray(fleet, local_ray):
         _assert_same_results(out / name, fleet["ref"] / name)
     _assert_bad_ones_reported(out, {o.name: o.reason for o in summary.failed}, killed["pid"])
     assert not list(local_ray.glob("fmcwlog-*")), "a node's temporary folder was left behind"
-    again = api.process_many([fleet["logs"]], out, ray=True, limits=Limits(timeout_s=2))
+    again = api.process_many([fleet["logs"]], out, ray=True, limits=Limits(memory_limit_mb=2048, timeout_s=2))
     assert {o.name: o.status for o in again.outcomes if o.name in fleet["good"]} == dict.fromkeys(fleet["good"],
                                                                                                   "skipped")
+    with pytest.raises(FmcwlogError, match="no Ray node has 100000000 MB"):  # would wait for ever: said at once
+        api.process_many([fleet["logs"]], fleet["root"] / "out-ray-huge", ray=True, limits=Limits(memory_limit_mb=10**8))
 
 
 def test_a_worker_over_its_memory_cap_fails_alone_with_that_reason(fleet, tmp_path):

@@ -233,8 +233,9 @@ def _totals(rows: list[dict[str, Any]], batch: dict[str, Any]) -> dict[str, Any]
     per_method: dict[str, dict[str, float | None]] = {}
     for m in sorted({m for r in done for m in r["ate_rmse_m"]}):
         vals = [r["ate_rmse_m"][m] for r in done if r["ate_rmse_m"].get(m) is not None]
-        per_method[m] = {"ate_rmse_m_median": float(np.median(vals)) if vals else None,
-                         "ate_rmse_m_max": float(np.max(vals)) if vals else None, "logs": len(vals)}
+        if vals:
+            per_method[m] = {"ate_rmse_m_median": float(np.median(vals)), "ate_rmse_m_max": float(np.max(vals)),
+                             "logs": len(vals)}
     return {"logs": len(rows), "done": len(done), "failed": len(rows) - len(done),
             "with_ground_truth": sum(r["ground_truth"] for r in done), "sweeps": sweeps,
             "duration_s": total("duration_s"), "distance_m": total("distance_m"), "processing_s": total("wall_s"),
@@ -309,8 +310,7 @@ tr.failed td {{ background: #fde0e0; }} tr.flagged td {{ background: #fff4d6; }}
 <h2>Needs a look ({len(result['flagged'])})</h2>
 {"<ul>" + flagged + "</ul>" if flagged else "<p>Nothing flagged.</p>"}
 <h2>ATE over the logs with ground truth</h2>
-<table><thead><tr><th>method</th><th>logs</th><th>median ATE RMSE cm</th><th>worst ATE RMSE cm</th></tr></thead>
-<tbody>{method_rows}</tbody></table>
+{_ate_table(method_rows)}
 <h2>Every log</h2>
 <table><thead><tr>{head}</tr></thead><tbody>{''.join(rows_html)}</tbody></table>
 <p>Each log's name links to its own report. Disagreement: RMSE between the improved and baseline positions
@@ -323,6 +323,13 @@ correspondences on more than {STARVED_FRACTION:.0%} of its sweeps.</p>
 <h2>Warnings</h2>{"<ul>" + warn + "</ul>" if warn else "<p>None.</p>"}
 </body></html>
 """
+
+
+def _ate_table(method_rows: str) -> str:
+    if not method_rows:
+        return "<p>No log has ground truth.</p>"
+    return ("<table><thead><tr><th>method</th><th>logs</th><th>median ATE RMSE cm</th><th>worst ATE RMSE cm</th></tr>"
+            f"</thead><tbody>{method_rows}</tbody></table>")
 
 
 def _link(row: dict[str, Any]) -> str:

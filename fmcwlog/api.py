@@ -4,6 +4,8 @@
     api.record(api.scenario("corridor"), api.SimConfig(), "corridor.mcap")
     summary = api.process("corridor.mcap", "out/")
     ev = api.report("out/")                  # ev.result["methods"]["improved"]["ate_rmse_m"]
+    batch = api.process_many(["logs/"], "results/", jobs=4)   # results/<log>/; batch.failed: their reasons
+    fleet = api.report_fleet("results/")     # fleet["flagged"]; results/fleet.html
 
 Every function raises :class:`fmcwlog.errors.FmcwlogError` (with a one-line message
 naming the file and the problem) for input it cannot use, and leaves nothing
@@ -16,16 +18,23 @@ import dataclasses
 import logging
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from . import __version__
-from .errors import CalibrationError, CarmenImportError, LogError, MapSizeError, OutputError
+from .errors import CalibrationError, CarmenImportError, FmcwlogError, LogError, MapSizeError, OutputError, ReportError
 from .evaluation.evaluate import Evaluation, evaluate
+from .evaluation.fleet import FleetEntry, fleet_result, log_row, write_fleet
 from .evaluation.pages import comparison_rows, markdown_table, write_report
+from .fleet.batch import BatchSummary
+from .fleet.inputs import CARMEN_PATTERNS, find_logs, unique_names
+from .fleet.progress import Progress
+from .fleet.state import is_batch_folder, options_digest, read_batch
+from .fleet.tasks import Limits
 from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
 from .frontend.params import FrontEndParams
 from .frontend.runner import LogRunner, SweepStep
@@ -58,8 +67,9 @@ from .sim.world import World
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "scenario", "record",
-           "process", "evaluate", "report", "compare", "import_carmen", "calibrate", "CalibrateSummary"]
+__all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "Limits", "BatchSummary",
+           "scenario", "record", "process", "process_many", "evaluate", "report", "report_fleet", "is_batch_folder",
+           "compare", "import_carmen", "import_carmen_many", "calibrate", "CalibrateSummary"]
 
 
 def scenario(name: str = DEFAULT_SCENARIO) -> World:
@@ -168,6 +178,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "log": str(log.resolve()),
                 "log_size_bytes": log.stat().st_size,
                 "log_sha256": digest,
+                "options_sha256": options_digest(opts),
                 "methods": list(opts.methods),
                 "scan_topic": topics.scan,
                 "prior": summary.prior,
@@ -305,6 +316,53 @@ def report(out_dir: str | Path, log: str | Path | None = None,
     return ev
 
 
+def process_many(paths: Sequence[str | Path], out_dir: str | Path, opts: ProcessOptions | None = None,
+                 force: bool = False, jobs: int | None = None, limits: Limits | None = None,
+                 ray: bool = False, ray_address: str | None = None, retries: int = 2,
+                 on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
+    """:func:`process` every log that ``paths`` name (files, or folders searched for ``*.mcap``),
+    each into ``out_dir/<name>`` in a worker process of its own; see :mod:`fmcwlog.fleet`.
+
+    ``jobs`` workers at a time (default: every core); ``limits``: each log's memory cap and
+    timeout. Logs whose results are complete from the same bytes and options are skipped
+    unless ``force``. ``ray``: run them as Ray tasks instead (``ray_address`` None starts a
+    local Ray; ``retries``: Ray's retries of a task whose worker or node died). A log that
+    fails is an outcome with its reason (``summary.failed``), not an exception; the
+    exceptions are for the batch as a whole (no logs found, bad limits, Ray unreachable).
+    """
+    from .fleet.batch import process_many as _process_many
+
+    return _process_many(paths, out_dir, opts or ProcessOptions(), force, jobs, limits, ray_address, ray, retries,
+                         on_progress)
+
+
+def report_fleet(out_dir: str | Path) -> dict[str, Any]:
+    """:func:`report` every log folder of a batch (``process_many``'s ``out_dir``), then write
+    fleet.json and fleet.html there; returns fleet.json's document
+    (:mod:`fmcwlog.evaluation.fleet`). A log whose report fails gets the reason in its row."""
+    out_dir = Path(out_dir)
+    if not is_batch_folder(out_dir):
+        raise ReportError(f"{out_dir}: not a batch folder (no batch.json, no log folders with run.json)")
+    batch = read_batch(out_dir)
+    names = set(batch["logs"]) | {p.name for p in out_dir.iterdir()
+                                  if p.is_dir() and not p.name.startswith(".") and (p / "run.json").is_file()}
+    rows = []
+    for name in sorted(names):
+        folder = out_dir / name
+        entry = FleetEntry(name, folder if (folder / "run.json").is_file() else None, batch["logs"].get(name, {}))
+        ev, error = None, None
+        if entry.folder is not None and entry.record.get("status") != "failed":
+            try:
+                ev = report(entry.folder)
+            except FmcwlogError as exc:
+                error = str(exc)
+        rows.append(log_row(entry, ev, error))
+        logger.debug("%s: reported", name)
+    result = fleet_result(out_dir, rows, batch)
+    write_fleet(out_dir, result)
+    return result
+
+
 def compare(results: list[dict], target: str | Path) -> Path:
     """comparison.md and comparison.json of several reports' results in ``target``; returns the .md."""
     target = Path(target)
@@ -324,3 +382,39 @@ def import_carmen(source: str | Path, output: str | Path) -> tuple[ImportSummary
         raise CarmenImportError(f"{source}: cannot read ({reason})") from None
     with reported_write_errors(output), created_parents(output):
         return write_mcap(parsed, Path(output)), parsed.format
+
+
+@dataclass
+class ImportOutcome:
+    """One source of :func:`import_carmen_many`: ``status`` done, skipped (its output exists) or failed."""
+
+    source: Path
+    output: Path
+    status: str
+    reason: str | None = None
+    summary: ImportSummary | None = None
+    format: str | None = None
+
+
+def import_carmen_many(paths: Sequence[str | Path], out_dir: str | Path, force: bool = False) -> list[ImportOutcome]:
+    """:func:`import_carmen` every CARMEN log that ``paths`` name (files, or folders searched for
+    ``*.clf``, ``*.log``, plain, ``.gz`` or ``.xz``) into ``out_dir/<name>.mcap`` (names as
+    :mod:`fmcwlog.fleet.inputs` gives them). An existing output is kept unless ``force``; a
+    source that cannot be read is reported in its outcome and the others go on."""
+    out_dir = Path(out_dir)
+    sources = find_logs(paths, CARMEN_PATTERNS, skip=out_dir)
+    outcomes = []
+    for src, name in zip(sources, unique_names(sources, CARMEN_PATTERNS)):
+        out = out_dir / f"{name}.mcap"
+        if out.exists() and not force:
+            outcomes.append(ImportOutcome(src, out, "skipped", f"{out}: exists; use --force to convert it again"))
+            continue
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            summary, fmt = import_carmen(src, out)
+        except (FmcwlogError, OSError, EOFError, UnicodeDecodeError) as exc:
+            outcomes.append(ImportOutcome(src, out, "failed", f"{src}: cannot import ({exc})"
+                                          if not isinstance(exc, FmcwlogError) else str(exc)))
+            continue
+        outcomes.append(ImportOutcome(src, out, "done", summary=summary, format=fmt))
+    return outcomes

@@ -18,6 +18,7 @@ from . import __version__, api
 from .config import parse_set_option, read_config_file
 from .errors import FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
+from .fleet.tasks import Limits
 from .io.atomic import check_output_file, os_reason, replacing_folder
 from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
@@ -37,6 +38,11 @@ def _path(ctx: click.Context, param: click.Parameter, value: str | None) -> Path
     if not value.strip():
         raise click.BadParameter("empty path", ctx=ctx, param=param)
     return Path(value)
+
+
+def _paths(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[Path, ...]:
+    """Several path arguments as Paths; an empty one is refused, as by :func:`_path`."""
+    return tuple(p for p in (_path(ctx, param, v) for v in value) if p is not None)
 
 
 class _ConsoleHandler(logging.Handler):
@@ -64,7 +70,12 @@ def _configure_logging(quiet: bool, verbose: int) -> None:
 
 
 class _NoBar:
+    current_item = None
+
     def update(self, n: int, current_item=None) -> None:
+        pass
+
+    def render_progress(self) -> None:
         pass
 
     def __enter__(self):
@@ -74,11 +85,11 @@ class _NoBar:
         pass
 
 
-def _progress(total: int | None, label: str, rate_label=None):
+def _progress(total: int | None, label: str, rate_label=None, show_eta: bool = True):
     """A progress bar on stderr when it is a terminal (and not --quiet); silent in pipes and CI logs."""
     if not sys.stderr.isatty() or not console.isEnabledFor(logging.INFO):
         return _NoBar()
-    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True,
+    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True, show_eta=show_eta,
                              item_show_func=rate_label or (lambda _: None))
 
 
@@ -230,11 +241,24 @@ output's run.json (--config OUT/run.json).
 \b
 --force replaces OUT_DIR only if fmcwlog made it (its .fmcwlog-output lists everything
 in it), never a folder holding anything else or the LOG.
+
+\b
+Many logs: give several LOGs, or folders (searched for *.mcap, sub-folders too).
+Each log's results go to OUT_DIR/<its name>/, the same files as a run on that log
+alone, and OUT_DIR/batch.json records what became of every log. Each log runs in a
+worker process of its own, --jobs at a time (default: every core), and a log that
+is corrupt, raises, runs past --timeout or past --memory-limit fails alone, with its
+reason, while the others finish; the exit status is then 1. Running the same command
+again skips the logs whose results are complete and were made from the same bytes
+and the same options (--force redoes them). --ray runs the logs as tasks on a Ray
+cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
+'--ray=ADDRESS' joins one (e.g. --ray=auto on a node of the cluster). Then
+'fmcwlog report OUT_DIR' writes every log's report and the fleet page.
 """
 
 
 @cli.command("process", help=_PROCESS_HELP)
-@click.argument("log", type=click.Path(), callback=_path, required=False)
+@click.argument("logs", nargs=-1, type=click.Path(), callback=_paths)
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path,
               help="Output folder (created; must be empty unless --force).")
 @click.option("--method", type=click.Choice(["improved", "baseline", "all"]), default="all", show_default=True,
@@ -255,21 +279,42 @@ in it), never a folder holding anything else or the LOG.
 @click.option("--show-config", is_flag=True,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
                    "--config takes it back), and exit.")
-def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                force, show_config):
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
+              help="Many logs: how many to process at once, each in a worker of its own.  [default: every core]")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0), default=0.0, metavar="SECONDS",
+              help="Many logs: a log still running after this long is stopped and reported failed (0: no limit).")
+@click.option("--memory-limit", "memory_limit_mb", type=click.IntRange(min=0), default=Limits().memory_limit_mb,
+              show_default=True, metavar="MB",
+              help="Many logs: each worker's address-space cap (a worker maps about 1.7 GB for 250 MB resident); a "
+                   "log that needs more fails alone. On Ray, each task also declares this much memory. 0: no cap.")
+@click.option("--ray", "ray_address", is_flag=False, flag_value="local", default=None, metavar="[ADDRESS]",
+              help="Many logs: run them as Ray tasks. '--ray' starts a local Ray; '--ray=ADDRESS' joins a cluster "
+                   "(auto, HOST:6379, ray://HOST:10001).")
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --ray: how often Ray retries a log whose worker or node died.")
+def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
+                force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from .frontend.params import frontend_params_toml, load_frontend_params
 
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
     if show_config:
         click.echo(frontend_params_toml(params), nl=False)
         return
-    if log is None:
-        raise UserError("missing LOG: the .mcap file to process")
+    if ray_address not in (None, "local") and Path(ray_address).exists():
+        raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
+    if not logs:
+        raise UserError("missing LOG: the .mcap file(s) or folder(s) to process")
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
     methods = api.ProcessOptions().methods if method == "all" else (method,)
-    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params,
-                                              calibration=calibration_file), force)
+    opts = api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file)
+    if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
+        if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
+            console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
+                            "here, in this process, without them")
+        _process(logs[0], out_dir, opts, force)
+        return
+    _process_many(list(logs), out_dir, opts, force, jobs, Limits(memory_limit_mb, timeout_s), ray_address, retries)
 
 
 def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
@@ -346,6 +391,51 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.output}")
+def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None,
+                  limits: Limits, ray_address: str | None, retries: int) -> None:
+    bar, shown = None, 0
+
+    def on_progress(p) -> None:
+        nonlocal bar, shown
+        if bar is None:  # logs done of those to run, then: done, failed, sweeps/s over all workers, time left
+            bar = _progress(p.total, "logs", lambda p: p and _progress_line(p), show_eta=False)
+            bar.__enter__()
+        if p.finished > shown:
+            bar.update(p.finished - shown, current_item=p)
+            shown = p.finished
+        else:  # a worker's sweeps: the same count of logs, new figures
+            bar.current_item = p
+            bar.render_progress()
+
+    try:
+        summary = api.process_many(logs, out_dir, opts, force=force, jobs=jobs, limits=limits,
+                                   ray=ray_address is not None,
+                                   ray_address=None if ray_address in (None, "local") else ray_address,
+                                   retries=retries, on_progress=on_progress)
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    done, skipped, failed = summary.count("done"), summary.count("skipped"), summary.failed
+    rate = f" ({summary.sweeps / summary.wall_s:.0f} sweeps/s)" if done and summary.wall_s > 0 else ""
+    console.info(f"{len(summary.outcomes)} logs: {done} processed, {summary.sweeps} sweeps in {summary.wall_s:.1f} s"
+                 f"{rate} on {summary.executor}; {skipped} skipped (complete already); {len(failed)} failed")
+    for o in failed:
+        console.warning(o.reason if str(o.log) in (o.reason or "") else f"{o.log}: {o.reason}")
+    console.info(f"wrote {out_dir}/<log>/ for each log and {out_dir / 'batch.json'}; "
+                 f"'fmcwlog report {out_dir}' for the fleet page")
+    if failed:
+        raise _SomeFailed(f"{len(failed)} of {len(summary.outcomes)} logs failed (reasons above, details in "
+                          f"{out_dir / 'batch.json'})")
+
+
+class _SomeFailed(click.ClickException):
+    exit_code = 1  # not 2: the command and its input were fine, some logs were not
+
+
+def _progress_line(p) -> str:
+    eta = p.eta_s
+    left = "" if eta is None else f", {int(eta // 60)}m{int(eta % 60):02d}s left"
+    return f"{p.done} done, {p.failed} failed, {p.sweeps_per_s:.0f} sweeps/s{left}"
 
 
 _REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the
@@ -366,6 +456,12 @@ points, ms per sweep. What cannot be computed is left empty with the reason.
 
 With several OUT_DIRs, each gets its report and a comparison table is printed and
 written to comparison.md/.json in --output (default: the current folder).
+
+A batch folder (what 'fmcwlog process' wrote for many logs) gets each log's report in
+its folder, and fleet.html and fleet.json: a row per log (duration, distance, sweeps,
+ms per sweep, warnings, why it failed, ATE and feature errors where there is ground
+truth), totals, and the logs that need a look: failed ones; with ground truth, the worst
+errors; without, where the two methods disagree most or ICP ran out of correspondences.
 """
 
 
@@ -383,6 +479,12 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 
     if log is not None and len(out_dirs) > 1:
         raise UserError("--log goes with a single output folder")
+    batches = [d for d in out_dirs if api.is_batch_folder(d)]
+    if batches:
+        if len(out_dirs) > 1 or log is not None or relations is not None:
+            raise UserError(f"{batches[0]}: a batch folder is reported alone (no other folders, --log or --relations)")
+        _report_fleet(batches[0])
+        return
     results = [_report(out_dir, log, relations) for out_dir in out_dirs]
     if len(results) > 1:
         header, rows = comparison_rows(results)
@@ -412,6 +514,25 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     return ev.result
 
 
+def _report_fleet(out_dir: Path) -> None:
+    from .evaluation.fleet import FLEET_HEADER, fleet_rows
+    from .evaluation.pages import terminal_table
+
+    result = api.report_fleet(out_dir)
+    t = result["totals"]
+    console.info(f"{out_dir}: {t['logs']} logs, {t['done']} done, {t['failed']} failed, {t['sweeps']} sweeps, "
+                 f"{t['duration_s'] / 60:.1f} min of log, {t['distance_m']:.0f} m")
+    console.info(terminal_table(FLEET_HEADER, fleet_rows(result)))
+    if result["flagged"]:
+        console.info(f"\nneeds a look ({len(result['flagged'])}):")
+        for f in result["flagged"]:
+            console.info(f"  {f['name']}: " + "; ".join(f["flags"]))
+    for r in result["logs"]:
+        if r["report_error"]:
+            console.warning(f"{r['name']}: no report: {r['report_error']}")
+    console.info(f"wrote {out_dir / 'fleet.html'} (and fleet.json), and each log's report.html in its folder")
+
+
 @cli.command("run")
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
@@ -438,11 +559,11 @@ def import_group() -> None:
 
 
 @import_group.command("carmen")
-@click.argument("source", type=click.Path(dir_okay=False), callback=_path)
-@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=_path, required=True,
-              help="Log to write (.mcap).")
-@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never SOURCE).")
-def import_carmen_cmd(source, output, force):
+@click.argument("sources", nargs=-1, required=True, type=click.Path(), callback=_paths)
+@click.option("-o", "--output", type=click.Path(), callback=_path, required=True,
+              help="Log to write (.mcap); with several sources or a folder, the folder to write them into.")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never a SOURCE).")
+def import_carmen_cmd(sources, output, force):
     """Convert a CARMEN log (plain, .xz or .gz) into an MCAP log.
 
     \b
@@ -452,7 +573,17 @@ def import_carmen_cmd(source, output, force):
     line. Stamps are the log's own ipc_timestamps, which benchmark relations refer to. Without
     ODOM lines, the odometry pose of each laser line becomes /odom. Malformed lines are
     skipped, counted and listed with their line numbers. Then: fmcwlog process OUTPUT -o DIR.
+
+    \b
+    Several SOURCES, or folders (searched for *.clf and *.log, plain, .gz or .xz): each
+    becomes OUTPUT/<name>.mcap; an existing one is kept unless --force, and a source that
+    cannot be read is reported while the others go on (exit status 1 if any failed).
+    Then: fmcwlog process OUTPUT -o DIR.
     """
+    if len(sources) > 1 or sources[0].is_dir():
+        _import_many(list(sources), output, force)
+        return
+    source = sources[0]
     if not source.is_file():
         raise UserError(f"{source}: no such file")
     check_output_file(output, force, (source,))
@@ -470,6 +601,21 @@ def _one_line(message: str) -> str:
     """A message as one printable line: a line break or control character a user's input carried in
     (a file name, a key) is shown escaped, never breaking the line."""
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: exists and is not a folder (several sources go into a folder)")
+    outcomes = api.import_carmen_many(sources, out_dir, force=force)
+    for o in outcomes:
+        if o.status == "done" and o.summary is not None:
+            bad = f", {len(o.summary.bad_lines)} malformed lines skipped" if o.summary.bad_lines else ""
+            console.info(f"wrote {o.output}: {o.summary.scans} scans over {o.summary.span_s:.1f} s; format {o.format}{bad}")
+        elif o.status == "skipped":
+            console.info(f"kept {o.output}: it exists (--force converts it again)")
+        else:
+            console.warning(o.reason)
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:
+        raise _SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
 
 
 def main() -> None:

@@ -58,6 +58,7 @@ from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .robust_icp import register
 from .segmentation import segment_moving
+from .tracking import MoverTracker
 
 WHEEL_ODOMETRY = "wheel_odometry"  # the motion prior's own trajectory, written beside the methods'
 
@@ -266,6 +267,7 @@ class ImprovedFrontEnd(FrontEnd):
     def __init__(self, params: FrontEndParams, cal: Calibration):
         super().__init__(params, cal)
         self.mixture: DistanceMixture | None = None  # the last GMMSC mixture, reused by the next sweep's ICP
+        self.tracker = MoverTracker(params.tracking)  # movers followed over this log's sweeps
 
     def doppler_stages(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> Doppler | None:
         """Ego-motion and segmentation of one sweep; None without Doppler.
@@ -285,10 +287,24 @@ class ImprovedFrontEnd(FrontEnd):
         if not np.all(np.isfinite(ego.v_sensor)):
             return Doppler(float("nan"), float("nan"), float("nan"), float("nan"), np.zeros(len(sweep.xy), bool))
         eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor)  # NOTES: threshold this, not v_r
-        moving = segment_moving(sweep.xy, eps, p.segmentation)
         tw = base_twist_from_sensor_velocity(ego.v_sensor, *self.cal.mount, covariance=ego.covariance)
+        moving = self.segment(sweep, eps, (tw.v, tw.omega) if np.isfinite(tw.omega) else prior_twist)
         return Doppler(tw.v, tw.omega, float(tw.covariance[0, 0]), float(tw.covariance[1, 1]), moving,
                        float(tw.covariance[0, 1]))
+
+    def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
+        """Moving mask (N,): DBSCAN and the Doppler verdict (eq. 17-19) and, with tracking on, the
+        movers followed from earlier sweeps and the map's free space (:mod:`.tracking`). ``eps``:
+        compensated Doppler (m/s); ``twist``: ``(v, ω)`` over the sweep, to place its points in the map."""
+        p = self.params
+        if not p.tracking.enabled:
+            return segment_moving(sweep.xy, eps, p.segmentation)
+        v, omega = twist if twist is not None and all(np.isfinite(twist)) else (0.0, 0.0)
+        ts = sweep.stamp_ns * 1e-9
+        base = np.zeros(3)
+        if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
+            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(ts - self.last_stamp)))
+        return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid, p.segmentation)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

@@ -3,7 +3,7 @@
 A config file (TOML, YAML or JSON) holds the same structure as
 :class:`FrontEndParams`: the front end's own parameters at the top level (or in
 a ``[frontend]`` table), each stage's in its own table (``[segmentation]``,
-``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
+``[tracking]``, ``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
 that, and ``run.json`` records it under ``params``, so either can be fed back.
 """
 
@@ -16,6 +16,7 @@ from ..config import apply_to_dataclass
 from ..errors import ConfigError
 from .icp import ICPParams
 from .segmentation import SegmentationParams
+from .tracking import TrackingParams
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class FrontEndParams:
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
+    tracking: TrackingParams = field(default_factory=TrackingParams)
     # Stop ICP at 0.5 mm / 0.1 mrad steps: on the 2-minute corridor log this takes the
     # improved front end from 5.5 to 4.3 ms per sweep at the same ATE (1.9 -> 1.5 cm).
     icp: ICPParams = field(default_factory=lambda: ICPParams(translation_tol=5e-4, rotation_tol=1e-4))

@@ -1,0 +1,376 @@
+"""Movers followed from sweep to sweep, so that one seen moving keeps its label while Doppler is blind to it.
+
+NOTES.md "Doppler of a static point": a mover whose motion is perpendicular to the
+beam has ``ε ≈ 0``. Per-sweep clustering (:mod:`.segmentation`) carries such points
+only when the same object shows Doppler elsewhere; a person walking across the
+beams shows none at all (at 1.2 m/s, ``|uᵀV| < v_th = 0.3 m/s`` within ±14° of
+broadside) for several sweeps, and is then labelled static and mapped. But it was
+seen moving in the sweeps before: a small multi-object tracker keeps it.
+
+Frames and units: tracks live in the method's odometry frame (called ``map`` here,
+where its voxel map and occupancy grid are), positions in m, velocities in m/s,
+times in s on the log's clock. The caller gives each sweep's points in the lidar
+frame at the sweep's stamp (deskewed) and the lidar's pose there.
+
+Each track is a constant-velocity Kalman filter over ``(x, y, vx, vy)``, measured by
+its cluster's centroid (m) and mean compensated Doppler ``ε̄ = ūᵀV`` (m/s) along the
+centroid's bearing ``ū``: the Doppler gives the radial speed at once, the centroid's
+motion the tangential one. Per sweep, for a few dozen tracks and clusters, all in
+arrays:
+
+1. predict every track to the sweep's middle time;
+2. gate: a cluster is a candidate for a track when its centroid is within
+   ``gate_distance`` of the prediction and the Mahalanobis distance of
+   ``(centroid, ε̄)`` is within ``gate_chi2``; the Doppler term keeps a track whose
+   mover walks along the beam from taking a static pillar (``ε̄ = 0``);
+3. one-to-one assignment (Hungarian, :func:`scipy.optimize.linear_sum_assignment`)
+   for the filter updates;
+4. labels: a cluster no larger than ``max_object_radius`` gated by a confirmed track
+   is moving, whatever its Doppler; a point of a larger cluster (a walker chained to
+   a wall by DBSCAN) or a DBSCAN noise point is moving when it lies within
+   ``claim_radius`` of a confirmed track's updated position and its ``ε`` agrees
+   with the track's radial velocity;
+5. births from Doppler-moving clusters no track took; a track dies ``max_coast``
+   after its last update.
+
+A track is confirmed (may label) once it has been matched to Doppler-moving
+clusters in ``min_moving_hits`` sweeps and its speed is at least ``min_speed``.
+Static structure never births a track (it shows no Doppler), and the map keeps
+tracks off it: a point in or next to a cell of the method's occupancy grid hit
+repeatedly (log-odds ≥ ``structure_log_odds``) is never claimed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..geometry import compose, inverse, transform_points
+from .deskew import deskew
+from .occupancy import OccupancyGrid
+from .segmentation import SegmentationParams, segment_clusters
+
+_NO_MATCH = 1e9  # cost of a pair outside the gate
+
+
+@dataclass(frozen=True)
+class TrackingParams:
+    """Parameters of :class:`MoverTracker`.
+
+    enabled: follow movers over time (False: the per-sweep Doppler verdict alone).
+    gate_distance: a cluster's centroid farther than this (m) from a track's
+        prediction is never its measurement; > 0.
+    gate_chi2: Mahalanobis gate on (centroid x, y, ε̄), 3 degrees of freedom;
+        16.3 is the 99.9 % quantile.
+    position_sigma: noise of a cluster centroid as a measure of the object's
+        position (m); the visible side of a 0.5 m person is ~0.15 m off its centre.
+        Half the cluster's radius is added to it, for carts whose visible faces change.
+    doppler_sigma: noise of a cluster's mean ε (m/s); 0.1 m/s quantisation.
+    accel_sigma: white acceleration of the constant-velocity model (m/s²); people
+        turn and stop.
+    birth_tangential_sigma: a new track's unknown speed across the beam (m/s).
+    max_coast: a track not updated for this long (s) is dropped.
+    min_moving_hits: sweeps matched to a Doppler-moving cluster before a track labels.
+    min_speed: a track slower than this (m/s) labels nothing (a mover that stopped).
+    max_blind: a track labels only this long (s) after its last match to a cluster
+        judged moving by Doppler or free space: a track that slid onto static
+        structure (a wall's visible piece sliding along it as occluders move)
+        stops labelling.
+    max_object_radius: a gated cluster whose points all lie within this (m) of its
+        centroid is one object and moving as a whole; larger ones only near the track.
+    claim_radius: points within this (m) of a confirmed track's position may be
+        claimed one by one (noise points, large clusters).
+    claim_doppler: a point claimed one by one has ``|ε - uᵀV̂| ≤`` this (m/s).
+    structure_log_odds: a point whose occupancy cell or any of its 8 neighbours holds
+        at least this log-odds is on static structure seen repeatedly and is never
+        claimed by a track (one hit adds 0.85); 0 or less disables the map check.
+    free_log_odds: a point whose cell and 8 neighbours all hold at most this log-odds lies
+        where the map has seen free space several times (a traversal adds -0.4); a compact
+        cluster with ``free_fraction`` of its points there is moving and may birth a
+        track; 0 or more disables it.
+    max_tracks: at most this many tracks (the least recently updated are dropped).
+    """
+
+    enabled: bool = True
+    gate_distance: float = 1.0
+    gate_chi2: float = 16.3
+    position_sigma: float = 0.15
+    doppler_sigma: float = 0.1
+    accel_sigma: float = 2.0
+    birth_tangential_sigma: float = 1.5
+    max_coast: float = 0.6
+    min_moving_hits: int = 2
+    min_speed: float = 0.3
+    max_blind: float = 2.0
+    max_object_radius: float = 0.8
+    claim_radius: float = 0.5
+    claim_doppler: float = 0.3
+    structure_log_odds: float = 0.8
+    free_log_odds: float = -1.2
+    free_fraction: float = 0.5
+    max_tracks: int = 64
+
+
+@dataclass
+class Detections:
+    """One sweep's clusters as measurements (C of them), in ``map``.
+
+    centroid (C, 2) m; bearing (C, 2) unit vector from the lidar to the centroid;
+    doppler (C,) mean ε, m/s; radius (C,) largest distance of a point from the
+    centroid, m; time (C,) mean capture time, s; moving (C,) the Doppler verdict;
+    free_space (C,) no Doppler verdict, but compact and where the map has seen free space.
+    """
+
+    centroid: np.ndarray
+    bearing: np.ndarray
+    doppler: np.ndarray
+    radius: np.ndarray
+    time: np.ndarray
+    moving: np.ndarray
+    free_space: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.centroid)
+
+
+def detections(map_xy: np.ndarray, origin: np.ndarray, times: np.ndarray, epsilon: np.ndarray,
+               labels: np.ndarray, moving: np.ndarray, seen_free: np.ndarray, max_radius: float,
+               free_fraction: float) -> Detections:
+    """Cluster statistics from points (N, 2) in ``map`` with their DBSCAN ``labels`` (-1: none),
+    capture ``times`` (s), compensated Doppler ``epsilon`` (m/s), Doppler verdict ``moving`` and
+    whether the map has seen their place free (``seen_free``); ``origin`` (2,) is the lidar's
+    position. Cluster ``c`` is row ``c`` (labels 0..C-1). A cluster within ``max_radius`` (m) of
+    its centroid with at least ``free_fraction`` of its points seen free is a free-space detection."""
+    keep = labels >= 0
+    lab = labels[keep]
+    c = int(lab.max()) + 1 if lab.size else 0
+    count = np.maximum(np.bincount(lab, minlength=c), 1)
+    xy = map_xy[keep]
+    centroid = np.column_stack([np.bincount(lab, xy[:, 0], c), np.bincount(lab, xy[:, 1], c)]) / count[:, None]
+    radius = np.zeros(c)
+    np.maximum.at(radius, lab, np.hypot(*(xy - centroid[lab]).T))
+    d = centroid - origin
+    bearing = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+    doppler = np.bincount(lab, epsilon[keep], c) / count
+    time = np.bincount(lab, times[keep], c) / count
+    is_moving = np.bincount(lab, moving[keep], c) > 0.5 * count
+    free_space = (np.bincount(lab, seen_free[keep], c) >= free_fraction * count) & (radius <= max_radius) & ~is_moving
+    return Detections(centroid, bearing, doppler, radius, time, is_moving, free_space)
+
+
+def local_max_log_odds(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
+    """(N,) the largest log-odds of a point's occupancy cell and its 8 neighbours (0 where never
+    observed or outside the grid): ≥ a few hits is static structure mapped repeatedly, clearly
+    negative is space the method has seen free several times."""
+    if grid.width == 0 or len(map_xy) == 0:
+        return np.zeros(len(map_xy))
+    rc = grid.cell_of(map_xy)
+    r = rc[:, :1] + _AROUND[:, 0]  # (N, 9): one gather for the point and its neighbours
+    c = rc[:, 1:] + _AROUND[:, 1]
+    inside = (r >= 0) & (r < grid.height) & (c >= 0) & (c < grid.width)
+    values = np.where(inside, grid.log_odds[np.where(inside, r, 0), np.where(inside, c, 0)], 0.0)
+    return values.max(axis=1)
+
+
+_AROUND = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])  # a cell and its 8 neighbours
+
+
+class MoverTracker:
+    """Tracks of moving objects in ``map``; :meth:`step` once per sweep, in time order."""
+
+    def __init__(self, params: TrackingParams = TrackingParams()):
+        self.params = params
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = np.zeros((0, 4))  # (T, 4) x, y, vx, vy
+        self.cov = np.zeros((0, 4, 4))
+        self.time = np.zeros(0)  # s, the time the state refers to
+        self.last_update = np.zeros(0)  # s
+        self.moving_hits = np.zeros(0, int)
+        self.last_evidence = np.zeros(0)  # s, the last match to a Doppler-moving or free-space cluster
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    @property
+    def confirmed(self) -> np.ndarray:
+        """(T,) tracks that may label points (at the time of their state)."""
+        p = self.params
+        speed = np.hypot(self.x[:, 2], self.x[:, 3])
+        recent = self.time - self.last_evidence <= p.max_blind
+        return (self.moving_hits >= p.min_moving_hits) & (speed >= p.min_speed) & recent
+
+    def predicted(self, when: float) -> np.ndarray:
+        """Positions (T, 2) of the confirmed tracks at ``when`` (s), in ``map``."""
+        ok = self.confirmed
+        return self.x[ok, :2] + self.x[ok, 2:] * (when - self.time[ok])[:, None]
+
+    def predict(self, when: float) -> None:
+        """Every track's state and covariance moved to ``when`` (s)."""
+        dt = when - self.time
+        f = np.tile(np.eye(4), (len(dt), 1, 1))
+        f[:, 0, 2] = f[:, 1, 3] = dt
+        q = self.params.accel_sigma**2
+        g = np.zeros((len(dt), 4, 4))
+        g[:, [0, 1], [0, 1]] = dt[:, None] ** 4 / 4
+        g[:, [0, 1, 2, 3], [2, 3, 0, 1]] = dt[:, None] ** 3 / 2
+        g[:, [2, 3], [2, 3]] = dt[:, None] ** 2
+        self.x = np.einsum("tij,tj->ti", f, self.x)
+        self.cov = f @ self.cov @ f.transpose(0, 2, 1) + q * g
+        self.time = np.full(len(dt), when)
+
+    def _innovations(self, det: Detections, when: float, ti: np.ndarray, ci: np.ndarray):
+        """Innovation (M, 3), its covariance (M, 3, 3) and the measurement Jacobian (M, 3, 4)
+        of the pairs (track ``ti``, cluster ``ci``)."""
+        p = self.params
+        delay = det.time[ci] - when  # the cluster's points were seen at their own time
+        h = np.zeros((len(ti), 3, 4))
+        h[:, 0, 0] = h[:, 1, 1] = 1.0
+        h[:, 0, 2] = h[:, 1, 3] = delay
+        h[:, 2, 2:] = det.bearing[ci]
+        z = np.column_stack([det.centroid[ci], det.doppler[ci]])
+        y = z - np.einsum("mij,mj->mi", h, self.x[ti])
+        r = np.zeros((len(ti), 3, 3))
+        r[:, [0, 1], [0, 1]] = (p.position_sigma**2 + (0.5 * det.radius[ci]) ** 2)[:, None]
+        r[:, 2, 2] = p.doppler_sigma**2
+        s = h @ self.cov[ti] @ h.transpose(0, 2, 1) + r
+        return y, s, h
+
+    def _gate(self, det: Detections, when: float):
+        """Pairs (track, cluster) inside both gates, with their innovations."""
+        p = self.params
+        dist = np.hypot(*(self.x[:, None, :2] - det.centroid[None, :, :]).transpose(2, 0, 1))
+        ti, ci = np.nonzero(dist <= p.gate_distance)
+        y, s, h = self._innovations(det, when, ti, ci)
+        d2 = np.einsum("mi,mi->m", y, np.linalg.solve(s, y[..., None])[..., 0])
+        ok = d2 <= p.gate_chi2
+        return ti[ok], ci[ok], d2[ok], y[ok], s[ok], h[ok]
+
+    def _update(self, ti: np.ndarray, y: np.ndarray, s: np.ndarray, h: np.ndarray) -> None:
+        """Kalman update of tracks ``ti`` with their innovations."""
+        cov = self.cov[ti]
+        gain = np.linalg.solve(s, h @ cov).transpose(0, 2, 1)  # P Hᵀ S⁻¹ (S symmetric)
+        self.x[ti] += np.einsum("mij,mj->mi", gain, y)
+        cov = (np.eye(4) - gain @ h) @ cov
+        self.cov[ti] = 0.5 * (cov + cov.transpose(0, 2, 1))
+
+    def _birth(self, det: Detections, ci: np.ndarray, when: float) -> None:
+        """New tracks on clusters ``ci``: the radial velocity from their Doppler, the tangential unknown."""
+        p = self.params
+        u = det.bearing[ci]
+        n = np.column_stack([-u[:, 1], u[:, 0]])
+        x = np.column_stack([det.centroid[ci], det.doppler[ci, None] * u])
+        x[:, :2] += x[:, 2:] * (when - det.time[ci])[:, None]
+        cov = np.zeros((len(ci), 4, 4))
+        cov[:, [0, 1], [0, 1]] = (p.position_sigma**2 + (0.5 * det.radius[ci]) ** 2)[:, None]
+        cov[:, 2:, 2:] = (p.doppler_sigma**2 * u[:, :, None] * u[:, None, :]
+                          + p.birth_tangential_sigma**2 * n[:, :, None] * n[:, None, :])
+        self.x = np.concatenate([self.x, x])
+        self.cov = np.concatenate([self.cov, cov])
+        self.time = np.concatenate([self.time, np.full(len(ci), when)])
+        self.last_update = np.concatenate([self.last_update, np.full(len(ci), when)])
+        self.moving_hits = np.concatenate([self.moving_hits, np.ones(len(ci), int)])
+        self.last_evidence = np.concatenate([self.last_evidence, np.full(len(ci), when)])
+
+    def _prune(self, when: float) -> None:
+        keep = when - self.last_update <= self.params.max_coast
+        if keep.sum() > self.params.max_tracks:
+            keep &= self.last_update >= np.sort(self.last_update[keep])[-self.params.max_tracks]
+        self.x, self.cov, self.time = self.x[keep], self.cov[keep], self.time[keep]
+        self.last_update, self.moving_hits = self.last_update[keep], self.moving_hits[keep]
+        self.last_evidence = self.last_evidence[keep]
+
+    def associate(self, det: Detections, when: float) -> np.ndarray:
+        """Steps 1-3 and 5 of the module docstring; returns (C,) the clusters a confirmed track
+        claims (step 4, cluster level). ``when`` (s) is the sweep's middle time."""
+        p = self.params
+        self.predict(when)
+        confirmed = self.confirmed
+        claimed = np.zeros(len(det), bool)
+        assigned = np.zeros(len(det), bool)
+        if len(self) and len(det):
+            ti, ci, d2, y, s, h = self._gate(det, when)
+            claimed[ci[confirmed[ti] & (det.radius[ci] <= p.max_object_radius)]] = True
+            cost = np.full((len(self), len(det)), _NO_MATCH)
+            cost[ti, ci] = d2
+            rows, cols = linear_sum_assignment(cost)
+            match = cost[rows, cols] < _NO_MATCH
+            rows, cols = rows[match], cols[match]
+            pair = np.full(cost.shape, -1)
+            pair[ti, ci] = np.arange(len(ti))
+            k = pair[rows, cols]
+            self._update(rows, y[k], s[k], h[k])
+            self.last_update[rows] = when
+            evidence = det.moving[cols] | det.free_space[cols]
+            self.moving_hits[rows] += evidence
+            self.last_evidence[rows[evidence]] = when
+            assigned[cols] = True
+        births = np.flatnonzero((det.moving | det.free_space) & ~assigned)
+        if births.size:
+            self._birth(det, births, when)
+        self._prune(when)
+        return claimed
+
+    def claim_points(self, map_xy: np.ndarray, bearing: np.ndarray, epsilon: np.ndarray) -> np.ndarray:
+        """(N,) points within ``claim_radius`` of a confirmed track (its state after
+        :meth:`associate`) whose ``ε`` agrees with the track's radial velocity ``uᵀV̂``."""
+        p = self.params
+        ok = self.confirmed
+        if not ok.any() or len(map_xy) == 0:
+            return np.zeros(len(map_xy), bool)
+        pos, vel = self.x[ok, :2], self.x[ok, 2:]
+        near = np.hypot(*(map_xy[:, None, :] - pos[None]).transpose(2, 0, 1)) <= p.claim_radius  # (N, T)
+        agree = np.abs(epsilon[:, None] - bearing @ vel.T) <= p.claim_doppler
+        return np.any(near & agree, axis=1)
+
+    def segment(self, xy: np.ndarray, t: np.ndarray, epsilon: np.ndarray, stamp: float, base_pose: np.ndarray,
+                twist: tuple[float, float], mount: np.ndarray, grid: OccupancyGrid | None,
+                seg_params: SegmentationParams) -> np.ndarray:
+        """The moving mask (N,) of one sweep: DBSCAN's Doppler verdict (eq. 17-19), the clusters in
+        space the map has seen free, and what the tracks claim; the tracks are updated.
+
+        ``xy`` (N, 2): points in the lidar frame at their own capture times ``t`` (N,, s after
+        ``stamp``, s); ``epsilon`` (N,): compensated Doppler (m/s); ``base_pose`` (3,): base_link
+        in ``map`` at ``stamp``, as predicted; ``twist``: ``(v, ω)`` over the sweep (m/s, rad/s);
+        ``mount`` (3,): the lidar in base_link; ``grid``: the method's occupancy grid (read only).
+        """
+        p = self.params
+        lidar = compose(base_pose, mount)
+        when = stamp + float(np.median(t))
+        map_xy = transform_points(lidar, deskew(xy, t, twist[0], twist[1], mount))
+        log_odds = local_max_log_odds(grid, map_xy) if grid is not None else np.zeros(len(xy))
+        seen_free = log_odds <= p.free_log_odds if p.free_log_odds < 0 else np.zeros(len(xy), bool)
+        seg = segment_clusters(xy, epsilon, seg_params, seeds=np.concatenate([self.seeds(lidar, when), xy[seen_free]]))
+        idx = np.flatnonzero(seg.clustered)
+        labels = seg.labels[idx]
+        det = detections(map_xy[idx], lidar[:2], stamp + t[idx], epsilon[idx], labels, seg.moving[idx],
+                         seen_free[idx], p.max_object_radius, p.free_fraction)
+        claimed = self.associate(det, when)
+        moving = seg.moving.copy()
+        if idx.size == 0:
+            return moving
+        claimable = ~seg.moving[idx]
+        if p.structure_log_odds > 0:
+            claimable &= log_odds[idx] < p.structure_log_odds
+        in_cluster = labels >= 0
+        by_cluster = np.zeros(len(idx), bool)
+        by_cluster[in_cluster] = (claimed | det.free_space)[labels[in_cluster]]
+        large = ~in_cluster
+        large[in_cluster] = det.radius[labels[in_cluster]] > p.max_object_radius
+        loose = claimable & ~by_cluster & large
+        if loose.any() and p.claim_radius > 0:
+            d = map_xy[idx[loose]] - lidar[:2]
+            bearing = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+            by_point = np.zeros(len(idx), bool)
+            by_point[loose] = self.claim_points(map_xy[idx[loose]], bearing, epsilon[idx[loose]])
+            by_cluster |= by_point
+        moving[idx[claimable & by_cluster]] = True
+        return moving
+
+    def seeds(self, lidar_pose: np.ndarray, when: float) -> np.ndarray:
+        """Where confirmed tracks are expected at ``when`` (s), in the lidar frame ``lidar_pose``
+        (K, 2): DBSCAN clusters around them too."""
+        return transform_points(inverse(lidar_pose), self.predicted(when))

@@ -301,10 +301,13 @@ class ImprovedFrontEnd(FrontEnd):
             return segment_moving(sweep.xy, eps, p.segmentation)
         v, omega = twist if twist is not None and all(np.isfinite(twist)) else (0.0, 0.0)
         ts = sweep.stamp_ns * 1e-9
-        base = np.zeros(3)
+        base, yaw_error = np.zeros(3), 0.0
         if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
-            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(ts - self.last_stamp)))
-        return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid, p.segmentation)
+            dt = ts - self.last_stamp
+            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
+            yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
+        return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
+                                    p.segmentation, yaw_error)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

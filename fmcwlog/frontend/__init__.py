@@ -6,6 +6,7 @@ One module per stage, each pure functions on numpy arrays (KISS-ICP's layout):
 - ``motion_prior``        the odometry (ticks or an Odometry topic) as poses readable at any time
 - ``egomotion``           the sensor's velocity from one sweep's Doppler field (NOTES.md)
 - ``segmentation``        moving points by DBSCAN over position and compensated Doppler (eq. 17-19)
+- ``tracking``            movers followed over time and seen in the map's free space, across the beams too
 - ``deskew``              every point to the sweep's stamp under a constant twist
 - ``local_map``           the voxel map scans are matched against
 - ``gmmsc``               false-match rejection by a mixture on pair distances (eq. 20-21)

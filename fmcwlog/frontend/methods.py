@@ -7,7 +7,8 @@ improved (paper §4, with NOTES.md's corrections)
      static points' radial velocities (:mod:`.egomotion`), turned into the robot's
      ``(v, ω)`` with the rear axle's no-slide constraint;
   2. segmentation: DBSCAN over position and *ego-motion-compensated* velocity
-     (eq. 17-19, :mod:`.segmentation`); moving points leave matching and the map;
+     (eq. 17-19, :mod:`.segmentation`), and movers followed over time and seen in
+     the map's free space (:mod:`.tracking`); moving points leave matching and the map;
   3. deskew every point to ``t_k`` with the Doppler twist (:mod:`.deskew`);
   4. prior: the previous pose moved by the Doppler twist over ``t_k - t_{k-1}``,
      also used as a soft constraint in the ICP so that a geometrically

@@ -39,9 +39,8 @@ arrays (no loop over points or tracks):
    took; a track dies ``max_coast`` after its last update.
 
 A track is confirmed (may label) once it has been matched to clusters judged moving
-in ``min_moving_hits`` sweeps, the last of them at most ``max_blind`` ago, and its
-speed is at least ``min_speed``. Static structure never births a track (it shows no
-Doppler and is not in free space).
+in ``min_moving_hits`` sweeps and its speed is at least ``min_speed``. Static
+structure never births a track (it shows no Doppler and is not in free space).
 
 The map (the method's occupancy grid, read only; "points far from any static
 structure seen repeatedly", issue 12) enters twice, through the largest log-odds of
@@ -50,20 +49,33 @@ a point's cell and its 8 neighbours:
 - free space: a compact cluster with most of its points where every cell around has
   been seen free several times (log-odds ≤ ``free_log_odds``) is moving, Doppler or
   not, and may birth a track: a mover that crosses the beams without ever having
-  been seen moving;
-- structure: a point where some cell around has been hit more often than seen free
-  (log-odds ≥ ``structure_log_odds``) is never labelled moving by a track or by free
-  space, only by its own Doppler: a track that slid onto a wall or a pillar cannot
-  carry it.
+  been seen moving (a slow cart ahead of the robot, whose ``|ε|`` stays under
+  ``v_th`` within ±50° of broadside);
+- structure: a point where some cell around has been hit at least once more than
+  it was seen free (log-odds ≥ ``structure_log_odds``) is never labelled moving by
+  a track or by free space, only by its own Doppler: a track that slid onto a wall
+  or a pillar cannot carry it there.
 
-Measured on the 2-minute ``dense-crowd`` log (seed 0, 46 % of the returns on movers),
-recall / precision of the moving points: Doppler clusters alone 0.857 / 1.000; with
-the tracker (first 40 s) 0.871 -> 0.943; free space on top 0.970 (whole log 0.985);
-without the structure check precision fell to 0.985 (40 s); with it at 1.7 log-odds
-0.9994, at 0.8 0.9997. The pose used to place a sweep is the last pose moved by the
-last sweep's twist, which covers most of the time since; this sweep's own twist put
-pillars into free space at the end of corners (yaw error up to 0.05 rad, 0.014 with
-the last twist).
+Measured on the 2-minute logs, seed 0, recall / precision / false positives of the
+moving points (``dense-crowd``: 46 % of the returns on movers; ``crowd``: 30 %):
+
+=============================  ============================  ============================
+                               dense-crowd                   crowd
+=============================  ============================  ============================
+Doppler clusters alone         0.857 / 1.0000 / 17           0.851 / 0.9999 / 25
++ tracker, no free space       0.923 / 0.9999 / 62           0.916 / 0.9998 / 56
++ free space (all on)          0.985 / 0.9998 / 114          0.991 / 0.9998 / 65
+all on, no structure check     0.984 / 0.988 / 6915          0.991 / 0.989 / 4186
+all on, no point claims        0.982 / 0.9998 / 99           0.989 / 0.9999 / 53
+=============================  ============================  ============================
+
+An earlier ``max_blind`` (a track labels only so long after its last Doppler or
+free-space match) was meant to stop tracks sliding along unmapped walls; with the
+structure check at one hit it cost recall and added false positives (2 s: dense
+0.9843 / 125, crowd 0.9915 / 76), so it is gone. The pose used to place a sweep is
+the last pose moved by the last sweep's twist, which spans most of the time since;
+this sweep's own twist put pillars into free space at the end of corners (yaw error
+up to 0.05 rad on dense-crowd, 0.014 with the last twist).
 """
 
 from __future__ import annotations
@@ -101,11 +113,6 @@ class TrackingParams:
     max_coast: a track not updated for this long (s, ≥ 0) is dropped.
     min_moving_hits: sweeps matched to a cluster judged moving before a track labels (≥ 1).
     min_speed: a track slower than this (m/s, ≥ 0) labels nothing (a mover that stopped).
-    max_blind: a track labels only this long (s, ≥ 0) after its last match to a cluster
-        judged moving by Doppler or free space: a track that slid onto static
-        structure (a wall's visible piece sliding along it as occluders move)
-        stops labelling. 0.7 / 1.5 / 3 s: recall 0.9843 / 0.9852 / 0.9853 and 194 / 369 /
-        516 false positives on dense-crowd seed 0.
     max_object_radius: a gated cluster whose points all lie within this (m, > 0) of its
         centroid is one object and moving as a whole; larger ones only near the track.
     claim_radius: points within this (m, ≥ 0; 0 switches it off) of a confirmed track's
@@ -137,7 +144,6 @@ class TrackingParams:
     max_coast: float = 0.6
     min_moving_hits: int = 2
     min_speed: float = 0.3
-    max_blind: float = 2.0
     max_object_radius: float = 0.8
     claim_radius: float = 0.5
     claim_doppler: float = 0.3
@@ -236,18 +242,16 @@ class MoverTracker:
         self.time = np.zeros(0)  # s, the time the state refers to
         self.last_update = np.zeros(0)  # s
         self.moving_hits = np.zeros(0, int)
-        self.last_evidence = np.zeros(0)  # s, the last match to a Doppler-moving or free-space cluster
 
     def __len__(self) -> int:
         return len(self.x)
 
     @property
     def confirmed(self) -> np.ndarray:
-        """(T,) tracks that may label points (at the time of their state)."""
+        """(T,) tracks that may label points."""
         p = self.params
         speed = np.hypot(self.x[:, 2], self.x[:, 3])
-        recent = self.time - self.last_evidence <= p.max_blind
-        return (self.moving_hits >= p.min_moving_hits) & (speed >= p.min_speed) & recent
+        return (self.moving_hits >= p.min_moving_hits) & (speed >= p.min_speed)
 
     def predicted(self, when: float) -> np.ndarray:
         """Positions (T, 2) of the confirmed tracks at ``when`` (s), in ``map``."""
@@ -319,7 +323,6 @@ class MoverTracker:
         self.time = np.concatenate([self.time, np.full(len(ci), when)])
         self.last_update = np.concatenate([self.last_update, np.full(len(ci), when)])
         self.moving_hits = np.concatenate([self.moving_hits, np.ones(len(ci), int)])
-        self.last_evidence = np.concatenate([self.last_evidence, np.full(len(ci), when)])
 
     def _prune(self, when: float) -> None:
         keep = when - self.last_update <= self.params.max_coast
@@ -327,7 +330,6 @@ class MoverTracker:
             keep &= self.last_update >= np.sort(self.last_update[keep])[-self.params.max_tracks]
         self.x, self.cov, self.time = self.x[keep], self.cov[keep], self.time[keep]
         self.last_update, self.moving_hits = self.last_update[keep], self.moving_hits[keep]
-        self.last_evidence = self.last_evidence[keep]
 
     def associate(self, det: Detections, when: float) -> np.ndarray:
         """Steps 2-4 and 6 of the module docstring; returns (C,) the clusters a confirmed track
@@ -352,9 +354,7 @@ class MoverTracker:
             k = pair[rows, cols]
             self._update(rows, y[k], s[k], h[k])
             self.last_update[rows] = when
-            evidence = det.moving[cols] | det.free_space[cols]
-            self.moving_hits[rows] += evidence
-            self.last_evidence[rows[evidence]] = when
+            self.moving_hits[rows] += det.moving[cols] | det.free_space[cols]
             assigned[cols] = True
         births = np.flatnonzero((det.moving | det.free_space) & ~assigned)
         if births.size:

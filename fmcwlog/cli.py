@@ -125,6 +125,7 @@ Scenarios (--scenario, default {DEFAULT_SCENARIO}):
   corridor       ring corridor around a hall, the paper's 9 labelled features, a few walkers
   static         the same floor with nothing moving
   crowd          a hall where 20-40 % of the returns come from walking people and carts
+  dense-crowd    the same hall packed: about half of the returns on movers, many crossing the beams
   long-corridor  100 m bare corridor: geometry alone cannot fix the along-axis position
 Or --world FILE: your own walls, features, movers and route (YAML/JSON; see the README).
 

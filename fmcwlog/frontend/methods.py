@@ -11,7 +11,8 @@ improved (paper §4, with NOTES.md's corrections)
      Doppler and the wheels are checked against each other and the scans
      (:mod:`.sensor_checks`), and a source found faulty is dropped;
   2. segmentation: DBSCAN over position and *ego-motion-compensated* velocity
-     (eq. 17-19, :mod:`.segmentation`); moving points leave matching and the map;
+     (eq. 17-19, :mod:`.segmentation`), and movers followed over time and seen in
+     the map's free space (:mod:`.tracking`); moving points leave matching and the map;
   3. deskew every point to ``t_k`` with the Doppler twist (:mod:`.deskew`);
   4. prior: the previous pose moved by the fused twist over ``t_k - t_{k-1}``,
      also used (with the fused covariance) as a soft constraint in the ICP so that
@@ -63,6 +64,7 @@ from .robust_icp import register
 from .segmentation import segment_moving
 from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
 from .sensor_checks import DOPPLER, WHEELS, SensorChecks
+from .tracking import MoverTracker
 from .twist_fusion import (
     FusedTwist,
     TwistSources,
@@ -307,6 +309,7 @@ class ImprovedFrontEnd(FrontEnd):
         self._drop_wheels = False  # for this sweep: the scans sided with Doppler against the wheels
         self._raw_fit: EgoMotion | None = None  # this sweep's Doppler fit free of the wheels' gate
         self._registered_last = False
+        self.tracker = MoverTracker(params.tracking)  # movers followed over this log's sweeps
 
     def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
         """The wheels' twist, else the last scan-matched one (constant velocity)."""
@@ -321,12 +324,14 @@ class ImprovedFrontEnd(FrontEnd):
         """
         if sweep.velocity is None or not self.checks.use_doppler:
             return None
-        p = self.params
         ego = self.doppler_fit(sweep, prior_twist)
         if ego is None:
             return Doppler(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(len(sweep.xy), bool))
         eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor)  # NOTES: threshold this, not v_r
-        moving = segment_moving(sweep.xy, eps, p.segmentation)
+        # the twist only places this sweep's points in the map for tracking: the wheels' (their
+        # 0.5 % bias moves a point < 1 mm over a sweep), else the last scan-matched one
+        twist = prior_twist if prior_twist is not None and all(np.isfinite(prior_twist)) else self.scan_twist
+        moving = self.segment(sweep, eps, twist)
         return Doppler(ego.v_sensor, ego.covariance, moving)
 
     def doppler_fit(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> EgoMotion | None:
@@ -357,6 +362,23 @@ class ImprovedFrontEnd(FrontEnd):
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + np.eye(2) * p.doppler_sigma_min**2
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
+        """Moving mask (N,): DBSCAN and the Doppler verdict (eq. 17-19) and, with tracking on, the
+        movers followed from earlier sweeps and the map's free space (:mod:`.tracking`). ``eps``:
+        compensated Doppler (m/s); ``twist``: ``(v, ω)`` over the sweep, to place its points in the map."""
+        p = self.params
+        if not p.tracking.enabled:
+            return segment_moving(sweep.xy, eps, p.segmentation)
+        v, omega = twist if twist is not None and all(np.isfinite(twist)) else (0.0, 0.0)
+        ts = sweep.stamp_ns * 1e-9
+        base, yaw_error = np.zeros(3), 0.0
+        if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
+            dt = ts - self.last_stamp
+            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
+            yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
+        return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
+                                    p.segmentation, yaw_error)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

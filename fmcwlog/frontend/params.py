@@ -3,7 +3,7 @@
 A config file (TOML, YAML or JSON) holds the same structure as
 :class:`FrontEndParams`: the front end's own parameters at the top level (or in
 a ``[frontend]`` table), each stage's in its own table (``[segmentation]``,
-``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
+``[tracking]``, ``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
 that as TOML (:func:`frontend_params_toml`, each parameter with its unit and valid range),
 and ``run.json`` records it under ``params``, so either can be fed back. Every numeric
 parameter declares its range beside its default (:func:`fmcwlog.config.param`); a value
@@ -23,6 +23,7 @@ from .icp import ICPParams
 from .segmentation import SegmentationParams
 from .self_calibration import SelfCalibrationParams
 from .sensor_checks import CheckParams
+from .tracking import TrackingParams
 from .twist_fusion import WheelNoise
 
 
@@ -69,6 +70,7 @@ class FrontEndParams(Checked):
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
+    tracking: TrackingParams = field(default_factory=TrackingParams)
     # Stop ICP at 0.5 mm / 0.1 mrad steps: on the 2-minute corridor log this takes the
     # improved front end from 5.5 to 4.3 ms per sweep at the same ATE (1.9 -> 1.5 cm).
     icp: ICPParams = field(default_factory=lambda: ICPParams(translation_tol=5e-4, rotation_tol=1e-4))

@@ -94,6 +94,53 @@ def moving_from_labels(
     return moving
 
 
+@dataclass
+class Segmentation:
+    """One sweep's clusters and Doppler verdict (:func:`segment_clusters`).
+
+    labels: (N,) DBSCAN cluster of each point; -1 for noise and for points left out of
+        the clustering (farther than ``neighbourhood`` from every seed).
+    clustered: (N,) the points that went into DBSCAN.
+    moving: (N,) the per-cluster Doppler verdict (eq. 19 on ``ε``).
+    """
+
+    labels: np.ndarray
+    clustered: np.ndarray
+    moving: np.ndarray
+
+
+def segment_clusters(
+    xy: np.ndarray,
+    epsilon: np.ndarray,
+    params: SegmentationParams = SegmentationParams(),
+    seeds: np.ndarray | None = None,
+) -> Segmentation:
+    """DBSCAN clusters and the Doppler verdict of one sweep (see :func:`segment_moving`).
+
+    ``seeds`` (K, 2), lidar frame, m: places besides the points with ``|ε| ≥ v_th``
+    around which points are clustered (where a tracked mover is expected, whose
+    Doppler may be nil this sweep: :mod:`.tracking`).
+    """
+    epsilon = np.asarray(epsilon, dtype=float)
+    n = xy.shape[0]
+    labels = np.full(n, -1)
+    strong = np.abs(epsilon) >= params.v_th
+    extra = seeds is not None and len(seeds) > 0
+    if n == 0 or (params.min_moving_fraction > 0 and not strong.any() and not extra):
+        return Segmentation(labels, np.zeros(n, bool), np.zeros(n, bool))
+    if params.neighbourhood <= 0 or params.min_moving_fraction <= 0:
+        near = np.ones(n, bool)
+    else:
+        centres = np.concatenate([xy[strong], seeds]) if extra else xy[strong]
+        dist, _ = cKDTree(centres).query(xy, k=1, distance_upper_bound=params.neighbourhood)
+        near = np.isfinite(dist)
+    moving = np.zeros(n, bool)
+    if near.any():
+        labels[near] = cluster_points(xy[near], epsilon[near], params)
+        moving[near] = moving_from_labels(labels[near], epsilon[near], params)
+    return Segmentation(labels, near, moving)
+
+
 def segment_moving(
     xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
 ) -> np.ndarray:
@@ -110,17 +157,4 @@ def segment_moving(
     points is nil either way. On the corridor log this takes segmentation from
     3.9 to about 1 ms per sweep.
     """
-    epsilon = np.asarray(epsilon, dtype=float)
-    n = xy.shape[0]
-    if n == 0:
-        return np.zeros(0, bool)
-    strong = np.abs(epsilon) >= params.v_th
-    if params.min_moving_fraction > 0 and not strong.any():
-        return np.zeros(n, bool)
-    if params.neighbourhood <= 0 or params.min_moving_fraction <= 0:
-        return moving_from_labels(cluster_points(xy, epsilon, params), epsilon, params)
-    dist, _ = cKDTree(xy[strong]).query(xy, k=1, distance_upper_bound=params.neighbourhood)
-    near = np.isfinite(dist)
-    moving = np.zeros(n, bool)
-    moving[near] = moving_from_labels(cluster_points(xy[near], epsilon[near], params), epsilon[near], params)
-    return moving
+    return segment_clusters(xy, epsilon, params).moving

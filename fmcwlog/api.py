@@ -4,6 +4,8 @@
     api.record(api.scenario("corridor"), api.SimConfig(), "corridor.mcap")
     summary = api.process("corridor.mcap", "out/")
     ev = api.report("out/")                  # ev.result["methods"]["improved"]["ate_rmse_m"]
+    batch = api.process_many(["logs/"], "results/", jobs=4)   # results/<log>/; batch.failed: their reasons
+    fleet = api.report_fleet("results/")     # fleet["flagged"]; results/fleet.html
 
 Every function raises :class:`fmcwlog.errors.FmcwlogError` (with a one-line message
 naming the file and the problem) for input it cannot use, and leaves nothing
@@ -16,25 +18,54 @@ import dataclasses
 import logging
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from . import __version__
 from .backend import BackendResult, PoseGraphBackend
-from .errors import CalibrationError, ConfigError, LogError
+from .errors import (
+    CalibrationError,
+    CarmenImportError,
+    ConfigError,
+    FmcwlogError,
+    LogError,
+    MapSizeError,
+    OutputError,
+    ReportError,
+)
 from .evaluation.evaluate import Evaluation, evaluate
+from .evaluation.fleet import FleetEntry, fleet_result, log_row, write_fleet
 from .evaluation.pages import comparison_rows, markdown_table, write_report
+from .fleet.batch import BatchSummary
+from .fleet.inputs import CARMEN_PATTERNS, find_logs, unique_names
+from .fleet.progress import Progress
+from .fleet.state import is_batch_folder, options_digest, read_batch
+from .fleet.tasks import Limits
 from .frontend.methods import METHOD_NAMES, WHEEL_ODOMETRY
 from .frontend.params import FrontEndParams
-from .frontend.runner import LogRunner
-from .io.atomic import atomic_folder, check_output_folder, json_text, write_json, write_text
-from .io.calibration import parse_calibration
+from .frontend.runner import LogRunner, SweepStep
+from .frontend.self_calibration import adopt, converged, recheck, with_estimate
+from .io.atomic import (
+    add_to_marker,
+    atomic_batch,
+    atomic_folder,
+    created_parents,
+    json_text,
+    os_reason,
+    reported_write_errors,
+    write_json,
+    write_text,
+)
+from .io.calibration import Calibration, calibration_record, parse_calibration
+from .io.calibration_file import read_calibration_file, write_calibration_file
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
-from .io.inputs import choose_topics, iter_inputs
+from .io.digest import file_sha256
+from .io.inputs import InputTopics, LogInputs, choose_topics
 from .io.mcap_log import LogReader
 from .io.outputs import ProcessOutputs, odom_frame
 from .io.topics import CALIBRATION_KEY
@@ -46,8 +77,9 @@ from .sim.world import World
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "scenario", "record",
-           "process", "evaluate", "report", "compare", "import_carmen"]
+__all__ = ["SimConfig", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "Limits", "BatchSummary",
+           "scenario", "record", "process", "process_many", "evaluate", "report", "report_fleet", "is_batch_folder",
+           "compare", "import_carmen", "import_carmen_many", "calibrate", "CalibrateSummary"]
 
 
 def scenario(name: str = DEFAULT_SCENARIO) -> World:
@@ -57,8 +89,10 @@ def scenario(name: str = DEFAULT_SCENARIO) -> World:
 
 def record(world: World, cfg: SimConfig, out: str | Path,
            on_progress: Callable[[int], None] | None = None) -> RecordSummary:
-    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``."""
-    return _record(world, cfg, out, on_progress)
+    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``
+    (and the folders it needs: removed again if the recording fails)."""
+    with reported_write_errors(out), created_parents(out):
+        return _record(world, cfg, out, on_progress)
 
 
 @dataclass
@@ -73,6 +107,8 @@ class ProcessOptions:
         seconds of log (s), and once more at the end.
     backend: ``pose-graph`` (loop closures for every method, :mod:`fmcwlog.backend`; the outputs
         come from the optimised poses) or ``none`` (the front ends alone).
+    calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
+        the log's ``fmcwlog.calibration`` record.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -81,6 +117,7 @@ class ProcessOptions:
     odom_topic: str | None = None
     params: FrontEndParams = field(default_factory=FrontEndParams)
     publish_period: float = 5.0
+    calibration: Path | None = None
     backend: str = "pose-graph"
 
 
@@ -95,6 +132,7 @@ class ProcessSummary:
     prior: str
     skipped_sweeps: int
     repeated_prior_stamps: int
+    skipped_inputs: dict[str, int]
     ms_median: dict[str, float]
     truncated: bool
     warnings: list[str]
@@ -107,6 +145,9 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
 
     ``on_sweep(done, total)`` is called after each sweep (total None when unknown). The
     outputs are written to a temporary folder that replaces ``out_dir`` when complete.
+    ``out_dir`` must be empty or absent; with ``force`` it may also be an output folder
+    fmcwlog made, but never one holding anything else or the log itself
+    (:func:`fmcwlog.io.atomic.check_output_folder`).
     """
     opts = opts or ProcessOptions()
     if opts.backend not in BACKENDS:
@@ -117,52 +158,57 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         warnings.simplefilter("always")
         reader = LogReader(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
-        try:
-            cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=topics.ticks is not None)
-        except CalibrationError as exc:
-            raise LogError(f"{log}: {exc}") from None
+        cal, cal_source = _calibration(reader, log, topics.ticks is not None, opts.calibration)
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
                   total if total is not None else "an unknown number of", *cal.mount)
-        check_output_folder(out_dir, force)
-        with atomic_folder(out_dir) as tmp:
+        with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp:
+            digest = file_sha256(log)  # report refuses a --log whose bytes differ
             runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
+            inputs = LogInputs(reader, topics, cal)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
             backends = {m: PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
                         for m in opts.methods} if opts.backend == "pose-graph" else {}
             try:
-                searches = _feed(runner, iter_inputs(reader, topics), outputs, backends, grids,
+                searches = _feed(runner, _steps(runner, inputs, log), outputs, backends, grids,
                                  lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
                 optimised = _optimise(backends, outputs, grids, tmp)
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
                 raise
-            notes = [str(w.message) for w in caught] + _process_notes(runner, topics.scan)
+            diagnostics, diagnostic_notes = runner.diagnostics()
+            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
             if topics.ticks:
                 prior = f"wheel ticks ({topics.ticks})"
             else:
                 prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, runner.skipped_sweeps,
-                                     runner.repeated_prior_stamps, outputs.ms_median(), reader.contents.truncated,
-                                     notes, {m: res.summary() for m, res in optimised.items()})
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
+                                     inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
+                                     reader.contents.truncated, notes,
+                                     {m: res.summary() for m, res in optimised.items()})
             write_json(tmp / "run.json", {
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
                 "log_size_bytes": log.stat().st_size,
+                "log_sha256": digest,
+                "options_sha256": options_digest(opts),
                 "methods": list(opts.methods),
                 "scan_topic": topics.scan,
                 "prior": summary.prior,
                 "doppler": summary.doppler,
                 "mount": list(cal.mount),
+                "calibration_source": cal_source,
+                **diagnostics,
                 "frames": {name: odom_frame(name) for name in trajectories},
                 "params": dataclasses.asdict(opts.params),
                 "sweeps": summary.sweeps,
                 "skipped_sweeps": summary.skipped_sweeps,
                 "repeated_prior_stamps": summary.repeated_prior_stamps,
+                "skipped_inputs": summary.skipped_inputs,
                 "truncated_log": summary.truncated,
                 "warnings": summary.warnings,
                 "ms_per_sweep_median": summary.ms_median,
@@ -174,12 +220,12 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def _feed(runner: LogRunner, inputs, outputs: ProcessOutputs, backends: dict[str, PoseGraphBackend],
-          grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
+def _feed(runner: LogRunner, steps: Iterator[SweepStep], outputs: ProcessOutputs,
+          backends: dict[str, PoseGraphBackend], grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
     """Every sweep through the front ends, into the outputs and the back ends. Returns, per method,
     how many correlative searches ran and how many of them replaced the ICP's match."""
     searches = {fe.name: [0, 0] for fe in runner.fronts}
-    for step in runner.run(inputs):
+    for step in steps:
         for r in step.results:
             outputs.add(r)
             searches[r.method][0] += r.searched
@@ -220,36 +266,221 @@ def backend_json(res: BackendResult) -> dict:
     }
 
 
-def _process_notes(runner: LogRunner, scan_topic: str) -> list[str]:
+def _steps(runner: LogRunner, inputs: LogInputs, log: Path) -> Iterator[SweepStep]:
+    """The runner's steps; a map that outgrows its budget is an error about this log."""
+    try:
+        yield from runner.run(inputs)
+    except MapSizeError as exc:
+        raise LogError(f"{log}: {exc}") from None
+
+
+def _calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
+    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source."""
+    if path is not None:
+        try:
+            return parse_calibration(read_calibration_file(path), need_wheels), str(path)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+    try:
+        record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
+        return parse_calibration(record, need_wheels), f"log record {CALIBRATION_KEY}"
+    except CalibrationError as exc:
+        raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+
+
+@dataclass
+class CalibrateSummary:
+    """What :func:`calibrate` found: the file written, the check (as in ``run.json``) and warnings."""
+
+    output: Path
+    check: dict
+    warnings: list[str]
+
+
+def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None = None,
+              force: bool = False) -> CalibrateSummary:
+    """Estimate the lidar's mount and the wheels from ``log`` itself and write them as a calibration file.
+
+    Runs the improved method over the log (nothing else is written), then
+    :mod:`fmcwlog.frontend.self_calibration`. The file holds the calibration's keys (the
+    log's record, or ``opts.calibration``) with the estimated values in place of its own,
+    each value's standard deviation in a comment; values the log cannot fix keep theirs.
+    """
+    opts = opts or ProcessOptions()
+    log, output = Path(log), Path(output)
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; use --force to overwrite it")
+    if not output.parent.is_dir():
+        raise OutputError(f"{output}: no folder {output.parent} to write it in")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = LogReader(log)
+        topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
+        if topics.ticks is None:
+            raise LogError(f"{log}: no wheel ticks: the wheels' radii and the mount are estimated against them")
+        cal0, cal_source = _calibration(reader, log, True, opts.calibration)
+        check, adopted, passes, notes = _self_calibrate(reader, topics, cal0, opts)
+    first = recheck(check["values"], cal0, opts.params.self_calibration)  # against the calibration we started from
+    values: dict[str, str | float] = dict(read_calibration_file(opts.calibration) if opts.calibration
+                                          else reader.metadata.get(CALIBRATION_KEY, {}))
+    lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check['sweeps_used']['doppler']} moving "
+             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} "
+             f"pass{'es' if passes > 1 else ''}), "
+             f"starting from the {cal_source}"]
+    for name, c in first.items():
+        if name in adopted:
+            values[name] = c["estimate"]
+        kept = "" if name in adopted else "; kept the calibration's: it agrees within 3 standard deviations"
+        lines.append(f"{name}: {c['estimate']:.6g} +- {c['sigma']:.2g} (was {c['calibration']:.6g}){kept}")
+    lines += [f"{name}: kept the calibration's: {why}" for name, why in check["not_estimated"].items()]
+    write_calibration_file(output, values, lines)
+    check = {**check, "values": first, "disagrees": sorted(n for n, c in first.items() if c["disagrees"]),
+             "adopted": sorted(adopted), "passes": passes}
+    return CalibrateSummary(output, check, [str(w.message) for w in caught] + notes)
+
+
+def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
+                    opts: ProcessOptions) -> tuple[dict, set[str], int, list[str]]:
+    """The calibration check over the whole log, repeated with the values it adopts
+    (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most
+    ``self_calibration.passes`` times); returns the last check, the adopted names, the passes, the notes."""
+    prm = opts.params.self_calibration
+    passes, adopted = 0, set()
+    while True:
+        passes += 1
+        runner = LogRunner(("improved",), opts.params, cal, topics, reader.path)
+        for _ in runner.run(LogInputs(reader, topics, cal)):
+            pass
+        diagnostics, notes = runner.diagnostics()
+        check = diagnostics.get("calibration_check", {})
+        if not check.get("checked"):
+            raise LogError(f"{reader.path}: cannot estimate the calibration: {check.get('reason', 'no Doppler')}")
+        adopted = adopt(check["values"], adopted)
+        if not adopted or converged(check["values"], adopted) or passes >= prm.passes:
+            return check, adopted, passes, notes
+        cal = with_estimate(cal, {n: check["values"][n] for n in adopted})
+
+
+def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) -> list[str]:
     notes = []
     if not runner.doppler:
-        notes.append(f"{scan_topic} carries no Doppler velocity: ego-motion and segmentation are off")
-    if runner.skipped_sweeps:
-        notes.append(f"{runner.skipped_sweeps} sweeps with a repeated stamp were skipped")
-    if runner.repeated_prior_stamps:
-        notes.append(f"{runner.repeated_prior_stamps} motion-prior messages with a repeated stamp were skipped")
+        notes.append(f"{topics.scan} carries no Doppler velocity: ego-motion and segmentation are off")
+    notes += inputs.notes()
+    if runner.beyond_prior:
+        notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
+                     "processed with the motion prior held at its last pose")
     return notes
 
 
 def report(out_dir: str | Path, log: str | Path | None = None,
            relations: str | Path | None = None) -> Evaluation:
-    """:func:`evaluate` ``out_dir`` and write report.html, report.md and report.json into it."""
+    """:func:`evaluate` ``out_dir`` and write report.html, report.md and report.json into it:
+    all of them or, if any write fails (a full disk), none."""
     ev = evaluate(out_dir, log, relations=relations)
-    write_report(ev)
+    with reported_write_errors(ev.out_dir), atomic_batch():
+        add_to_marker(ev.out_dir, write_report(ev))
     return ev
+
+
+def process_many(paths: Sequence[str | Path], out_dir: str | Path, opts: ProcessOptions | None = None,
+                 force: bool = False, jobs: int | None = None, limits: Limits | None = None,
+                 ray: bool = False, ray_address: str | None = None, retries: int = 2,
+                 on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
+    """:func:`process` every log that ``paths`` name (files, or folders searched for ``*.mcap``),
+    each into ``out_dir/<name>`` in a worker process of its own; see :mod:`fmcwlog.fleet`.
+
+    ``jobs`` workers at a time (default: every core); ``limits``: each log's memory cap and
+    timeout. Logs whose results are complete from the same bytes and options are skipped
+    unless ``force``. ``ray``: run them as Ray tasks instead (``ray_address`` None starts a
+    local Ray; ``retries``: Ray's retries of a task whose worker or node died). A log that
+    fails is an outcome with its reason (``summary.failed``), not an exception; the
+    exceptions are for the batch as a whole (no logs found, bad limits, Ray unreachable).
+    """
+    from .fleet.batch import process_many as _process_many
+
+    return _process_many(paths, out_dir, opts or ProcessOptions(), force, jobs, limits, ray_address, ray, retries,
+                         on_progress)
+
+
+def report_fleet(out_dir: str | Path) -> dict[str, Any]:
+    """:func:`report` every log folder of a batch (``process_many``'s ``out_dir``), then write
+    fleet.json and fleet.html there; returns fleet.json's document
+    (:mod:`fmcwlog.evaluation.fleet`). A log whose report fails gets the reason in its row."""
+    out_dir = Path(out_dir)
+    if not is_batch_folder(out_dir):
+        raise ReportError(f"{out_dir}: not a batch folder (no batch.json, no log folders with run.json)")
+    batch = read_batch(out_dir)
+    names = set(batch["logs"]) | {p.name for p in out_dir.iterdir()
+                                  if p.is_dir() and not p.name.startswith(".") and (p / "run.json").is_file()}
+    rows = []
+    for name in sorted(names):
+        folder = out_dir / name
+        entry = FleetEntry(name, folder if (folder / "run.json").is_file() else None, batch["logs"].get(name, {}))
+        ev, error = None, None
+        if entry.folder is not None and entry.record.get("status") != "failed":
+            try:
+                ev = report(entry.folder)
+            except FmcwlogError as exc:
+                error = str(exc)
+        rows.append(log_row(entry, ev, error))
+        logger.debug("%s: reported", name)
+    result = fleet_result(out_dir, rows, batch)
+    write_fleet(out_dir, result)
+    return result
 
 
 def compare(results: list[dict], target: str | Path) -> Path:
     """comparison.md and comparison.json of several reports' results in ``target``; returns the .md."""
     target = Path(target)
-    target.mkdir(parents=True, exist_ok=True)
     header, rows = comparison_rows(results)
-    write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
-    write_text(target / "comparison.json", json_text(results))
+    with reported_write_errors(target), created_parents(target / "comparison.md"), atomic_batch():
+        write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
+        write_text(target / "comparison.json", json_text(results))
     return target / "comparison.md"
 
 
 def import_carmen(source: str | Path, output: str | Path) -> tuple[ImportSummary, str]:
     """Convert a CARMEN or CMU course log into an fmcwlog MCAP log; returns the summary and the format."""
-    parsed = parse_log(Path(source))
-    return write_mcap(parsed, Path(output)), parsed.format
+    try:
+        parsed = parse_log(Path(source))
+    except (OSError, EOFError, UnicodeDecodeError) as exc:  # a damaged .gz/.xz stream is an EOFError or OSError
+        reason = os_reason(exc) if isinstance(exc, OSError) else str(exc) or type(exc).__name__
+        raise CarmenImportError(f"{source}: cannot read ({reason})") from None
+    with reported_write_errors(output), created_parents(output):
+        return write_mcap(parsed, Path(output)), parsed.format
+
+
+@dataclass
+class ImportOutcome:
+    """One source of :func:`import_carmen_many`: ``status`` done, skipped (its output exists) or failed."""
+
+    source: Path
+    output: Path
+    status: str
+    reason: str | None = None
+    summary: ImportSummary | None = None
+    format: str | None = None
+
+
+def import_carmen_many(paths: Sequence[str | Path], out_dir: str | Path, force: bool = False) -> list[ImportOutcome]:
+    """:func:`import_carmen` every CARMEN log that ``paths`` name (files, or folders searched for
+    ``*.clf``, ``*.log``, plain, ``.gz`` or ``.xz``) into ``out_dir/<name>.mcap`` (names as
+    :mod:`fmcwlog.fleet.inputs` gives them). An existing output is kept unless ``force``; a
+    source that cannot be read is reported in its outcome and the others go on."""
+    out_dir = Path(out_dir)
+    sources = find_logs(paths, CARMEN_PATTERNS, skip=out_dir)
+    outcomes = []
+    for src, name in zip(sources, unique_names(sources, CARMEN_PATTERNS)):
+        out = out_dir / f"{name}.mcap"
+        if out.exists() and not force:
+            outcomes.append(ImportOutcome(src, out, "skipped", f"{out}: exists; use --force to convert it again"))
+            continue
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            summary, fmt = import_carmen(src, out)
+        except (FmcwlogError, OSError, EOFError, UnicodeDecodeError) as exc:
+            outcomes.append(ImportOutcome(src, out, "failed", f"{src}: cannot import ({exc})"
+                                          if not isinstance(exc, FmcwlogError) else str(exc)))
+            continue
+        outcomes.append(ImportOutcome(src, out, "done", summary=summary, format=fmt))
+    return outcomes

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -17,6 +18,8 @@ from . import __version__, api
 from .config import parse_set_option, read_config_file
 from .errors import FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
+from .fleet.tasks import Limits
+from .io.atomic import check_output_file, os_reason, replacing_folder
 from .sim.config import SimConfig, apply_overrides
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import load_world
@@ -26,6 +29,20 @@ console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (
 
 class UserError(click.ClickException):
     exit_code = 2
+
+
+def _path(ctx: click.Context, param: click.Parameter, value: str | None) -> Path | None:
+    """A path option or argument as a Path; an empty one is refused (``Path('')`` would be ``.``)."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise click.BadParameter("empty path", ctx=ctx, param=param)
+    return Path(value)
+
+
+def _paths(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[Path, ...]:
+    """Several path arguments as Paths; an empty one is refused, as by :func:`_path`."""
+    return tuple(p for p in (_path(ctx, param, v) for v in value) if p is not None)
 
 
 class _ConsoleHandler(logging.Handler):
@@ -39,15 +56,26 @@ class _ConsoleHandler(logging.Handler):
             click.echo(msg)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A library's ``warnings.warn`` (a damaged log read by ``report``, say): one line, no source line."""
+    console.warning(str(message))
+
+
 def _configure_logging(quiet: bool, verbose: int) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    warnings.showwarning = _show_warning
     console.handlers[:] = [_ConsoleHandler()]
     console.setLevel(level)
     console.propagate = False
 
 
 class _NoBar:
+    current_item = None
+
     def update(self, n: int, current_item=None) -> None:
+        pass
+
+    def render_progress(self) -> None:
         pass
 
     def __enter__(self):
@@ -57,11 +85,11 @@ class _NoBar:
         pass
 
 
-def _progress(total: int | None, label: str, rate_label=None):
+def _progress(total: int | None, label: str, rate_label=None, show_eta: bool = True):
     """A progress bar on stderr when it is a terminal (and not --quiet); silent in pipes and CI logs."""
     if not sys.stderr.isatty() or not console.isEnabledFor(logging.INFO):
         return _NoBar()
-    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True,
+    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True, show_eta=show_eta,
                              item_show_func=rate_label or (lambda _: None))
 
 
@@ -78,6 +106,7 @@ def cli(quiet: bool, verbose: int) -> None:
     fmcwlog report   measure them against ground truth: a page, Markdown and JSON
     fmcwlog run      all three on a built-in scenario, into one folder
     fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
+    fmcwlog calibrate  the LiDAR's mount and the wheel radii from a log -> calib.yaml
     Logs follow the fmcwlog log format (LOG_FORMAT.md); they open in Foxglove.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
 
@@ -96,6 +125,7 @@ Scenarios (--scenario, default {DEFAULT_SCENARIO}):
   corridor       ring corridor around a hall, the paper's 9 labelled features, a few walkers
   static         the same floor with nothing moving
   crowd          a hall where 20-40 % of the returns come from walking people and carts
+  dense-crowd    the same hall packed: about half of the returns on movers, many crossing the beams
   long-corridor  100 m bare corridor: geometry alone cannot fix the along-axis position
   ring           a ring of corridors around a solid block: a lap's drift is left to loop closure
 Or --world FILE: your own walls, features, movers and route (YAML/JSON; see the README).
@@ -110,7 +140,8 @@ Sensor defaults are the paper's Table 1: 1550 nm, 270 deg FOV, 0.25 deg beams (1
 30 m range, range noise 2 cm and resolution 2 cm, Doppler resolution 0.1 m/s, 10 Hz.
 Any parameter can be changed with --config FILE ([sensor], [robot], [run] tables in
 TOML, YAML or JSON) or --set SECTION.NAME=VALUE, e.g. --set sensor.range_sigma=0.03
---set robot.speed=1.5. 'fmcwlog record --show-config' prints them all with their values.
+--set robot.speed=1.5. 'fmcwlog record --show-config' prints them all as TOML, each
+with its unit and valid range (a value outside it is refused); --config takes it back.
 
 \b
 The same --seed gives a byte-identical log. Ctrl-C stops early and still leaves a
@@ -119,7 +150,7 @@ valid, shorter log.
 
 
 @cli.command("record", help=_RECORD_HELP)
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), help="Log to write (.mcap).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=_path, help="Log to write (.mcap).")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=None,
               help=f"Built-in world.  [default: {DEFAULT_SCENARIO}]")
 @click.option("--world", "world_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -131,11 +162,11 @@ valid, shorter log.
               help="Parameter file: [sensor], [robot], [run] tables (TOML, YAML or JSON).")
 @click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
               help="Override one parameter; repeatable. Applied after --config.")
-@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
-@click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never an input file).")
+@click.option("--show-config", is_flag=True,
+              help="Print the parameters that would be used as TOML (each with its unit and valid range; "
+                   "--config takes it back), and exit.")
 def record_cmd(output, scenario, world_file, duration, seed, speed, config_file, set_items, force, show_config):
-    import json
-
     if scenario and world_file:
         raise UserError("give --scenario or --world, not both")
     cfg = SimConfig()
@@ -152,17 +183,15 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
     cfg = apply_overrides(cfg, parse_set_option(set_items)).validate()
     world = load_world(world_file) if world_file else api.scenario(scenario or DEFAULT_SCENARIO)
     if show_config:
-        click.echo(json.dumps(cfg.as_dict(), indent=2))
+        click.echo(cfg.toml(), nl=False)
         return
     if output is None:
         raise UserError("missing -o/--output: the log file to write")
-    if output.exists() and not force:
-        raise UserError(f"{output}: exists; use --force to overwrite it")
+    check_output_file(output, force, (world_file, config_file))
     _record(world, cfg, output)
 
 
 def _record(world, cfg: SimConfig, output: Path) -> None:
-    output.parent.mkdir(parents=True, exist_ok=True)
     n = int(cfg.run.duration * cfg.sensor.scan_rate + 1e-9)
     with _progress(n, f"recording {world.name}") as bar:
         last = [0]
@@ -171,10 +200,7 @@ def _record(world, cfg: SimConfig, output: Path) -> None:
             bar.update(done - last[0])
             last[0] = done
 
-        try:
-            summary = api.record(world, cfg, output, on_progress=step)
-        except OSError as exc:
-            raise UserError(f"{output}: cannot write ({exc.strerror or exc})") from None
+        summary = api.record(world, cfg, output, on_progress=step)
     note = " (stopped early by Ctrl-C)" if summary.interrupted else ""
     console.info(
         f"wrote {summary.path}: {summary.seconds:.1f} s, {summary.sweeps} sweeps, "
@@ -210,13 +236,32 @@ Writes to OUT_DIR:
 \b
 Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp],
 [icp.gmmsc] tables) or --set, e.g. --set segmentation.v_th=0.25 --set icp.huber_delta=0.05.
-'fmcwlog process --show-config' lists them all with their defaults.
+'fmcwlog process --show-config' prints them all as TOML, each with its unit and valid
+range (a value outside it is refused); --config takes it back, and so does a previous
+output's run.json (--config OUT/run.json).
+
+\b
+--force replaces OUT_DIR only if fmcwlog made it (its .fmcwlog-output lists everything
+in it), never a folder holding anything else or the LOG.
+
+\b
+Many logs: give several LOGs, or folders (searched for *.mcap, sub-folders too).
+Each log's results go to OUT_DIR/<its name>/, the same files as a run on that log
+alone, and OUT_DIR/batch.json records what became of every log. Each log runs in a
+worker process of its own, --jobs at a time (default: every core), and a log that
+is corrupt, raises, runs past --timeout or past --memory-limit fails alone, with its
+reason, while the others finish; the exit status is then 1. Running the same command
+again skips the logs whose results are complete and were made from the same bytes
+and the same options (--force redoes them). --ray runs the logs as tasks on a Ray
+cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
+'--ray=ADDRESS' joins one (e.g. --ray=auto on a node of the cluster). Then
+'fmcwlog report OUT_DIR' writes every log's report and the fleet page.
 """
 
 
 @cli.command("process", help=_PROCESS_HELP)
-@click.argument("log", type=click.Path(path_type=Path), required=False)
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+@click.argument("logs", nargs=-1, type=click.Path(), callback=_paths)
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path,
               help="Output folder (created; must be empty unless --force).")
 @click.option("--method", type=click.Choice(["improved", "baseline", "all"]), default="all", show_default=True,
               help="Which front end(s) to run; 'all' runs both in one pass over the log.")
@@ -229,29 +274,53 @@ Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp]
 @click.option("--odom-topic", default=None,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
+@click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys) "
+                   "to use instead of the log's record.")
 @click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
               help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
                    "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
-@click.option("--force", is_flag=True, help="Replace OUT_DIR if it is not empty.")
-@click.option("--show-config", is_flag=True, help="Print the parameters that would be used, and exit.")
-def process_cmd(log, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, backend, force,
-                show_config):
-    import dataclasses
-    import json
-
-    from .frontend.params import load_frontend_params
+@click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
+@click.option("--show-config", is_flag=True,
+              help="Print the parameters that would be used as TOML (each with its unit and valid range; "
+                   "--config takes it back), and exit.")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
+              help="Many logs: how many to process at once, each in a worker of its own.  [default: every core]")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0), default=0.0, metavar="SECONDS",
+              help="Many logs: a log still running after this long is stopped and reported failed (0: no limit).")
+@click.option("--memory-limit", "memory_limit_mb", type=click.IntRange(min=0), default=Limits().memory_limit_mb,
+              show_default=True, metavar="MB",
+              help="Many logs: each worker's address-space cap (a worker maps about 1.7 GB for 250 MB resident); a "
+                   "log that needs more fails alone. On Ray, each task also declares this much memory. 0: no cap.")
+@click.option("--ray", "ray_address", is_flag=False, flag_value="local", default=None, metavar="[ADDRESS]",
+              help="Many logs: run them as Ray tasks. '--ray' starts a local Ray; '--ray=ADDRESS' joins a cluster "
+                   "(auto, HOST:6379, ray://HOST:10001).")
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --ray: how often Ray retries a log whose worker or node died.")
+def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
+                backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+    from .frontend.params import frontend_params_toml, load_frontend_params
 
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
     if show_config:
-        click.echo(json.dumps(dataclasses.asdict(params), indent=2))
+        click.echo(frontend_params_toml(params), nl=False)
         return
-    if log is None:
-        raise UserError("missing LOG: the .mcap file to process")
+    if ray_address not in (None, "local") and Path(ray_address).exists():
+        raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
+    if not logs:
+        raise UserError("missing LOG: the .mcap file(s) or folder(s) to process")
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
     methods = api.ProcessOptions().methods if method == "all" else (method,)
-    _process(log, out_dir, api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, backend=backend),
-             force)
+    opts = api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
+                              backend=backend)
+    if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
+        if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
+            console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
+                            "here, in this process, without them")
+        _process(logs[0], out_dir, opts, force)
+        return
+    _process_many(list(logs), out_dir, opts, force, jobs, Limits(memory_limit_mb, timeout_s), ray_address, retries)
 
 
 def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
@@ -286,6 +355,98 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
     console.info(f"wrote {summary.out_dir}/")
 
 
+_CALIBRATE_HELP = """Estimate the LiDAR's mount (lidar_x, lidar_y, lidar_yaw) and the wheels' effective
+radii and track width from LOG itself, and write them as a calibration file that
+'fmcwlog process LOG --calibration FILE' takes instead of the log's record.
+
+\b
+Doppler gives the LiDAR's velocity every sweep, the wheel ticks each wheel's rotation,
+and scan matching the heading changes; their differences are the lever arm, the radii
+and the track width (robust least squares over the sweeps where the robot moves). The
+log needs Doppler, wheel ticks, and some turns (the lever arm shows only when turning);
+what it cannot fix, and what agrees with the calibration within the estimate's
+uncertainty, keeps the calibration's value; the file's comments give every estimate.
+
+\b
+'fmcwlog process' runs the same check and warns (run.json: calibration_check) when the
+calibration disagrees with the log beyond the estimate's uncertainty; this command writes
+the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
+"""
+
+
+@cli.command("calibrate", help=_CALIBRATE_HELP)
+@click.argument("log", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Calibration file to write (.yaml).")
+@click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Start from this calibration file instead of the log's record.")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Parameter file (TOML, YAML or JSON), as for 'process'.")
+@click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
+              help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
+def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
+    from .frontend.params import load_frontend_params
+
+    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
+                                                             calibration=calibration_file), force=force)
+    for name, c in summary.check["values"].items():
+        flag = "  <- disagrees" if c["disagrees"] else ""
+        what = "written" if name in summary.check["adopted"] else "kept   "
+        console.info(f"  {name:18s} {what} {c['estimate']:+.5f} +- {c['sigma']:.5f}   (was {c['calibration']:+.5f}){flag}")
+    for name, why in summary.check["not_estimated"].items():
+        console.info(f"  {name:18s} kept: {why}")
+    for w in summary.warnings:
+        console.warning(w)
+    console.info(f"wrote {summary.output}")
+def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None,
+                  limits: Limits, ray_address: str | None, retries: int) -> None:
+    bar, shown = None, 0
+
+    def on_progress(p) -> None:
+        nonlocal bar, shown
+        if bar is None:  # logs done of those to run, then: done, failed, sweeps/s over all workers, time left
+            bar = _progress(p.total, "logs", lambda p: p and _progress_line(p), show_eta=False)
+            bar.__enter__()
+        if p.finished > shown:
+            bar.update(p.finished - shown, current_item=p)
+            shown = p.finished
+        else:  # a worker's sweeps: the same count of logs, new figures
+            bar.current_item = p
+            bar.render_progress()
+
+    try:
+        summary = api.process_many(logs, out_dir, opts, force=force, jobs=jobs, limits=limits,
+                                   ray=ray_address is not None,
+                                   ray_address=None if ray_address in (None, "local") else ray_address,
+                                   retries=retries, on_progress=on_progress)
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
+    done, skipped, failed = summary.count("done"), summary.count("skipped"), summary.failed
+    rate = f" ({summary.sweeps / summary.wall_s:.0f} sweeps/s)" if done and summary.wall_s > 0 else ""
+    console.info(f"{len(summary.outcomes)} logs: {done} processed, {summary.sweeps} sweeps in {summary.wall_s:.1f} s"
+                 f"{rate} on {summary.executor}; {skipped} skipped (complete already); {len(failed)} failed")
+    for o in failed:
+        console.warning(o.reason if str(o.log) in (o.reason or "") else f"{o.log}: {o.reason}")
+    console.info(f"wrote {out_dir}/<log>/ for each log and {out_dir / 'batch.json'}; "
+                 f"'fmcwlog report {out_dir}' for the fleet page")
+    if failed:
+        raise _SomeFailed(f"{len(failed)} of {len(summary.outcomes)} logs failed (reasons above, details in "
+                          f"{out_dir / 'batch.json'})")
+
+
+class _SomeFailed(click.ClickException):
+    exit_code = 1  # not 2: the command and its input were fine, some logs were not
+
+
+def _progress_line(p) -> str:
+    eta = p.eta_s
+    left = "" if eta is None else f", {int(eta // 60)}m{int(eta % 60):02d}s left"
+    return f"{p.done} done, {p.failed} failed, {p.sweeps_per_s:.0f} sweeps/s{left}"
+
+
 _REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the
 log it came from (found through run.json, or --log), and write into OUT_DIR:
 
@@ -304,16 +465,22 @@ points, ms per sweep. What cannot be computed is left empty with the reason.
 
 With several OUT_DIRs, each gets its report and a comparison table is printed and
 written to comparison.md/.json in --output (default: the current folder).
+
+A batch folder (what 'fmcwlog process' wrote for many logs) gets each log's report in
+its folder, and fleet.html and fleet.json: a row per log (duration, distance, sweeps,
+ms per sweep, warnings, why it failed, ATE and feature errors where there is ground
+truth), totals, and the logs that need a look: failed ones; with ground truth, the worst
+errors; without, where the two methods disagree most or ICP ran out of correspondences.
 """
 
 
 @cli.command("report", help=_REPORT_HELP)
 @click.argument("out_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--log", "log", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--log", "log", type=click.Path(dir_okay=False), callback=_path, default=None,
               help="The log the folder was processed from (default: the one run.json names).")
-@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=_path, default=None,
               help="Where comparison.md/.json go when several folders are given.  [default: .]")
-@click.option("--relations", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--relations", type=click.Path(dir_okay=False), callback=_path, default=None,
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
 def report_cmd(out_dirs, log, comparison_dir, relations=None):
@@ -321,6 +488,12 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 
     if log is not None and len(out_dirs) > 1:
         raise UserError("--log goes with a single output folder")
+    batches = [d for d in out_dirs if api.is_batch_folder(d)]
+    if batches:
+        if len(out_dirs) > 1 or log is not None or relations is not None:
+            raise UserError(f"{batches[0]}: a batch folder is reported alone (no other folders, --log or --relations)")
+        _report_fleet(batches[0])
+        return
     results = [_report(out_dir, log, relations) for out_dir in out_dirs]
     if len(results) > 1:
         header, rows = comparison_rows(results)
@@ -350,27 +523,42 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     return ev.result
 
 
+def _report_fleet(out_dir: Path) -> None:
+    from .evaluation.fleet import FLEET_HEADER, fleet_rows
+    from .evaluation.pages import terminal_table
+
+    result = api.report_fleet(out_dir)
+    t = result["totals"]
+    console.info(f"{out_dir}: {t['logs']} logs, {t['done']} done, {t['failed']} failed, {t['sweeps']} sweeps, "
+                 f"{t['duration_s'] / 60:.1f} min of log, {t['distance_m']:.0f} m")
+    console.info(terminal_table(FLEET_HEADER, fleet_rows(result)))
+    if result["flagged"]:
+        console.info(f"\nneeds a look ({len(result['flagged'])}):")
+        for f in result["flagged"]:
+            console.info(f"  {f['name']}: " + "; ".join(f["flags"]))
+    for r in result["logs"]:
+        if r["report_error"]:
+            console.warning(f"{r['name']}: no report: {r['report_error']}")
+    console.info(f"wrote {out_dir / 'fleet.html'} (and fleet.json), and each log's report.html in its folder")
+
+
 @cli.command("run")
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("fmcwlog-run"),
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True)
 @click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.option("--force", is_flag=True, help="Replace OUT if 'fmcwlog run' made it (never a folder holding anything else).")
 def run_cmd(out_dir, scenario, duration, seed, force):
     """Record a built-in scenario, process it with both front ends and report, into one folder:
-    OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html."""
-    import shutil
-
-    if out_dir.exists() and any(out_dir.iterdir()):
-        if not force:
-            raise UserError(f"{out_dir}: exists and is not empty; use --force to replace it")
-        shutil.rmtree(out_dir)
-    log = out_dir / "log.mcap"
+    OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html.
+    If any step fails, OUT is removed again (and what was there before put back)."""
     cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
-    _record(api.scenario(scenario), cfg, log)
-    _process(log, out_dir / "results", api.ProcessOptions(), force=False)
-    _report(out_dir / "results", None, None)
+    with replacing_folder(out_dir, force, "fmcwlog run") as folder:
+        log = folder / "log.mcap"
+        _record(api.scenario(scenario), cfg, log)
+        _process(log, folder / "results", api.ProcessOptions(), force=False)
+        _report(folder / "results", None, None)
     console.info(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
 
 
@@ -380,10 +568,11 @@ def import_group() -> None:
 
 
 @import_group.command("carmen")
-@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Log to write (.mcap).")
-@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
-def import_carmen_cmd(source, output, force):
+@click.argument("sources", nargs=-1, required=True, type=click.Path(), callback=_paths)
+@click.option("-o", "--output", type=click.Path(), callback=_path, required=True,
+              help="Log to write (.mcap); with several sources or a folder, the folder to write them into.")
+@click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never a SOURCE).")
+def import_carmen_cmd(sources, output, force):
     """Convert a CARMEN log (plain, .xz or .gz) into an MCAP log.
 
     \b
@@ -393,15 +582,21 @@ def import_carmen_cmd(source, output, force):
     line. Stamps are the log's own ipc_timestamps, which benchmark relations refer to. Without
     ODOM lines, the odometry pose of each laser line becomes /odom. Malformed lines are
     skipped, counted and listed with their line numbers. Then: fmcwlog process OUTPUT -o DIR.
+
+    \b
+    Several SOURCES, or folders (searched for *.clf and *.log, plain, .gz or .xz): each
+    becomes OUTPUT/<name>.mcap; an existing one is kept unless --force, and a source that
+    cannot be read is reported while the others go on (exit status 1 if any failed).
+    Then: fmcwlog process OUTPUT -o DIR.
     """
+    if len(sources) > 1 or sources[0].is_dir():
+        _import_many(list(sources), output, force)
+        return
+    source = sources[0]
     if not source.is_file():
         raise UserError(f"{source}: no such file")
-    if output.exists() and not force:
-        raise UserError(f"{output}: exists; use --force to overwrite it")
-    try:
-        summary, fmt = api.import_carmen(source, output)
-    except (OSError, EOFError, UnicodeDecodeError) as exc:
-        raise UserError(f"{source}: cannot read ({exc})") from None
+    check_output_file(output, force, (source,))
+    summary, fmt = api.import_carmen(source, output)
     console.info(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
                f"{summary.odometry_source}) over {summary.span_s:.1f} s; format {fmt}")
     if summary.bad_lines:
@@ -409,6 +604,27 @@ def import_carmen_cmd(source, output, force):
         more = f" and {len(summary.bad_lines) - 10} more" if len(summary.bad_lines) > 10 else ""
         console.warning(f"skipped {len(summary.bad_lines)} malformed lines: {shown}{more} "
                    f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})")
+
+
+def _one_line(message: str) -> str:
+    """A message as one printable line: a line break or control character a user's input carried in
+    (a file name, a key) is shown escaped, never breaking the line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: exists and is not a folder (several sources go into a folder)")
+    outcomes = api.import_carmen_many(sources, out_dir, force=force)
+    for o in outcomes:
+        if o.status == "done" and o.summary is not None:
+            bad = f", {len(o.summary.bad_lines)} malformed lines skipped" if o.summary.bad_lines else ""
+            console.info(f"wrote {o.output}: {o.summary.scans} scans over {o.summary.span_s:.1f} s; format {o.format}{bad}")
+        elif o.status == "skipped":
+            console.info(f"kept {o.output}: it exists (--force converts it again)")
+        else:
+            console.warning(o.reason)
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:
+        raise _SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
 
 
 def main() -> None:
@@ -421,14 +637,14 @@ def main() -> None:
         click.echo("fmcwlog: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:
-        click.echo(f"fmcwlog: error: {exc.format_message()}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
     except FmcwlogError as exc:  # bad input or parameters: the message names the file or parameter
-        click.echo(f"fmcwlog: error: {exc}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(str(exc))}", err=True)
         sys.exit(2)
     except OSError as exc:  # a file system refusal no command caught: still one line
         where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"fmcwlog: error: {where}{exc.strerror or exc}", err=True)
+        click.echo(f"fmcwlog: error: {_one_line(where + os_reason(exc))}", err=True)
         sys.exit(2)
 
 

@@ -42,3 +42,7 @@ class ReportError(FmcwlogError):
 
 class OutputError(FmcwlogError):
     """An output cannot be written where it was asked for; the message says where and why."""
+
+
+class MapSizeError(FmcwlogError, ValueError):
+    """An occupancy grid would exceed its cell budget (points far off, or a resolution too fine)."""

@@ -56,3 +56,9 @@ def processed(tmp_path_factory) -> dict[str, Path]:
 def long_corridor_log(tmp_path_factory) -> Path:
     """60 s of the 100 m bare corridor: geometry alone cannot fix the position along it."""
     return _record(tmp_path_factory, "long-corridor", 60.0)
+
+
+@pytest.fixture(scope="session")
+def dense_crowd_log(tmp_path_factory) -> Path:
+    """25 s of the dense crowd: about half of the returns on walkers and carts, many crossing the beams."""
+    return _record(tmp_path_factory, "dense-crowd", 25.0)

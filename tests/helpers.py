@@ -5,6 +5,8 @@ not fmcwlog's metrics.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import subprocess
 import sys
@@ -74,5 +76,62 @@ def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((p @ r.T - q) ** 2, axis=1))))
 
 
+def small_ring():
+    """A 3 m ring corridor around an 8 m x 4 m block, recesses in the walls, one walker: 14 s of it
+    is a straight, a corner of radius 1.2 m, and a bit of the next straight."""
+    from fmcwlog.sim.world import world_from_dict
+
+    outer = [[0, 0, 4, 0], [4, 0, 4, -0.4], [4, -0.4, 5, -0.4], [5, -0.4, 5, 0], [5, 0, 9, 0], [9, 0, 9, -0.3],
+             [9, -0.3, 10.5, -0.3], [10.5, -0.3, 10.5, 0], [10.5, 0, 14, 0], [14, 0, 14, 10], [14, 10, 0, 10],
+             [0, 10, 0, 0]]
+    block = [[3, 3, 11, 3], [11, 3, 11, 7], [11, 7, 3, 7], [3, 7, 3, 3], [6, 3, 6, 2.6], [6, 2.6, 6.5, 2.6],
+             [6.5, 2.6, 6.5, 3]]
+    return world_from_dict({
+        "name": "small-ring",
+        "walls": outer + block,
+        "route": {"waypoints": [[1.5, 1.5], [12.5, 1.5], [12.5, 8.5], [1.5, 8.5]], "loop": True, "corner_radius": 1.2},
+        "movers": [{"kind": "person", "path": [[2, 2.4], [12, 2.4]], "speed": 1.1, "phase": 3.0}],
+    })
+
+
+def record_small_ring(path: Path, duration: float = 14.0, **sensor) -> Path:
+    """Record :func:`small_ring` (seed 0) with ``sensor`` parameters set (``mount_x=0.0``, ...)."""
+    from fmcwlog.sim.config import SimConfig, apply_overrides
+    from fmcwlog.sim.recorder import record
+
+    record(small_ring(), apply_overrides(SimConfig(), {"run": {"duration": duration}, "sensor": sensor}), path)
+    return path
+
+
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
+
+
+def run_cli_here(*args: str) -> tuple[int, str, str]:
+    """``fmcwlog ARGS`` in this process (exit status, stdout, stderr): the real ``cli.main``, with its
+    error handling, but without a new interpreter, so that tests can patch what it calls (a full
+    disk) and fuzz it quickly. An exception that escapes ``main`` escapes this too: a traceback."""
+
+    from fmcwlog import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    argv, sys.argv = sys.argv, ["fmcwlog", *args]
+    code = 0
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            cli.main()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        sys.argv = argv
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_one_line_error(code: int, stderr: str, *words: str) -> str:
+    """Exit status 2 and a single ``fmcwlog: error: ...`` line holding ``words``; returns the line."""
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("fmcwlog: error: "), (code, stderr)
+    assert "Traceback" not in stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]

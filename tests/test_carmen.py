@@ -6,6 +6,8 @@ datasets (skipped where ../shared is absent) check it on real files.
 
 from __future__ import annotations
 
+import gzip
+import lzma
 import math
 import subprocess
 import sys
@@ -13,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -141,3 +145,125 @@ def test_a_file_with_nothing_usable_is_one_clear_error(tmp_path):
     lines = [x for x in proc.stderr.splitlines() if x.strip()]
     assert proc.returncode == 2 and len(lines) == 1 and "no laser scans" in lines[0]
     assert not (tmp_path / "x.mcap").exists()
+
+
+# ----------------------------------------------------------------------------- damaged files
+
+def _room_clf(n: int = 12) -> str:
+    """FLASER lines of a robot crossing a 10 m × 8 m room (ranges by ray casting here), 10 Hz."""
+    angles = -math.pi / 2 + np.arange(180) * math.pi / 180
+    lines = ["# a room", "PARAM robot_frontlaser_offset 0.1 0 host 0"]
+    for k in range(n):
+        x, t = -1.0 + 0.02 * k, 100.0 + 0.1 * k
+        c, s = np.cos(angles), np.sin(angles)
+        with np.errstate(divide="ignore"):
+            r = np.minimum(np.where(c > 0, (5 - x) / c, np.where(c < 0, (-5 - x) / c, np.inf)),
+                           np.where(s > 0, 4 / s, np.where(s < 0, -4 / s, np.inf)))
+        lines.append(f"FLASER 180 {' '.join(f'{v:.3f}' for v in r)} {x:.3f} 0 0 {x:.3f} 0 0 {t:.3f} host {t:.3f}")
+    return "\n".join(lines) + "\n"
+
+
+def _import(src: Path, out: Path) -> tuple[int, list[str]]:
+    """``fmcwlog import carmen`` in this process, judged: exit 0 with the log written and only warnings,
+    or exit 2 with one error line naming the source and nothing written."""
+    from helpers import run_cli_here
+
+    code, _, err = run_cli_here("import", "carmen", str(src), "-o", str(out))
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert code in (0, 2), err
+    assert not [p for p in out.parent.iterdir() if ".partial" in p.name]
+    if code == 2:
+        assert len(lines) == 1 and lines[0].startswith("fmcwlog: error: ") and str(src) in lines[0], err
+        assert not out.exists()
+    else:
+        assert out.exists() and all(x.startswith("fmcwlog: warning: ") for x in lines), err
+    return code, lines
+
+
+def _scans(log: Path) -> int:
+    with open(log, "rb") as fh:
+        return sum(1 for _ in make_reader(fh).iter_messages(topics=["/scan"]))
+
+
+@pytest.mark.parametrize("content, words", [
+    (bytes(range(256)) * 20, "binary data"),
+    (b"", "no laser scans found in 0 lines"),
+    (b"# only a comment\nFLASER 3 1 2\n", "first malformed: line 2"),
+])
+def test_a_file_without_a_usable_scan_is_one_error(tmp_path, content, words):
+    src = tmp_path / "bad.clf"
+    src.write_bytes(content)
+    code, lines = _import(src, tmp_path / "out.mcap")
+    assert code == 2 and words in lines[0], lines
+
+
+@pytest.mark.parametrize("compress", [gzip.compress, lzma.compress])
+def test_a_compressed_file_cut_off_imports_the_lines_before_with_a_warning(tmp_path, compress):
+    text = _room_clf(40)
+    data = compress(text.encode())
+    suffix = ".gz" if compress is gzip.compress else ".xz"
+    src = tmp_path / f"cut.clf{suffix}"
+    src.write_bytes(data[: len(data) * 3 // 4])
+    code, lines = _import(src, tmp_path / "out.mcap")
+    kept = _scans(tmp_path / "out.mcap")
+    assert code == 0 and 0 < kept < 40 and any("ends early" in x for x in lines), lines
+    # every scan imported is a whole line of the original: those before the cut
+    assert kept == len(parse_log(src).scans)
+
+
+@pytest.mark.parametrize("compress", [gzip.compress, lzma.compress])
+def test_damaged_compressed_data_are_one_error(tmp_path, compress):
+    data = bytearray(compress(_room_clf(40).encode()))
+    data[len(data) // 2] ^= 0x55
+    src = tmp_path / ("flip.clf.gz" if compress is gzip.compress else "flip.clf.xz")
+    src.write_bytes(bytes(data))
+    code, lines = _import(src, tmp_path / "out.mcap")
+    assert code == 2 and "compressed data are damaged" in lines[0], lines
+
+
+def test_impossible_values_are_counted_bad_lines(tmp_path):
+    lines = _room_clf(12).splitlines()
+    flaser = lines[5].split()
+    bad = {
+        4: " ".join(flaser[:2] + ["nan"] + flaser[3:]),  # a NaN range
+        5: " ".join(flaser[:-3] + ["inf", "host", "inf"]),  # an infinite time
+        6: " ".join(flaser[:2] + ["-3.0"] + flaser[3:]),  # a negative range
+        7: " ".join(flaser[:2 + 180 + 3] + ["1e12"] + flaser[2 + 180 + 4:]),  # an odometry pose 1e9 km away
+        8: " ".join(flaser[:-3] + ["1e300", "host", "1"]),  # a time after 2038
+        9: lines[9][: len(lines[9]) // 2],  # a line cut in the middle
+        10: "FLASER 1 2.0 0 0 0 0 0 0 101.9 host 101.9",  # one beam
+    }
+    for i, line in bad.items():
+        lines[i] = line
+    lines.insert(2, "PARAM robot_front_laser_fov nan 0 host 0")
+    src = _write(tmp_path, "\n".join(lines) + "\n")
+    parsed = parse_log(src)
+    assert [n for n, _ in parsed.bad_lines] == [3] + [i + 2 for i in sorted(bad)], parsed.bad_lines
+    assert len(parsed.scans) == 12 - len(bad) and parsed.scans[0].angle_increment == pytest.approx(math.pi / 180)
+    code, out = _import(src, tmp_path / "out.mcap")
+    assert code == 0 and out == [x for x in out if "skipped 8 malformed lines" in x], out
+
+
+@settings(max_examples=50, deadline=None, derandomize=True, database=None)
+@given(kind=st.sampled_from(["plain", "gz", "xz"]), cut=st.floats(0.0, 1.0),
+       flips=st.lists(st.tuples(st.integers(0, 2**31), st.integers(1, 255)), max_size=3),
+       tokens=st.lists(st.tuples(st.integers(0, 10**6), st.sampled_from(["nan", "inf", "-inf", "1e308", "-1", "0",
+                                                                       "x", "", "FLASER", "9" * 30])), max_size=3))
+def test_fuzz_damaged_carmen_files(kind, cut, flips, tokens):
+    """Tokens replaced, the file compressed, cut and flipped: one error line or a log with warnings."""
+    import tempfile
+
+    lines = [line.split() for line in _room_clf(6).splitlines()]
+    for at, token in tokens:
+        row = lines[at % len(lines)]
+        row[at % len(row)] = token
+    data = ("\n".join(" ".join(row) for row in lines) + "\n").encode()
+    data = {"plain": bytes, "gz": gzip.compress, "xz": lzma.compress}[kind](data)
+    data = bytearray(data[: int(cut * len(data))] if flips else data[: max(int(cut * len(data)), len(data) // 2)])
+    for at, mask in flips:
+        if data:
+            data[at % len(data)] ^= mask
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / f"log.clf{'' if kind == 'plain' else '.' + kind}"
+        src.write_bytes(bytes(data))
+        _import(src, Path(tmp) / "out.mcap")

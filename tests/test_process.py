@@ -8,6 +8,7 @@ not fmcwlog's metrics.
 from __future__ import annotations
 
 import json
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -143,15 +144,24 @@ def _empty(topic, i, msg):
         (lambda p: _junk(p / "junk.mcap"), ["junk.mcap", "not an MCAP"]),
         (lambda p: _short(p, "noscan.mcap", drop_topics=("/fmcw/points",)), ["noscan.mcap", "scan topic"]),
         (lambda p: _short(p, "nocal.mcap", drop_metadata=("fmcwlog.calibration",)), ["nocal.mcap", "calibration"]),
-        (lambda p: _short(p, "nan.mcap", edit=_nan_points), ["nan.mcap", "NaN"]),
-        (lambda p: _short(p, "back.mcap", edit=_backwards), ["back.mcap", "backwards"]),
-        (lambda p: _short(p, "empty.mcap", edit=_empty), ["empty.mcap", "no points"]),
     ],
 )
 def test_bad_input_is_one_line_and_leaves_nothing(tmp_path, make, words):
     log = make(tmp_path)
     out = tmp_path / "out"
     _assert_clean_failure(run_cli("process", str(log), "-o", str(out)), out, *words)
+
+
+@pytest.mark.parametrize("edit, kind, words", [(_nan_points, "nonfinite", "NaN"),
+                                               (_backwards, "sweep_backwards", "backwards"),
+                                               (_empty, "empty", "no points")])
+def test_a_damaged_sweep_is_skipped_and_counted(tmp_path, edit, kind, words):
+    """One bad sweep among 20 is damage local to it: the other 19 are processed, and run.json says so."""
+    log = _short(tmp_path, f"{kind}.mcap", edit=edit)
+    s = process_log(log, tmp_path / "out", ProcessOptions())
+    run = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert s.sweeps == 19 and run["skipped_inputs"] == {kind: 1} and run["skipped_sweeps"] == 1
+    assert [w for w in run["warnings"] if words in w and w.startswith("skipped 1 sweeps")], run["warnings"]
 
 
 def test_repeated_sweep_stamp_is_skipped_with_a_warning(tmp_path):
@@ -166,7 +176,7 @@ def test_repeated_sweep_stamp_is_skipped_with_a_warning(tmp_path):
     assert any("repeated stamp" in w for w in json.loads((out / "run.json").read_text())["warnings"])
 
 
-def test_non_empty_output_folder_is_refused_without_force(tmp_path):
+def test_non_empty_output_folder_is_refused_without_force_and_a_foreign_one_even_with_it(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
@@ -174,9 +184,9 @@ def test_non_empty_output_folder_is_refused_without_force(tmp_path):
     proc = run_cli("process", str(log), "-o", str(out))
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert (out / "keep.txt").read_text() == "mine"
-    proc = run_cli("process", str(log), "-o", str(out), "--force")
-    assert proc.returncode == 0, proc.stderr
-    assert not (out / "keep.txt").exists() and (out / "improved.tum").exists()
+    proc = run_cli("process", str(log), "-o", str(out), "--force")  # fmcwlog did not make it: still refused
+    assert proc.returncode == 2 and "not made by fmcwlog" in proc.stderr, proc.stderr
+    assert [p.name for p in out.iterdir()] == ["keep.txt"] and (out / "keep.txt").read_text() == "mine"
 
 
 def test_config_file_and_set_reach_nested_stages(tmp_path):
@@ -192,4 +202,4 @@ def test_config_file_and_set_reach_nested_stages(tmp_path):
     with pytest.raises(ConfigError, match="icp.gmmsc.nope"):
         load_params(None, parse_set_option(("icp.gmmsc.nope=1",)))
     proc = run_cli("process", "--config", str(cfg), "--show-config")
-    assert proc.returncode == 0 and json.loads(proc.stdout)["icp"]["gmmsc"]["w_th"] == 0.6
+    assert proc.returncode == 0 and tomllib.loads(proc.stdout)["icp"]["gmmsc"]["w_th"] == 0.6

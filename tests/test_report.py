@@ -9,6 +9,7 @@ must show is tested in test_features.py, on maps of known geometry.)
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -150,21 +151,176 @@ def test_pages_hold_every_table_and_image(folders, tmp_path):
     ev = evaluate(folder)
     write_report(ev)
     html = (folder / "report.html").read_text()
-    for heading in ("Trajectory, segmentation, speed", "Map feature lengths", "Maps", "Notes", "Parameters"):
+    for heading in ("Trajectory, segmentation, speed", "Map feature lengths", "Maps", "Notes", "Parameters",
+                    "Position error along the path", "Relative pose error against distance travelled",
+                    "Heading error", "Time per sweep"):
         assert heading in html
-    assert html.count("<table>") == 2
-    for alt in ("trajectories over the world", "position error along the path", "relative error of each feature"):
+    assert html.count("<table>") == 3  # trajectory, time per sweep, features (the header has its own class)
+    alts = ["trajectories over the world", "position error along the path", "relative error of each feature",
+            "relative pose error of each pair against distance travelled", "heading error over time",
+            "time per sweep of each method"]
+    alts += [f"{m} trajectory coloured by its position error" for m in ("improved", "baseline", "wheel odometry")]
+    for alt in alts:
         assert f'alt="{alt}' in html
-    assert html.count("data:image/png;base64,") >= 3
-    assert "http://" not in html and "https://" not in html  # self-contained
+    assert html.count('src="data:image/png;base64,') == html.count("<img ") >= len(alts)
+    # self-contained: nothing fetched, no script
+    assert "http://" not in html and "https://" not in html and "<script" not in html and "<link" not in html
     md = (folder / "report.md").read_text()
     assert "| method | ATE RMSE cm" in md and "| feature | name | true mm" in md
     data = json.loads((folder / "report.json").read_text())
     for m in ("improved", "baseline", "wheel_odometry"):
         for key in ("ate_rmse_m", "rpe_1m_pct", "rpe_10m_pct", "features", "feature_avg_rel_error_pct",
-                    "segmentation", "ms_per_sweep_median", "notes"):
+                    "segmentation", "ms_per_sweep_median", "notes", "heading_rmse_deg", "heading_max_deg",
+                    "ms_per_sweep_max"):
             assert key in data["methods"][m]
     assert data["methods"]["wheel_odometry"]["features"] is None and data["methods"]["wheel_odometry"]["notes"]
+    # the report's own gt.tum is not read back as a trajectory the next time
+    assert (folder / "gt.tum").is_file() and set(evaluate(folder).result["methods"]) == set(data["methods"])
+
+
+def _mcap_metadata(path: Path, name: str) -> dict[str, str]:
+    """A metadata record read with plain ``mcap``, not fmcwlog's reader."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return next(dict(m.metadata) for m in make_reader(f).iter_metadata() if m.name == name)
+
+
+def test_header_says_what_was_run(folders, tmp_path):
+    import datetime
+    import hashlib
+
+    import fmcwlog
+    from fmcwlog.frontend.params import FrontEndParams
+
+    folder = tmp_path / "header"
+    shutil.copytree(folders["exact"], folder)
+    run = json.loads((folder / "run.json").read_text())
+    params = dataclasses.asdict(FrontEndParams())
+    run.update(params=dict(reversed(list(params.items()))), fmcwlog_version="9.9.9", methods=["improved", "baseline"])
+    (folder / "run.json").write_text(json.dumps(run, indent=3))  # key order and layout must not matter
+    ev = evaluate(folder)
+    write_report(ev)
+    h = json.loads((folder / "report.json").read_text())["header"]
+    canonical = json.dumps(json.loads((folder / "run.json").read_text())["params"], sort_keys=True,
+                           separators=(",", ":"))
+    assert h["params_sha256_12"] == hashlib.sha256(canonical.encode()).hexdigest()[:12]
+    assert len(h["params_sha256_12"]) == 12 and all(c in "0123456789abcdef" for c in h["params_sha256_12"])
+    sim = _mcap_metadata(LOG, "fmcwlog.sim")
+    assert h["scenario"] == sim["scenario"] == "corridor" and h["seed"] == int(sim["seed"])
+    assert h["fmcwlog_version_processed"] == "9.9.9" and h["fmcwlog_version_report"] == fmcwlog.__version__
+    assert h["log"] == str(LOG) and h["methods"] == ["improved", "baseline"]
+    made = datetime.datetime.strptime(h["report_date_utc"], "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=datetime.UTC)
+    assert abs((datetime.datetime.now(datetime.UTC) - made).total_seconds()) < 600
+    html = (folder / "report.html").read_text()
+    for text in (h["params_sha256_12"], "9.9.9", h["report_date_utc"], str(LOG), "corridor"):
+        assert text in html
+    # another parameter, another digest
+    run["params"]["icp"]["huber_delta"] += 0.01
+    (folder / "run.json").write_text(json.dumps(run))
+    assert evaluate(folder).result["header"]["params_sha256_12"] != h["params_sha256_12"]
+
+
+def test_time_per_sweep_is_a_distribution(folders, tmp_path):
+    folder = tmp_path / "speed"
+    shutil.copytree(folders["exact"], folder)
+    table = pq.read_table(folder / "trajectories.parquet")
+    n = table.num_rows // 2
+    ms = np.concatenate([np.arange(1.0, n + 1), np.full(n, 3.0)])  # improved: 1, 2, ..., n ms; baseline: 3 ms
+    pq.write_table(table.set_column(2, "ms", pa.array(ms)), folder / "trajectories.parquet")
+    ev = evaluate(folder)
+    imp = ev.result["methods"]["improved"]
+    assert imp["ms_per_sweep_max"] == n and imp["ms_per_sweep_mean"] == pytest.approx((n + 1) / 2)
+    assert imp["ms_per_sweep_median"] == pytest.approx((n + 1) / 2)
+    assert imp["ms_per_sweep_p95"] == pytest.approx(1 + 0.95 * (n - 1))  # numpy's linear percentile
+    assert ev.result["methods"]["baseline"]["ms_per_sweep_max"] == 3.0
+    write_report(ev)
+    html = (folder / "report.html").read_text()
+    assert 'alt="time per sweep of each method' in html and f"<td>{n:.2f}</td>" in html  # the max, in the table
+
+
+def _l_path(step: float = 0.125, leg: float = 40.0) -> np.ndarray:
+    """East ``leg`` m then north ``leg`` m in steps of ``step`` (exact in binary), yaw along the path."""
+    k = int(round(leg / step))
+    east = np.column_stack([np.arange(k + 1) * step, np.zeros(k + 1), np.zeros(k + 1)])
+    north = np.column_stack([np.full(k, leg), np.arange(1, k + 1) * step, np.full(k, math.pi / 2)])
+    return np.vstack([east, north])
+
+
+@pytest.mark.parametrize("delta", [1.0, 10.0])
+def test_rpe_per_pair_of_a_constant_scale_error(delta):
+    from fmcwlog.evaluation.along_path import rpe_series
+
+    ref = _l_path()
+    est = ref * np.array([1.02, 1.02, 1.0])  # every displacement 2 % too long
+    s = rpe_series(est, ref, delta)
+    assert s.start_m == pytest.approx(np.arange(len(s.start_m)) * delta)  # pair k starts k * delta along the path
+    straight = (s.start_m + delta <= 40.0) | (s.start_m >= 40.0)  # not across the corner
+    assert straight.sum() >= len(s.start_m) - 1
+    assert s.trans_pct[straight] == pytest.approx(2.0, abs=1e-9)
+    assert np.all(s.trans_pct[~straight] < 2.0)  # across the corner the chord is shorter than the path
+    assert s.rot_deg_per_m == pytest.approx(0.0, abs=1e-9)
+
+
+def test_rpe_per_pair_agrees_with_evo_and_with_the_table(folders):
+    from evo.core import metrics as evo_metrics
+    from evo.core.trajectory import PoseTrajectory3D
+
+    from fmcwlog.evaluation.metrics import interpolate_reference
+    from fmcwlog.geometry import yaw_to_quaternion
+    from fmcwlog.io.outputs import read_tum
+
+    ev = evaluate(folders["scaled"])
+    t, est = read_tum(folders["scaled"] / "improved.tum")
+    gt_ns, gt = read_ground_truth(LogReader(LOG))
+    idx, ref = interpolate_reference(t, gt_ns * 1e-9, gt)
+
+    def traj(p):
+        q = yaw_to_quaternion(p[:, 2])[:, [3, 0, 1, 2]]  # evo: w x y z
+        return PoseTrajectory3D(np.column_stack([p[:, :2], np.zeros(len(p))]), q, t[idx])
+
+    for s in ev.rpe["improved"]:
+        r = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part, delta=s.delta,
+                            delta_unit=evo_metrics.Unit.meters, all_pairs=False, pairs_from_reference=True)
+        r.process_data((traj(ref), traj(est[idx])))
+        assert s.trans_pct == pytest.approx(100.0 * np.asarray(r.error) / s.delta, abs=1e-6)
+        assert ev.result["methods"]["improved"][f"rpe_{s.delta:g}m_pct"] == pytest.approx(np.mean(s.trans_pct))
+        assert np.all(np.diff(s.start_m) >= s.delta - 1e-9) and s.start_m[0] == 0.0
+
+
+def test_heading_error_is_the_yaw_bias(folders, tmp_path):
+    from fmcwlog.io.outputs import read_tum
+
+    folder = tmp_path / "yaw"
+    shutil.copytree(folders["rotated"], folder)
+    t, est = read_tum(folder / "baseline.tum")
+    write_tum(folder / "baseline.tum", np.round(t * 1e9).astype(np.int64), est + np.array([0.0, 0.0, math.radians(2.0)]))
+    ev = evaluate(folder)
+    imp, base = ev.result["methods"]["improved"], ev.result["methods"]["baseline"]
+    assert imp["heading_max_deg"] < 1e-4  # a rigid motion of the truth: no heading error once aligned
+    # positions alone fix the alignment, so a pure yaw bias stays whole
+    assert base["heading_rmse_deg"] == pytest.approx(2.0, abs=1e-4) and base["heading_max_deg"] == pytest.approx(2.0, abs=1e-4)
+    assert ev.heading["baseline"] == pytest.approx(2.0, abs=1e-4)
+
+
+def test_disagreement_with_itself_a_rigid_copy_and_a_scaled_copy():
+    from fmcwlog.evaluation.along_path import disagreement
+
+    t = np.arange(len(_l_path())) * 0.1
+    ref = _l_path()
+    assert disagreement(t, ref, t, ref).stats.max < 1e-12
+    moved = compose(np.array([5.0, -3.0, 1.1]), ref)  # another frame: a rigid motion of the whole path
+    assert disagreement(t, ref, t, moved).stats.max < 1e-9
+    # stamps in between the reference's (a peer's own clock), on a straight stretch at constant speed
+    half = t[:300] + 0.05
+    assert disagreement(t, ref, half, compose(np.array([1.0, 2.0, 0.3]), ref[:300] + [0.0625, 0.0, 0.0])).stats.max < 1e-9
+    # a scaled straight path, once rigidly aligned, is |s - 1| times the distance from the middle away
+    line = ref[:321]  # 40 m east
+    d = disagreement(t[:321], line, t[:321], line * np.array([1.02, 1.02, 1.0]))
+    assert d.along_m == pytest.approx(line[:, 0])
+    assert d.gap_m == pytest.approx(0.02 * np.abs(d.along_m - d.along_m.mean()), abs=1e-9)
+    slope = np.polyfit(d.along_m[d.along_m > 20.0], d.gap_m[d.along_m > 20.0], 1)[0]
+    assert slope == pytest.approx(0.02, abs=1e-9) and d.stats.max == pytest.approx(0.02 * 20.0)
 
 
 def test_report_agrees_with_evo_on_a_processed_log(tmp_path):
@@ -206,15 +362,40 @@ def test_not_a_process_folder_or_a_foreign_log_is_one_line(tmp_path, folders, cr
 def test_missing_ground_truth_is_said_not_invented(tmp_path, folders):
     from test_process import copy_log
 
+    from fmcwlog.io.outputs import read_tum
+
     stripped = tmp_path / "stripped.mcap"
     copy_log(LOG, stripped, drop_topics=("/ground_truth/odom", "/ground_truth/point_labels"),
-             drop_metadata=("fmcwlog.world",))
-    ev = evaluate(folders["exact"], stripped)
+             drop_metadata=("fmcwlog.world", "fmcwlog.sim"))
+    folder = tmp_path / "nogt"
+    shutil.copytree(folders["exact"], folder)
+    t, imp = read_tum(folder / "improved.tum")
+    ns = np.round(t * 1e9).astype(np.int64)
+    write_tum(folder / "baseline.tum", ns, imp * np.array([1.02, 1.02, 1.0]))  # a 2 % scale error
+    write_tum(folder / "wheel_odometry.tum", ns, compose(np.array([2.0, 1.0, 0.4]), imp))  # another frame
+    ev = evaluate(folder, stripped)
     r = ev.result
     assert r["methods"]["improved"]["ate_rmse_m"] is None and r["methods"]["improved"]["features"] is None
-    assert r["methods"]["improved"]["segmentation"] is None
+    assert r["methods"]["improved"]["segmentation"] is None and r["methods"]["improved"]["heading_rmse_deg"] is None
     assert any("ground_truth/odom" in n for n in r["notes"])
     assert r["methods"]["improved"]["ms_per_sweep_median"] == pytest.approx(2.0)
+    assert r["header"]["scenario"] is None and r["header"]["seed"] is None
+    # the methods still compared: a scaled copy is 2 % of its distance from the centroid away, a rigid one not at all
+    d = r["disagreement"]
+    assert d["reference"] == "improved" and set(d["methods"]) == {"baseline", "wheel_odometry"}
+    expected = 0.02 * np.linalg.norm(imp[:, :2] - imp[:, :2].mean(axis=0), axis=1)
+    assert d["methods"]["baseline"]["rmse_m"] == pytest.approx(np.sqrt(np.mean(expected**2)), rel=1e-6)  # TUM keeps ~9 digits
+    assert d["methods"]["baseline"]["max_m"] == pytest.approx(expected.max(), rel=1e-6)
+    assert d["methods"]["baseline"]["final_m"] == pytest.approx(expected[-1], rel=1e-6)
+    assert d["methods"]["wheel_odometry"]["max_m"] < 1e-6
+    write_report(ev)
+    html = (folder / "report.html").read_text()
+    assert "How far the methods disagree" in html and "not an error" in html
+    for alt in ("disagreement between the methods along the path", "trajectories aligned onto the reference one",
+                "time per sweep of each method"):
+        assert f'alt="{alt}' in html
+    assert "ATE RMSE cm" not in html  # no column of dashes: the notes say why
+    assert "— (not in the log)" in html
 
 
 def test_run_does_record_process_report_into_one_folder(tmp_path):

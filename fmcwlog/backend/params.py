@@ -7,8 +7,10 @@ them with the rest.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+from ..config import Checked, param
 from ..frontend.correlative import CorrelativeParams
 from .registration import LineICPParams
 
@@ -22,7 +24,7 @@ def _closure_search() -> CorrelativeParams:
 
 
 @dataclass(frozen=True)
-class BackendParams:
+class BackendParams(Checked):
     """Parameters of the pose-graph back end (:mod:`fmcwlog.backend`).
 
     Nodes and odometry edges:
@@ -75,35 +77,37 @@ class BackendParams:
     optimize_every: re-optimise after this many new nodes once a closure has been added (≥ 1).
     """
 
-    node_distance: float = 0.5
-    node_angle_deg: float = 15.0
-    odom_sigma_xy_per_m: float = 0.01
-    odom_sigma_yaw_per_m: float = 0.003
-    odom_sigma_yaw_per_rad: float = 0.01
-    odom_sigma_xy_floor: float = 0.002
-    odom_sigma_yaw_floor: float = 0.0005
-    closure_radius: float = 3.0
-    closure_min_path: float = 15.0
-    closure_every: float = 1.0
-    max_candidates: int = 2
-    candidate_spacing: float = 3.0
-    submap_nodes: int = 4
-    drift_per_m: float = 0.01
-    drift_deg_per_m: float = 0.05
-    max_window: float = 5.0
-    max_window_deg: float = 30.0
-    wide_every: float = 5.0
+    node_distance: float = param(0.5, "m", gt=0.0, le=100.0)
+    node_angle_deg: float = param(15.0, "deg", gt=0.0, le=180.0)
+    # standard deviations: 0 would be an infinitely certain edge (a division by zero)
+    odom_sigma_xy_per_m: float = param(0.01, "m/m", gt=0.0, le=10.0)
+    odom_sigma_yaw_per_m: float = param(0.003, "rad/m", gt=0.0, le=10.0)
+    odom_sigma_yaw_per_rad: float = param(0.01, "rad/rad", gt=0.0, le=10.0)
+    odom_sigma_xy_floor: float = param(0.002, "m", gt=0.0, le=10.0)
+    odom_sigma_yaw_floor: float = param(0.0005, "rad", gt=0.0, le=math.pi)
+    closure_radius: float = param(3.0, "m", gt=0.0, le=100.0)
+    closure_min_path: float = param(15.0, "m", ge=0.0, le=10_000.0)
+    closure_every: float = param(1.0, "m", gt=0.0, le=1000.0)
+    max_candidates: int = param(2, "", ge=1, le=100)
+    candidate_spacing: float = param(3.0, "m", ge=0.0, le=1000.0)
+    submap_nodes: int = param(4, "nodes", ge=0, le=100)
+    drift_per_m: float = param(0.01, "m/m", ge=0.0, le=1.0)
+    drift_deg_per_m: float = param(0.05, "deg/m", ge=0.0, le=10.0)
+    # the widened search replaces search.linear_window / angular_window_deg: the same upper ends
+    max_window: float = param(5.0, "m", gt=0.0, le=20.0)
+    max_window_deg: float = param(30.0, "deg", gt=0.0, le=180.0)
+    wide_every: float = param(5.0, "m", ge=0.0, le=1000.0)
     search: CorrelativeParams = field(default_factory=_closure_search)
     icp: LineICPParams = field(default_factory=LineICPParams)
-    min_score: float = 0.5
-    inlier_distance: float = 0.1
-    min_inlier_fraction: float = 0.6
-    max_ambiguity: float = 0.9
-    free_direction_chi2: float = 9.0
-    residual_sigma: float = 0.03
-    effective_pairs: float = 25.0
-    closure_sigma_xy_floor: float = 0.01
-    closure_sigma_yaw_floor: float = 0.002
-    min_pairs: int = 30
-    cauchy_scale: float = 3.0
-    optimize_every: int = 10
+    min_score: float = param(0.5, "", ge=0.0, le=1.0)
+    inlier_distance: float = param(0.1, "m", gt=0.0, le=10.0)
+    min_inlier_fraction: float = param(0.6, "", ge=0.0, le=1.0)
+    max_ambiguity: float = param(0.9, "", ge=0.0, le=1.0)
+    free_direction_chi2: float = param(9.0, "", gt=0.0, le=1000.0)
+    residual_sigma: float = param(0.03, "m", gt=0.0, le=10.0)
+    effective_pairs: float = param(25.0, "pairs", ge=1.0, le=1e6)
+    closure_sigma_xy_floor: float = param(0.01, "m", gt=0.0, le=10.0)
+    closure_sigma_yaw_floor: float = param(0.002, "rad", gt=0.0, le=math.pi)
+    min_pairs: int = param(30, "pairs", ge=1, le=100_000)
+    cauchy_scale: float = param(3.0, "sigma", gt=0.0, le=100.0)
+    optimize_every: int = param(10, "nodes", ge=1, le=100_000)

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..frontend.correlative import CorrelativeParams
+from ..frontend.correlative import MAX_LEVELS, CorrelativeParams
 from ..frontend.local_map import voxel_downsample
 from ..frontend.occupancy import OccupancyGrid, OccupancyParams
 from ..geometry import between, compose, inverse, transform_points
@@ -163,7 +163,7 @@ class PoseGraphBackend:
             return None
         self._last_wide_path = self.nodes[query].path_m
         angle = min(max(p.search.angular_window_deg, p.drift_deg_per_m * since), p.max_window_deg)
-        levels = p.search.levels + (window > 2 * p.search.linear_window)
+        levels = min(p.search.levels + (window > 2 * p.search.linear_window), MAX_LEVELS)
         search = dataclasses.replace(p.search, linear_window=window, angular_window_deg=angle, levels=levels)
         return p.closure_radius + window - p.search.linear_window, search
 

@@ -19,11 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..config import Checked, param
 from ..geometry import transform_points, wrap_angle
 
 
 @dataclass(frozen=True)
-class LineICPParams:
+class LineICPParams(Checked):
     """max_iterations: iteration cap.
     max_distance: pairs farther apart than this are dropped (m; the search before has put the
         source within about one grid cell).
@@ -34,12 +35,12 @@ class LineICPParams:
     tolerance: stop when a step moves less than this (m, and rad × 1 m).
     """
 
-    max_iterations: int = 20
-    max_distance: float = 0.3
-    kernel_scale: float = 0.05
-    normal_neighbours: int = 6
-    min_planarity: float = 0.1
-    tolerance: float = 1e-4
+    max_iterations: int = param(20, "", ge=1, le=1000)
+    max_distance: float = param(0.3, "m", gt=0.0, le=10.0)
+    kernel_scale: float = param(0.05, "m", gt=0.0, le=10.0)
+    normal_neighbours: int = param(6, "points", ge=3, le=100)
+    min_planarity: float = param(0.1, "", ge=0.0, le=1.0)
+    tolerance: float = param(1e-4, "m", gt=0.0, le=1.0)
 
 
 @dataclass

@@ -4,24 +4,32 @@ Everything here is evaluation: it reads ``/ground_truth/*`` and ``fmcwlog.world`
 (through :mod:`fmcwlog.evaluation.ground_truth`), which estimation never does. A
 value that cannot be computed is ``None`` with the reason in ``notes``; nothing
 is invented. Feature lengths: :mod:`fmcwlog.evaluation.features`; moving-point
-scores: :mod:`fmcwlog.evaluation.segmentation_score`.
+scores: :mod:`fmcwlog.evaluation.segmentation_score`; per-pose and per-pair series for the
+plots and the methods' disagreement (which needs no ground truth):
+:mod:`fmcwlog.evaluation.along_path`.
 """
 
 from __future__ import annotations
 
+import datetime
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
+from .. import __version__
 from ..errors import LogError, ReportError
-from ..frontend.methods import METHOD_NAMES, METHODS, WHEEL_ODOMETRY, BaselineFrontEnd, ImprovedFrontEnd
+from ..frontend.names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
+from ..io.digest import file_sha256
 from ..io.mcap_log import LogReader
 from ..io.outputs import read_tum
-from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, WORLD_KEY
+from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, SIM_KEY, WORLD_KEY
+from .along_path import Disagreement, RPESeries, disagreement, heading_errors, rpe_series
 from .features import feature_lengths
 from .ground_truth import read_ground_truth, read_point_labels, read_world
 from .metrics import (
@@ -30,17 +38,18 @@ from .metrics import (
     interpolate_reference,
     mean_relative_error_pct,
     relative_reduction_pct,
-    rpe,
 )
 from .published import PAPER, relations_for
 from .relations import read_relations, relations_error
 from .segmentation_score import segmentation_scores
 
 TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY)  # fmcwlog's own, in the order the report shows them
-GROUND_TRUTH_TUM = "gt"  # report writes the log's ground truth as gt.tum
+GROUND_TRUTH_TUM = "gt.tum"  # written by the report beside the estimates; never an estimate itself
+RPE_DELTAS_M = (1.0, 10.0)
 _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",
                 "rpe_10m_pct", "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features", "feature_avg_rel_error_pct",
-                "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second")
+                "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second",
+                "heading_rmse_deg", "heading_max_deg", "ms_per_sweep_mean", "ms_per_sweep_max")
 
 
 @dataclass
@@ -55,21 +64,78 @@ class Evaluation:
     gt: np.ndarray | None = None
     aligned: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # t, est, errors
     walls: np.ndarray | None = None  # (M, 4) the world's walls, for the plots
+    heading: dict[str, np.ndarray] = field(default_factory=dict)  # signed heading error (deg) at aligned[m]'s t
+    rpe: dict[str, list[RPESeries]] = field(default_factory=dict)  # per pair, one series per RPE_DELTAS_M
+    sweep_ms: dict[str, np.ndarray] = field(default_factory=dict)  # time per sweep (ms), every timed sweep
+    disagreements: dict[str, Disagreement] = field(default_factory=dict)  # each other trajectory vs the reference
+    disagreement_reference: str | None = None
+
+
+# what report reads of run.json, and the type each must have when present (peers write their own run.json)
+_RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
+                                          "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
+                                          "doppler": (bool, type(None)), "prior": (str, type(None))}
+_PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
 
 
 def load_run(out_dir: Path) -> dict[str, Any]:
+    """``out_dir``'s run.json, once it and trajectories.parquet are checked to be readable and whole."""
     run_json = out_dir / "run.json"
     if not out_dir.is_dir():
         raise ReportError(f"{out_dir}: no such folder")
     if not run_json.is_file() or not (out_dir / "trajectories.parquet").is_file():
         raise ReportError(f"{out_dir}: not a 'fmcwlog process' output (no run.json or trajectories.parquet)")
     try:
-        return json.loads(run_json.read_text())
+        run = json.loads(run_json.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ReportError(f"{run_json}: malformed ({exc.msg})") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ReportError(f"{run_json}: malformed (not UTF-8 JSON text)") from None
+    except OSError as exc:
+        raise ReportError(f"{run_json}: cannot read ({exc.strerror})") from None
+    if not isinstance(run, dict):
+        raise ReportError(f"{run_json}: malformed (expected a JSON object)")
+    for key, kinds in _RUN_KEYS.items():
+        value = run.get(key)
+        if key in run and (not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds)
+                           or (isinstance(value, float) and not np.isfinite(value))):
+            raise ReportError(f"{run_json}: {key!r} is {value!r}, not a {' or '.join(k.__name__ for k in kinds)}")
+    if isinstance(run.get("sweeps"), int) and run["sweeps"] < 0:
+        raise ReportError(f"{run_json}: 'sweeps' is negative")
+    if abs(run.get("stamp_shift_s", 0.0)) > 3600.0:  # a shift within a sweep's period, not hours
+        raise ReportError(f"{run_json}: 'stamp_shift_s' of {run['stamp_shift_s']} s is beyond an hour")
+    _check_parquet(out_dir / "trajectories.parquet")
+    return run
+
+
+def _check_parquet(path: Path) -> None:
+    """A trajectories.parquet that can be read whole, with the columns report needs."""
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ReportError(f"{path}: damaged, cannot be read ({first})") from None
+    for name, is_kind in _PARQUET_COLUMNS.items():
+        if name not in table.column_names:
+            raise ReportError(f"{path}: has no column {name!r}")
+        if not is_kind(table.schema.field(name).type):
+            raise ReportError(f"{path}: column {name!r} is {table.schema.field(name).type}, not what fmcwlog writes")
+    if table.column("stamp_ns").null_count or table.column("method").null_count:
+        raise ReportError(f"{path}: a row has no stamp_ns or method")
 
 
 def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
+    """Refuse a log other than the one ``out_dir`` was processed from: by its sha256 where run.json
+    records it (another run, scenario or seed can share every stamp), else by its sweep stamps."""
+    recorded = run.get("log_sha256")
+    if recorded is not None:
+        try:
+            digest = file_sha256(log)
+        except OSError as exc:
+            raise ReportError(f"{log}: cannot read ({exc.strerror})") from None
+        if digest != recorded:
+            raise ReportError(f"{log}: is not the log {out_dir} was processed from ({run.get('log', 'see run.json')}): "
+                              f"their sha256 differ ({digest[:12]}... here, {recorded[:12]}... in run.json)")
     scan = run.get("scan_topic", "/fmcw/points")
     log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
     # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
@@ -97,28 +163,30 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
     rel_table = read_relations(relations) if relations is not None else None
     present = _trajectories_in(out_dir)
     measurable = ev.gt is not None and bool(world.features)
-    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHODS], world.features, world.walls,
+    feature_rows = feature_lengths(out_dir, [m for m in present if m in METHOD_NAMES], world.features, world.walls,
                                    gt_ns, gt) if measurable else {}
     labels = read_point_labels(reader) if GT_LABELS_TOPIC in reader.topics else None
 
     methods: dict[str, dict[str, Any]] = {}
+    tums: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for m in present:
         r: dict[str, Any] = {k: None for k in _METRIC_KEYS}
         r["notes"] = []
-        t, est = read_tum(out_dir / f"{m}.tum")
+        t, est = tums[m] = read_tum(out_dir / f"{m}.tum")
         if rel_table is not None and relations is not None:
             _relations(r, t, est, rel_table, relations)
         _trajectory_errors(r, m, t, est, ev)
         _features(r, m, feature_rows, measurable)
         _segmentation(r, m, out_dir, labels)
-        _speed(r, m, sweep_ms[sweep_method == m])
+        ev.sweep_ms[m] = _speed(r, m, sweep_ms[sweep_method == m])
         methods[m] = r
 
     reduction = _reduction(methods)
-    if reduction is None and measurable and {ImprovedFrontEnd.name, BaselineFrontEnd.name} <= set(methods):
+    if reduction is None and measurable and {IMPROVED, BASELINE} <= set(methods):
         notes.append("no reduction of the average feature error: no feature was measured by both methods")
     ev.result = {
         "schema": "fmcwlog.report/1",
+        "header": report_header(run, log, reader.metadata.get(SIM_KEY) or {}, present),
         "out_dir": str(out_dir),
         "log": str(log),
         "sweeps": int(run.get("sweeps", 0)),
@@ -130,14 +198,64 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
         "relations_file": str(relations) if relations is not None else None,
         "relations_published": _published_relations(relations),
         "params": run.get("params"),
+        "disagreement": _disagreements(ev, tums, notes),
         "notes": notes,
     }
     return ev
 
 
+def params_digest(params: Any) -> str | None:
+    """First 12 hex digits of the sha256 of ``params`` as canonical JSON (keys sorted, no spaces, ASCII)."""
+    if params is None:
+        return None
+    text = json.dumps(params, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:12]
+
+
+def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str]) -> dict[str, Any]:
+    """What was run: versions, date (UTC), log, scenario and seed (from the log's ``fmcwlog.sim``
+    record, absent from a real log), methods and the parameters' digest."""
+    seed = sim.get("seed")
+    return {
+        "fmcwlog_version_processed": run.get("fmcwlog_version"),
+        "fmcwlog_version_report": __version__,
+        "report_date_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "log": str(log),
+        "scenario": sim.get("scenario"),
+        "seed": int(seed) if seed is not None and str(seed).lstrip("-").isdigit() else None,
+        "methods": list(run.get("methods") or [m for m in present if m in METHOD_NAMES]),
+        "trajectories": list(present),
+        "params_sha256_12": params_digest(run.get("params")),
+    }
+
+
+def _disagreements(ev: Evaluation, tums: dict[str, tuple[np.ndarray, np.ndarray]], notes: list[str]) -> dict:
+    """Each trajectory SE(2)-aligned onto the improved one (else the first method), and the gap between them."""
+    reference = next((m for m in (*METHOD_NAMES, *tums) if m in tums and len(tums[m][0]) >= 2), None)
+    out: dict[str, Any] = {"reference": reference, "methods": {}}
+    if reference is None:
+        return out
+    ev.disagreement_reference = reference
+    t_ref, ref = tums[reference]
+    for m, (t, est) in tums.items():
+        if m == reference:
+            continue
+        try:
+            d = disagreement(t_ref, ref, t, est)
+        except ValueError as exc:
+            notes.append(f"disagreement of {m} with {reference}: {exc}")
+            continue
+        ev.disagreements[m] = d
+        out["methods"][m] = d.summary()
+    return out
+
+
 def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, LogReader]:
     """The log the folder was processed from: ``log`` if given, else the one run.json names."""
-    path = Path(log) if log is not None else Path(run.get("log", ""))
+    named = log if log is not None else run.get("log")
+    if named is None or not str(named).strip():
+        raise ReportError(f"{out_dir}: its run.json names no log; name it with --log")
+    path = Path(named)
     if not path.is_file():
         raise ReportError(f"{out_dir}: its log {path} is not there; name it with --log")
     try:
@@ -161,8 +279,8 @@ def _published_relations(relations: str | Path | None) -> list[dict]:
 def _trajectories_in(out_dir: Path) -> list[str]:
     """fmcwlog's trajectories first, then any other dropped in the folder (a peer, e.g. kiss_icp.tum)."""
     present = [m for m in TRAJECTORIES if (out_dir / f"{m}.tum").is_file()]
-    # gt.tum is the ground truth a previous report wrote beside the estimates, not a trajectory to score
-    return present + sorted(p.stem for p in out_dir.glob("*.tum") if p.stem not in (*TRAJECTORIES, GROUND_TRUTH_TUM))
+    return present + sorted(p.stem for p in out_dir.glob("*.tum")
+                            if p.stem not in TRAJECTORIES and p.name != GROUND_TRUTH_TUM)
 
 
 def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -195,13 +313,19 @@ def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev:
     r.update(ate_rmse_m=a.rmse, ate_mean_m=a.mean, ate_median_m=a.median, ate_max_m=a.max,
              ate_first_aligned_rmse_m=f.rmse)
     ev.aligned[method] = (t[idx], a.est_aligned, a.errors)
-    for delta, key in ((1.0, "1m"), (10.0, "10m")):
+    heading = ev.heading[method] = heading_errors(a.est_aligned, ref)
+    r["heading_rmse_deg"] = float(np.sqrt(np.mean(heading**2)))
+    r["heading_max_deg"] = float(np.max(np.abs(heading)))
+    ev.rpe[method] = []
+    for delta in RPE_DELTAS_M:
         try:
-            e = rpe(est[idx], ref, delta)
-            r[f"rpe_{key}_pct"] = e.trans_pct.mean
-            r[f"rpe_{key}_deg_per_m"] = e.rot_deg_per_m.mean
+            s = rpe_series(est[idx], ref, delta)
         except ValueError as exc:
             r["notes"].append(f"RPE over {delta:g} m: {exc}")
+            continue
+        ev.rpe[method].append(s)
+        r[f"rpe_{delta:g}m_pct"] = float(np.mean(s.trans_pct))
+        r[f"rpe_{delta:g}m_deg_per_m"] = float(np.mean(s.rot_deg_per_m))
 
 
 def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measurable: bool) -> None:
@@ -231,27 +355,31 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
 
 
 def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:
-    if method in METHODS and METHODS[method].segments:
+    if method in SEGMENTING_METHODS:
         r["segmentation"] = segmentation_scores(out_dir, method, labels, r["notes"])
     elif method != WHEEL_ODOMETRY:
         r["notes"].append(f"{method} does not segment moving points")
 
 
-def _speed(r: dict, method: str, ms: np.ndarray) -> None:
+def _speed(r: dict, method: str, ms: np.ndarray) -> np.ndarray:
+    """Speed statistics into ``r``; returns the timed sweeps' ms."""
     ms = ms[np.isfinite(ms)]  # the motion prior's rows carry no time
     if len(ms):
         r["ms_per_sweep_median"] = float(np.median(ms))
         r["ms_per_sweep_p95"] = float(np.percentile(ms, 95))
+        r["ms_per_sweep_mean"] = float(np.mean(ms))
+        r["ms_per_sweep_max"] = float(np.max(ms))
         r["sweeps_per_second"] = float(1000.0 / np.mean(ms))
     elif method == WHEEL_ODOMETRY:
         r["notes"].append("wheel odometry is the motion prior itself; its time is not measured per sweep")
+    return ms
 
 
 def _reduction(methods: dict[str, dict[str, Any]]) -> float | None:
     """% by which the improved method cuts the baseline's average relative feature error,
     over the features both measured."""
-    imp = (methods.get(ImprovedFrontEnd.name) or {}).get("features") or []
-    base = (methods.get(BaselineFrontEnd.name) or {}).get("features") or []
+    imp = (methods.get(IMPROVED) or {}).get("features") or []
+    base = (methods.get(BASELINE) or {}).get("features") or []
     pairs = [(a["rel_error_pct"], b["rel_error_pct"]) for a, b in zip(imp, base)
              if a["rel_error_pct"] is not None and b["rel_error_pct"] is not None]
     if not pairs:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ReportError
 from ..io.mcap_log import LogReader
 from ..io.messages import odometry_pose_twist, stamp_ns
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, WORLD_KEY
@@ -40,9 +41,55 @@ class WorldTruth:
 
 
 def read_world(reader: LogReader) -> WorldTruth:
+    """The log's ``fmcwlog.world`` record (an empty truth if it has none).
+
+    A record that breaks LOG_FORMAT.md (a key missing, JSON that does not parse, a feature
+    without its id, name or two finite ends, walls that are not ``[x1, y1, x2, y2]``) raises
+    :class:`ReportError` naming the log and the entry: scoring maps against a half-read
+    truth would be worse than no score.
+    """
     world = reader.metadata.get(WORLD_KEY)
     if not world:
         return WorldTruth()
-    features = json.loads(world["features"]) if "features" in world else []
-    walls = np.asarray(json.loads(world["walls"]), dtype=float).reshape(-1, 4) if "walls" in world else None
+    where = f"{reader.path}: {WORLD_KEY}"
+    missing = [k for k in ("features", "walls") if k not in world]
+    if missing:
+        raise ReportError(f"{where} has no {' or '.join(repr(k) for k in missing)} (LOG_FORMAT.md: features and walls)")
+    features = [_feature(f, f"{where} features[{i}]") for i, f in enumerate(_json_list(world["features"], where, "features"))]
+    if len({f["id"] for f in features}) != len(features):
+        raise ReportError(f"{where}: feature ids repeat")
+    walls = _finite(_json_list(world["walls"], where, "walls"), (-1, 4), f"{where} walls")
     return WorldTruth(features, walls)
+
+
+def _json_list(text: str, where: str, key: str) -> list:
+    try:
+        value = json.loads(text)
+    except (ValueError, RecursionError):
+        raise ReportError(f"{where}: {key!r} is not JSON") from None
+    if not isinstance(value, list):
+        raise ReportError(f"{where}: {key!r} is not a JSON list")
+    return value
+
+
+def _finite(value: object, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ReportError(f"{where}: not numbers") from None
+    if arr.size == 0 and shape[0] == -1:
+        arr = arr.reshape(0, *shape[1:])
+    if arr.ndim != len(shape) or any(s not in (-1, n) for s, n in zip(shape, arr.shape)):
+        raise ReportError(f"{where}: shape {arr.shape}, expected {' x '.join('N' if s == -1 else str(s) for s in shape)}")
+    if not np.isfinite(arr).all():
+        raise ReportError(f"{where}: a value is not finite")
+    return arr
+
+
+def _feature(f: object, where: str) -> dict:
+    if not isinstance(f, dict) or not {"id", "name", "a", "b"} <= set(f):
+        raise ReportError(f"{where}: needs id, name, a and b")
+    if not isinstance(f["id"], int) or isinstance(f["id"], bool) or not isinstance(f["name"], str):
+        raise ReportError(f"{where}: id must be a whole number and name a string")
+    a, b = (_finite(f[k], (2,), f"{where}.{k}") for k in ("a", "b"))
+    return {**f, "a": a.tolist(), "b": b.tolist()}

@@ -1,27 +1,46 @@
 """``fmcwlog report``'s pages: report.html (self-contained), report.md, report.json, a terminal table.
 
+The figures are drawn by :mod:`fmcwlog.evaluation.plots`.
+
 report.json keys (stable; ``null`` where a value cannot be computed, with the
 reason in ``notes`` or ``methods.M.notes``):
 
-- ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry``:
+- ``header``: what was run: ``fmcwlog_version_processed`` (run.json's
+  ``fmcwlog_version``), ``fmcwlog_version_report`` (the version writing the report),
+  ``report_date_utc`` (ISO 8601, ``YYYY-MM-DDTHH:MM:SSZ``), ``log``, ``scenario`` and
+  ``seed`` (an integer; from the log's ``fmcwlog.sim`` record, ``null`` for a real log),
+  ``methods`` (run.json's), ``trajectories`` (every one compared, in the page's order),
+  ``params_sha256_12`` (first 12 hex digits of the sha256 of run.json's ``params`` as
+  canonical JSON: ``json.dumps(params, sort_keys=True, separators=(",", ":"))``, UTF-8);
+- ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry`` (and any other
+  ``*.tum`` in the folder, e.g. a peer's):
   ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (SE(2)-aligned,
   evo's ``evo_ape -a``), ``ate_first_aligned_rmse_m`` (first poses aligned),
   ``rpe_1m_pct``, ``rpe_10m_pct`` (mean translation error over 1 m / 10 m of
   travel, % of the distance), ``rpe_1m_deg_per_m``, ``rpe_10m_deg_per_m`` (mean
-  yaw error per metre), ``features`` (list of ``{id, name, true_m, measured_m,
-  abs_error_m, rel_error_pct}``), ``feature_avg_rel_error_pct``,
+  yaw error per metre), ``heading_rmse_deg``, ``heading_max_deg`` (yaw error of the
+  SE(2)-aligned estimate, RMS and largest absolute, degrees), ``features`` (list of
+  ``{id, name, true_m, measured_m, abs_error_m, rel_error_pct}``; a row may carry more
+  keys, ``measured_m`` is ``null`` for a feature not measured), ``feature_avg_rel_error_pct``,
   ``segmentation`` (``precision``, ``recall``, ``f1`` and counts),
-  ``ms_per_sweep_median``, ``ms_per_sweep_p95``, ``sweeps_per_second``, ``notes``;
+  ``ms_per_sweep_median``, ``ms_per_sweep_p95``, ``ms_per_sweep_mean``,
+  ``ms_per_sweep_max`` (ms, over the timed sweeps), ``sweeps_per_second`` (1000 / mean), ``notes``;
+- ``disagreement`` (needs no ground truth): ``reference`` (``improved`` if present, else
+  the first method) and ``methods.M`` for every other trajectory: ``rmse_m``, ``mean_m``,
+  ``median_m``, ``max_m``, ``final_m`` (at the last common stamp), ``path_m`` (the
+  reference's path length over the compared stamps), ``poses``: the distance between M,
+  SE(2)-aligned onto the reference (Umeyama, no scale), and the reference, at M's stamps.
+  This is how far two estimates disagree, not an error (:mod:`fmcwlog.evaluation.along_path`);
 - ``feature_avg_rel_error_reduction_pct``: how much the improved method cuts the
   baseline's average relative feature error (the paper's figures: :mod:`fmcwlog.evaluation.published`);
-- ``paper``, ``params``, ``log``, ``out_dir``, ``sweeps``, ``doppler``, ``prior``, ``notes``.
+- ``paper``, ``params``, ``log``, ``out_dir``, ``sweeps``, ``doppler``, ``prior``, ``notes``,
+  ``schema``, ``relations_file``, ``relations_published`` (and ``methods.M.relations`` with
+  ``--relations``).
 """
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -29,12 +48,10 @@ from typing import Any
 import numpy as np
 
 from ..io.atomic import atomic_path, json_text, write_text
-from ..io.outputs import pgm_pixels, read_tum, write_tum
-from .evaluate import Evaluation
+from ..io.outputs import write_tum
+from .evaluate import GROUND_TRUTH_TUM, Evaluation
+from .plots import LABELS, all_plots
 from .published import paper_summary
-
-LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry"}
-COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#999999", "truth": "#000000"}
 
 
 def _fmt(x: Any, digits: int = 3, scale: float = 1.0, unit: str = "") -> str:
@@ -107,6 +124,13 @@ def relations_rows(result: dict) -> list[list[str]]:
     return rows
 
 
+def without_empty_columns(header: list[str], rows: list[list[str]]) -> tuple[list[str], list[list[str]]]:
+    """Drop the columns (other than the first) that hold only "—" (e.g. every error column of a log
+    without ground truth): the page says why in its notes instead."""
+    keep = [i for i in range(len(header)) if i == 0 or any(r[i] != "—" for r in rows)] if rows else range(len(header))
+    return [header[i] for i in keep], [[r[i] for i in keep] for r in rows]
+
+
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -136,14 +160,62 @@ def _summary_line(result: dict) -> str:
             f"a {red:.1f} % reduction ({paper_summary()}).")
 
 
+def header_rows(result: dict) -> list[tuple[str, str]]:
+    """What was run, as (label, value) pairs: the page's header (``result["header"]``)."""
+    h = result.get("header") or {}
+    none = "— (not in the log)"
+    return [
+        ("log", str(h.get("log", result.get("log")))),
+        ("scenario", none if h.get("scenario") is None else str(h["scenario"])),
+        ("seed", none if h.get("seed") is None else str(h["seed"])),
+        ("methods", ", ".join(h.get("methods") or []) or "—"),
+        ("trajectories compared", ", ".join(LABELS.get(m, m) for m in h.get("trajectories") or []) or "—"),
+        ("parameters digest", f"{h.get('params_sha256_12') or '—'} (sha256 of run.json's params as canonical JSON)"),
+        ("processed by", f"fmcwlog {h.get('fmcwlog_version_processed') or '— (not in run.json)'}"),
+        ("reported by", f"fmcwlog {h.get('fmcwlog_version_report')} on {h.get('report_date_utc')} (UTC)"),
+    ]
+
+
+DISAGREEMENT_HEADER = ["method", "RMSE m", "mean m", "median m", "max m", "at the end m", "over path m"]
+
+
+def disagreement_rows(result: dict) -> list[list[str]]:
+    d = result.get("disagreement") or {}
+    return [[LABELS.get(m, m), _fmt(s["rmse_m"], 3), _fmt(s["mean_m"], 3), _fmt(s["median_m"], 3), _fmt(s["max_m"], 3),
+             _fmt(s["final_m"], 3), _fmt(s["path_m"], 1)] for m, s in (d.get("methods") or {}).items()]
+
+
+def _disagreement_intro(result: dict) -> str:
+    ref = LABELS.get((result.get("disagreement") or {}).get("reference") or "", "the reference")
+    return (f"No ground truth: each trajectory is SE(2)-aligned onto the {ref} one (least squares, no scale, as "
+            f"evo_ape -a) and the distance between the two is measured at every common stamp. This is how far "
+            f"the methods disagree, not an error: the {ref} trajectory is itself an estimate, and a drift shows "
+            f"spread over the whole path by the alignment.")
+
+
+SPEED_HEADER = ["method", "sweeps", "median ms", "p95 ms", "max ms", "mean ms", "sweeps/s"]
+
+
+def speed_rows(ev: Evaluation) -> list[list[str]]:
+    return [[LABELS.get(m, m), str(len(ms)), _fmt(r["ms_per_sweep_median"], 2), _fmt(r["ms_per_sweep_p95"], 2),
+             _fmt(r["ms_per_sweep_max"], 2), _fmt(r["ms_per_sweep_mean"], 2), _fmt(r["sweeps_per_second"], 0)]
+            for m, r in ev.result["methods"].items() if len(ms := ev.sweep_ms.get(m, np.zeros(0)))]
+
+
 def render_markdown(ev: Evaluation) -> str:
     r = ev.result
     fh, fr = feature_rows(r)
-    parts = [f"# fmcwlog report: {ev.out_dir.name}", "",
+    parts = [f"# fmcwlog report: {ev.out_dir.name}", ""] + [f"- {k}: {v}" for k, v in header_rows(r)] + ["",
              f"Log `{ev.log}`, {r['sweeps']} sweeps, prior: {r['prior']}, Doppler: {'on' if r['doppler'] else 'off'}.", "",
-             "## Trajectory, segmentation, speed", "", markdown_table(TRAJECTORY_HEADER, trajectory_rows(r)), "",
-             "## Map feature lengths (the paper's Tables 2 and 3)", "",
-             markdown_table(fh, fr) if fr else "No feature lengths (see the notes).", "", _summary_line(r), ""]
+             "## Trajectory, segmentation, speed", "",
+             markdown_table(*without_empty_columns(TRAJECTORY_HEADER, trajectory_rows(r))), ""]
+    if ev.gt is None and disagreement_rows(r):
+        parts += ["## How far the methods disagree", "", _disagreement_intro(r), "",
+                  markdown_table(DISAGREEMENT_HEADER, disagreement_rows(r)), ""]
+    if speed_rows(ev):
+        parts += ["## Time per sweep", "", markdown_table(SPEED_HEADER, speed_rows(ev)), ""]
+    parts += ["## Map feature lengths (the paper's Tables 2 and 3)", "",
+              markdown_table(fh, fr) if fr else "No feature lengths (see the notes).", "", _summary_line(r), ""]
     rel = relations_rows(r)
     if rel:
         parts += [f"## Relations metric ({r['relations_file']})", "", markdown_table(RELATIONS_HEADER, rel), ""]
@@ -154,166 +226,92 @@ def render_markdown(ev: Evaluation) -> str:
     return "\n".join(parts)
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
-
-
-def _plots(ev: Evaluation, walls: np.ndarray | None) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plots: dict[str, str] = {}
-    r = ev.result
-    if ev.gt is not None and ev.aligned:
-        fig, ax = plt.subplots(figsize=(7.5, 7))
-        if walls is not None and len(walls):
-            for x1, y1, x2, y2 in walls:
-                ax.plot([x1, x2], [y1, y2], color="#bbbbbb", lw=1.5)
-        ax.plot(ev.gt[:, 0], ev.gt[:, 1], color=COLORS["truth"], lw=1.2, label="ground truth")
-        for m, (_, est, _) in ev.aligned.items():
-            ax.plot(est[:, 0], est[:, 1], color=COLORS.get(m), lw=1.0, label=LABELS.get(m, m))
-        ax.set_aspect("equal")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_title("Trajectories (SE(2)-aligned to ground truth) over the world's walls")
-        ax.legend(loc="best", fontsize=8)
-        plots["trajectories"] = _png(fig)
-
-        fig, ax = plt.subplots(figsize=(8, 3.2))
-        for m, (t, _, err) in ev.aligned.items():
-            ax.plot(t - t[0], err * 100, color=COLORS.get(m), lw=1, label=LABELS.get(m, m))
-        ax.set_xlabel("time since first sweep (s)")
-        ax.set_ylabel("position error (cm)")
-        ax.set_yscale("log")
-        ax.set_title("Absolute position error along the path")
-        ax.legend(fontsize=8)
-        plots["errors"] = _png(fig)
-
-    feats = {m: r["methods"][m]["features"] for m in ("baseline", "improved")
-             if (r["methods"].get(m) or {}).get("features")}
-    if feats:
-        fig, ax = plt.subplots(figsize=(8, 3.2))
-        first = next(iter(feats.values()))
-        x = np.arange(len(first))
-        width = 0.8 / len(feats)
-        for i, (m, fs) in enumerate(feats.items()):
-            vals = [f["rel_error_pct"] if f["rel_error_pct"] is not None else np.nan for f in fs]
-            ax.bar(x + (i - (len(feats) - 1) / 2) * width, vals, width, color=COLORS[m], label=LABELS[m])
-        ax.set_xticks(x, [str(f["id"]) for f in first])
-        ax.set_xlabel("feature")
-        ax.set_ylabel("relative error (%)")
-        ax.set_title("Relative error of the feature lengths (as the paper's Figure 4)")
-        ax.legend(fontsize=8)
-        plots["features"] = _png(fig)
-    for m in ("improved", "baseline"):
-        fig = _trajectory_over_own_map(ev.out_dir, m)
-        if fig is not None:
-            plots[f"map_{m}"] = _png(fig)
-        fig = loop_closures_over_map(ev.out_dir, m)
-        if fig is not None:
-            plots[f"closures_{m}"] = _png(fig)
-    return plots
-
-
-def loop_closures_over_map(out_dir: Path, method: str):
-    """The back end's loop closures (``<method>_backend.json``) drawn on the method's map: each a
-    segment between its two nodes at their optimised poses, green where the Cauchy kernel kept it,
-    red where it did not; the front end's own trajectory dashed. None without a back end."""
-    import matplotlib.pyplot as plt
-
-    graph = out_dir / f"{method}_backend.json"
-    fig = _trajectory_over_own_map(out_dir, method) if graph.is_file() else None
-    if fig is None:
-        return None
-    ax = fig.axes[0]
-    data = json.loads(graph.read_text())
-    stamps = np.asarray(data["nodes"]["stamp_ns"], np.int64)
-    xy = np.column_stack([data["nodes"]["x"], data["nodes"]["y"]])
-    at = {int(s): i for i, s in enumerate(stamps)}
-    for kept, color in ((True, "#1565c0"), (False, "#d32f2f")):
-        segs = [(xy[at[c["candidate_stamp_ns"]]], xy[at[c["query_stamp_ns"]]]) for c in data["closures"]
-                if c["accepted"] is kept]
-        for a, b in segs:
-            ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=0.8, alpha=0.8)
-        ax.plot([], [], color=color, lw=0.8, label=f"loop closures {'kept' if kept else 'down-weighted'} ({len(segs)})")
-    front = out_dir / f"{method}_frontend.tum"
-    if front.is_file():
-        _, fposes = read_tum(front)
-        ax.plot(fposes[:, 0], fposes[:, 1], color="#777777", lw=0.7, ls="--", label="front end alone")
-    ax.set_title(f"Loop closures of the {LABELS.get(method, method)} method's back end, on its map")
-    ax.legend(loc="upper right", fontsize=7)
-    plt.figure(fig.number)
-    return fig
-
-
-def _trajectory_over_own_map(out_dir: Path, method: str):
-    """The occupancy map a method built, with its own trajectory on it (its own frame; no ground truth needed)."""
-    import matplotlib.pyplot as plt
-    import yaml
-
-
-    pgm, meta, tum = (out_dir / f"{method}_map.pgm", out_dir / f"{method}_map.yaml", out_dir / f"{method}.tum")
-    if not (pgm.is_file() and meta.is_file() and tum.is_file()):
-        return None
-    info = yaml.safe_load(meta.read_text())
-    img = pgm_pixels(pgm.read_bytes())
-    res, (ox, oy) = float(info["resolution"]), info["origin"][:2]
-    h, w = img.shape
-    _, poses = read_tum(tum)
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    ax.imshow(img, cmap="gray", vmin=0, vmax=255, extent=(ox, ox + w * res, oy, oy + h * res), interpolation="nearest")
-    ax.plot(poses[:, 0], poses[:, 1], color=COLORS.get(method), lw=1.0, label=f"{LABELS.get(method, method)} trajectory")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(f"Map built by the {LABELS.get(method, method)} method, with its trajectory")
-    ax.legend(loc="upper right", fontsize=8)
-    return fig
-
-
-def _html_table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+def _html_table(header: list[str], rows: list[list[str]], text_columns: int = 1) -> str:
+    """A table whose first ``text_columns`` columns are text (left-aligned), the others numbers."""
+    left = ' class="text"'
+    head = "".join(f"<th{left if i < text_columns else ''}>{html.escape(h)}</th>" for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(f"<td{left if i < text_columns else ''}>{html.escape(c)}</td>"
+                                    for i, c in enumerate(r)) + "</tr>" for r in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def render_html(ev: Evaluation, walls: np.ndarray | None) -> str:
+_STYLE = """
+body { font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }
+th { background: #f3f3f3; } .text { text-align: left; }
+table.header td { text-align: left; border: none; padding: 0.1em 1em 0.1em 0; }
+table.header td:first-child { color: #666; }
+figure { margin: 1em 0; } img { max-width: 100%; border: 1px solid #eee; }
+figcaption { font-size: 0.85em; color: #555; } .grid { display: flex; flex-wrap: wrap; gap: 1em; }
+.grid figure { flex: 1 1 45%; margin: 0; }
+pre { background: #f7f7f7; padding: 1em; overflow-x: auto; font-size: 0.85em; }
+"""
+
+
+def _header_html(r: dict) -> str:
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in header_rows(r))
+    return f'<table class="header">{rows}</table>'
+
+
+def _ground_truth_html(r: dict, img) -> str:
+    """The trajectory section's figures against ground truth; without it, the methods' disagreement."""
+    if "trajectories" in img.plots:
+        errors = "".join(img(f"error_{m}", f"{LABELS.get(m, m)} trajectory coloured by its position error")
+                         for m in r["methods"])
+        return f"""{img("trajectories", "trajectories over the world's walls")}
+<h3>Position error along the path</h3><div class="grid">{errors}</div>
+{img("errors", "position error along the path")}
+<h3>Relative pose error against distance travelled</h3>
+{img("rpe", "relative pose error of each pair against distance travelled")}
+<h3>Heading error</h3>
+{img("heading", "heading error over time")}"""
+    if not disagreement_rows(r):
+        return ""
+    return f"""<h2>How far the methods disagree (no ground truth)</h2>
+<p>{html.escape(_disagreement_intro(r))}</p>
+{_html_table(DISAGREEMENT_HEADER, disagreement_rows(r))}
+{img("aligned_on_map", "trajectories aligned onto the reference one, over its map")}
+{img("disagreement", "disagreement between the methods along the path")}"""
+
+
+class _Figures:
+    """``img(key, alt)``: a figure with its caption, or nothing if that plot was not drawn."""
+
+    def __init__(self, plots: dict[str, str]):
+        self.plots = plots
+
+    def __call__(self, key: str, alt: str) -> str:
+        if key not in self.plots:
+            return ""
+        return f'<figure><img alt="{html.escape(alt)}" src="{self.plots[key]}"><figcaption>{html.escape(alt)}' \
+               "</figcaption></figure>"
+
+
+def render_html(ev: Evaluation) -> str:
     r = ev.result
-    plots = _plots(ev, walls)
+    img = _Figures(all_plots(ev))
     fh, fr = feature_rows(r)
-    img = lambda key, alt: (f'<figure><img alt="{alt}" src="{plots[key]}"><figcaption>{alt}</figcaption></figure>'
-                            if key in plots else "")
     notes = _notes(r)
     maps = "".join(img(f"map_{m}", f"occupancy map built by the {m} method, with its trajectory")
                    for m in ("improved", "baseline"))
     maps += "".join(img(f"closures_{m}", f"the {m} method's loop closures on its map") for m in ("improved", "baseline"))
+    digest = (r.get("header") or {}).get("params_sha256_12")
+    speed = speed_rows(ev)
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>fmcwlog report: {html.escape(ev.out_dir.name)}</title>
-<style>
-body {{ font-family: system-ui, sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; color: #222; }}
-table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
-th, td {{ border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }}
-th {{ background: #f3f3f3; }} td:first-child, th:first-child {{ text-align: left; }}
-figure {{ margin: 1em 0; }} img {{ max-width: 100%; border: 1px solid #eee; }}
-figcaption {{ font-size: 0.85em; color: #555; }} .maps {{ display: flex; flex-wrap: wrap; gap: 1em; }}
-.maps figure {{ flex: 1 1 45%; }}
-pre {{ background: #f7f7f7; padding: 1em; overflow-x: auto; font-size: 0.85em; }}
-</style></head><body>
+<style>{_STYLE}</style></head><body>
 <h1>fmcwlog report: {html.escape(ev.out_dir.name)}</h1>
+{_header_html(r)}
 <p>Log <code>{html.escape(str(ev.log))}</code>: {r['sweeps']} sweeps; motion prior: {html.escape(str(r['prior']))};
 Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 <h2>Trajectory, segmentation, speed</h2>
-{_html_table(TRAJECTORY_HEADER, trajectory_rows(r))}
-{img("trajectories", "trajectories over the world's walls")}
-{img("errors", "position error along the path")}
+{_html_table(*without_empty_columns(TRAJECTORY_HEADER, trajectory_rows(r)))}
+{_ground_truth_html(r, img)}
+{f"<h2>Time per sweep</h2>{_html_table(SPEED_HEADER, speed)}" if speed else ""}
+{img("sweep_times", "time per sweep of each method")}
 <h2>Map feature lengths (the paper's Tables 2 and 3)</h2>
-{_html_table(fh, fr) if fr else "<p>No feature lengths (see the notes).</p>"}
+{_html_table(fh, fr, text_columns=2) if fr else "<p>No feature lengths (see the notes).</p>"}
 <p>{html.escape(_summary_line(r))}</p>
 {img("features", "relative error of each feature, both methods")}
 <p>How a feature is measured: the points each method kept for its map that saw an end of the feature
@@ -321,9 +319,10 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 distance between the two ends' averages, less the same distance with ground-truth placement, is the
 method's error on that length.</p>
 {_relations_html(r)}
-<h2>Maps</h2><div class="maps">{maps}</div>
+<h2>Maps</h2><div class="grid">{maps}</div>
 <h2>Notes</h2>{"<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else "<p>None.</p>"}
-<h2>Parameters</h2><pre>{html.escape(json.dumps(r['params'], indent=2))}</pre>
+<h2>Parameters (digest {html.escape(str(digest))})</h2>
+<details><summary>run.json's params</summary><pre>{html.escape(json.dumps(r['params'], indent=2))}</pre></details>
 </body></html>
 """
 
@@ -342,11 +341,11 @@ def write_report(ev: Evaluation) -> list[Path]:
     ``evo_ape tum gt.tum improved.tum -a``)."""
     out = []
     if ev.gt_ns is not None and ev.gt is not None:
-        with atomic_path(ev.out_dir / "gt.tum") as tmp:
+        with atomic_path(ev.out_dir / GROUND_TRUTH_TUM) as tmp:
             write_tum(tmp, ev.gt_ns, ev.gt)
-        out.append(ev.out_dir / "gt.tum")
+        out.append(ev.out_dir / GROUND_TRUTH_TUM)
     for name, text in (("report.json", json_text(ev.result)), ("report.md", render_markdown(ev)),
-                       ("report.html", render_html(ev, ev.walls))):
+                       ("report.html", render_html(ev))):
         write_text(ev.out_dir / name, text)
         out.append(ev.out_dir / name)
     return out

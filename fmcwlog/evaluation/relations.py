@@ -50,9 +50,11 @@ def read_relations(path: str | Path) -> np.ndarray:
     path = Path(path)
     rows = []
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise RelationsError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise RelationsError(f"{path}: not a text file (it is not UTF-8)") from None
     for i, line in enumerate(lines, 1):
         tok = line.split()
         if not tok or tok[0].startswith("#"):
@@ -63,6 +65,8 @@ def read_relations(path: str | Path) -> np.ndarray:
             v = [float(x) for x in tok]
         except ValueError:
             raise RelationsError(f"{path}: line {i} holds a value that is not a number") from None
+        if not all(np.isfinite(v)):
+            raise RelationsError(f"{path}: line {i} holds a value that is not finite (NaN or infinity)")
         rows.append([v[0], v[1], v[2], v[3], v[7]])
     if not rows:
         raise RelationsError(f"{path}: no relations")

@@ -5,7 +5,11 @@ One module per stage, each pure functions on numpy arrays (KISS-ICP's layout):
 - ``odometry``            wheel odometry of the rear axle (paper eq. 9, 13)
 - ``motion_prior``        the odometry (ticks or an Odometry topic) as poses readable at any time
 - ``egomotion``           the sensor's velocity from one sweep's Doppler field (NOTES.md)
+- ``twist_fusion``        the robot's twist from Doppler and the wheels, at any mount
+- ``sensor_checks``       Doppler against the wheels, the scans as arbiter; faulty sources dropped
+- ``self_calibration``    the lidar's mount and the wheels' radii estimated from the log itself
 - ``segmentation``        moving points by DBSCAN over position and compensated Doppler (eq. 17-19)
+- ``tracking``            movers followed over time and seen in the map's free space, across the beams too
 - ``deskew``              every point to the sweep's stamp under a constant twist
 - ``local_map``           the voxel map scans are matched against
 - ``gmmsc``               false-match rejection by a mixture on pair distances (eq. 20-21)

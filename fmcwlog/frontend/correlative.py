@@ -34,18 +34,23 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..config import Checked, param
 from ..geometry import wrap_angle
+
+# the grids carry a frame of zeros coarse_factor^(levels-1) cells wide: 8^3 cells at most
+MAX_LEVELS = 4
+MAX_COARSE_FACTOR = 8
 
 
 @dataclass(frozen=True)
-class CorrelativeParams:
+class CorrelativeParams(Checked):
     """Search window and grids of :func:`correlative_match`.
 
     linear_window: half-width of the search in x and y around the prior (m, > 0).
     angular_window_deg: half-width of the search in yaw (deg, > 0).
     resolution: fine grid cell and finest translation step (m, > 0).
     coarse_factor: each level's translation step is this many of the next's (≥ 2; 4 × 5 cm = 20 cm).
-    levels: levels of the branch and bound (≥ 1): the coarsest step is ``coarse_factor^(levels-1)``
+    levels: levels of the branch and bound (1 to :data:`MAX_LEVELS`): the coarsest step is ``coarse_factor^(levels-1)``
         fine cells (use 3 for windows of metres).
     sigma: width of the likelihood around a target point (m, > 0).
     max_points: source points scored (evenly subsampled; ≥ 10): the cost is linear in it.
@@ -54,16 +59,17 @@ class CorrelativeParams:
         to another peak (see the module docstring).
     """
 
-    linear_window: float = 0.5
-    angular_window_deg: float = 10.0
-    resolution: float = 0.05
-    coarse_factor: int = 4
-    levels: int = 2
-    sigma: float = 0.075
-    max_points: int = 300
-    max_rotations: int = 121
-    peak_separation: float = 0.3
-    peak_separation_deg: float = 5.0
+    linear_window: float = param(0.5, "m", gt=0.0, le=20.0)
+    angular_window_deg: float = param(10.0, "deg", gt=0.0, le=180.0)
+    # below 1 cm a window of metres is a grid of 10⁷ cells and more
+    resolution: float = param(0.05, "m", ge=0.01, le=1.0)
+    coarse_factor: int = param(4, "", ge=2, le=MAX_COARSE_FACTOR)
+    levels: int = param(2, "", ge=1, le=MAX_LEVELS)
+    sigma: float = param(0.075, "m", gt=0.0, le=1.0)
+    max_points: int = param(300, "points", ge=10, le=100_000)
+    max_rotations: int = param(121, "", ge=3, le=3601)
+    peak_separation: float = param(0.3, "m", gt=0.0, le=20.0)
+    peak_separation_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
 
 
 class LikelihoodGrid:

@@ -27,12 +27,16 @@ class EgoMotion:
     covariance: (2, 2) covariance of ``v_sensor``, (m/s)².
     inliers: (N,) bool, points consistent with a static world.
     sigma: robust residual standard deviation of the inliers, m/s.
+    unconstrained: with a ``prior``, the fit the largest consensus gives when it lies
+        outside the prior's gate (the gate changed the answer: a crowd moving together,
+        or a prior that is wrong), else None; never itself has an ``unconstrained``.
     """
 
     v_sensor: np.ndarray
     covariance: np.ndarray
     inliers: np.ndarray
     sigma: float
+    unconstrained: EgoMotion | None = None
 
     @property
     def n_inliers(self) -> int:
@@ -107,6 +111,11 @@ def fit_sensor_velocity(
     crowd moving together outvoting the static world: it is one more
     hypothesis, and hypotheses farther than ``prior_gate`` (m/s) from it are
     discarded. Without a prior the largest consensus wins, whatever it is.
+    When the gate discards a larger consensus than the one it keeps, that one is
+    refit too and returned as ``unconstrained``: it is how a wrong prior (wheels
+    counting the wrong way) or a wrong Doppler sign shows (:mod:`.sensor_checks`).
+    Every hypothesis is scored either way, so the check costs a second refit only
+    on sweeps where the gate changed the answer.
 
     ``inlier_threshold`` should be several σ of the Doppler noise: with 0.1 m/s
     quantisation σ ≈ 0.03 m/s, so 0.15 m/s. The covariance is ``σ² (AᵀA)⁻¹``
@@ -115,8 +124,7 @@ def fit_sensor_velocity(
     xy = np.asarray(xy, dtype=float)
     v_r = np.asarray(v_r, dtype=float)
     n = xy.shape[0]
-    nan2 = np.full(2, np.nan)
-    failed = EgoMotion(nan2, np.full((2, 2), np.nan), np.zeros(n, bool), float("nan"))
+    failed = _failed(n)
     u = unit_bearings(xy)
     valid = np.isfinite(v_r) & np.any(u != 0.0, axis=1)
     if valid.sum() < 3:
@@ -135,13 +143,31 @@ def fit_sensor_velocity(
     hyp = np.stack(
         [(bi * uj[:, 1] - bj * ui[:, 1]) / det, (ui[:, 0] * bj - uj[:, 0] * bi) / det], -1
     )
-    if prior is not None and np.all(np.isfinite(prior)):
+    has_prior = prior is not None and bool(np.all(np.isfinite(prior)))
+    if has_prior:
         hyp = np.vstack([hyp, np.asarray(prior, dtype=float)[None, :]])
-        hyp = hyp[np.hypot(*(hyp - prior).T) <= prior_gate]  # the prior itself always survives
     sc = idx[:: max(1, idx.size // score_points)]  # strided subset for scoring
     res = v_r[sc][None, :] + hyp @ u[sc].T  # (H, n_score) residuals ε
-    best = int(np.argmax((np.abs(res) < inlier_threshold).sum(axis=1)))
-    v = hyp[best]
+    score = (np.abs(res) < inlier_threshold).sum(axis=1)
+    if not has_prior:
+        return _refine(u, v_r, valid, hyp[int(np.argmax(score))], inlier_threshold, refinements)
+    in_gate = np.hypot(*(hyp - prior).T) <= prior_gate  # the prior itself always passes
+    best = int(np.argmax(np.where(in_gate, score, -1)))
+    fit = _refine(u, v_r, valid, hyp[best], inlier_threshold, refinements)
+    free = int(np.argmax(score[:-1])) if len(score) > 1 else best
+    if not in_gate[free] and score[free] > score[best]:  # the gate changed the answer: say what it hid
+        fit.unconstrained = _refine(u, v_r, valid, hyp[free], inlier_threshold, refinements)
+    return fit
+
+
+def _failed(n: int) -> EgoMotion:
+    return EgoMotion(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(n, bool), float("nan"))
+
+
+def _refine(u: np.ndarray, v_r: np.ndarray, valid: np.ndarray, v: np.ndarray, inlier_threshold: float,
+            refinements: int) -> EgoMotion:
+    """Least squares on the inliers of ``v``, re-selected ``refinements`` times (step 2 above)."""
+    failed = _failed(len(v_r))
     try:
         for _ in range(max(1, refinements)):
             eps = v_r + u @ v
@@ -190,7 +216,9 @@ def base_twist_from_sensor_velocity(
     (error ``ω l_y``), else NaN. The covariance is propagated linearly from
     ``covariance`` (2x2 of ``v_sensor``) if given, else NaN.
     The constraint fails when the rear wheels slide sideways (NOTES): treat
-    the result as a measurement, not truth.
+    the result as a measurement, not truth. The front end no longer inverts the
+    mount this way (it has no answer over the axle); it fuses Doppler with the
+    wheels instead (:mod:`.twist_fusion`).
     """
     c, s = np.cos(lidar_yaw), np.sin(lidar_yaw)
     rot = np.array([[c, -s], [s, c]])

@@ -39,9 +39,11 @@ from scipy.special import ndtr
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.mixture import GaussianMixture
 
+from ..config import Checked, param
+
 
 @dataclass(frozen=True)
-class GMMSCParams:
+class GMMSCParams(Checked):
     """Parameters of the distance mixture.
 
     n_components: K in eq. 20 (1 disables rejection: every weight is 1).
@@ -58,16 +60,17 @@ class GMMSCParams:
         anyway; this fixes anything sklearn might still draw).
     """
 
-    n_components: int = 2
-    w_th: float = 0.5
-    max_iter: int = 10
-    tol: float = 1e-3
-    min_pairs: int = 10
-    min_spread: float = 1e-9
-    merge_overlap: float = 0.2
-    reg_covar: float = 1e-10
-    max_fit_samples: int = 500
-    random_state: int = 0
+    n_components: int = param(2, "", ge=1, le=10)
+    w_th: float = param(0.5, "", ge=0.0, le=1.0)  # a posterior
+    max_iter: int = param(10, "", ge=1, le=10_000)
+    tol: float = param(1e-3, "", gt=0.0, le=1.0)
+    min_pairs: int = param(10, "pairs", ge=1, le=1_000_000)
+    min_spread: float = param(1e-9, "m", ge=0.0, le=1.0)
+    merge_overlap: float = param(0.2, "", ge=0.0, le=1.0)  # a fraction of mass; 1 disables merging
+    # sklearn refuses a negative floor, and 0 lets a component collapse onto one distance
+    reg_covar: float = param(1e-10, "m^2", gt=0.0, le=1.0)
+    max_fit_samples: int = param(500, "pairs", ge=2, le=10_000_000)
+    random_state: int = param(0, "", ge=0, le=2**32 - 1)  # sklearn takes a 32-bit seed
 
 
 @dataclass(frozen=True)

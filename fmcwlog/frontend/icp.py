@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..config import Checked, param
 from ..geometry import transform_points, wrap_angle
 from .gmmsc import DistanceMixture, GMMSCParams
 
 
 @dataclass(frozen=True)
-class ICPParams:
+class ICPParams(Checked):
     """Parameters shared by :func:`register` and :func:`register_point_to_point`.
 
     max_iterations: iteration cap.
@@ -47,23 +48,26 @@ class ICPParams:
     workers: threads for the KD-tree query (1: the per-sweep budget is tiny).
     """
 
-    max_iterations: int = 30
-    max_correspondence_distance: float = 0.5
-    translation_tol: float = 1e-4
-    rotation_tol: float = 5e-5
-    min_correspondences: int = 10
-    huber_delta: float = 0.05
+    max_iterations: int = param(30, "", ge=1, le=1000)
+    max_correspondence_distance: float = param(0.5, "m", gt=0.0, le=100.0)
+    # tolerances: a zero tolerance never stops before max_iterations; 1 m / 1 rad steps are not convergence
+    translation_tol: float = param(1e-4, "m", gt=0.0, le=1.0)
+    rotation_tol: float = param(5e-5, "rad", gt=0.0, le=1.0)
+    # fewer than 2 pairs leave the 3 unknowns of an SE(2) step undetermined
+    min_correspondences: int = param(10, "pairs", ge=2, le=1_000_000)
+    # δ beyond 1 m makes the kernel plain least squares for any pair the 0.5 m gate lets through
+    huber_delta: float = param(0.05, "m", gt=0.0, le=1.0)
     use_huber: bool = True
     use_gmmsc: bool = True
     gmmsc: GMMSCParams = field(default_factory=GMMSCParams)
-    gmm_start_translation: float = 2e-3
-    gmm_start_rotation: float = 2e-3
-    gmm_refit_ratio: float = 0.25
+    gmm_start_translation: float = param(2e-3, "m", gt=0.0, le=1.0)
+    gmm_start_rotation: float = param(2e-3, "rad", gt=0.0, le=1.0)
+    gmm_refit_ratio: float = param(0.25, "", gt=0.0, le=1.0)  # 1 refits every iteration; above 1 means the same
     extrapolate: bool = True
-    max_extrapolation: float = 10.0
-    extrapolation_min_cos: float = 0.9
-    extrapolation_lever: float = 3.0
-    workers: int = 1
+    max_extrapolation: float = param(10.0, "", ge=0.0, le=100.0)  # extra steps; 0 never extrapolates
+    extrapolation_min_cos: float = param(0.9, "", ge=-1.0, le=1.0)
+    extrapolation_lever: float = param(3.0, "m", ge=0.0, le=100.0)  # turns rad into m to compare steps
+    workers: int = param(1, "threads", ge=1, le=1024)  # scipy's -1 (all cores) is not offered: sweeps are tiny
 
 
 @dataclass

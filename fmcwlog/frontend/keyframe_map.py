@@ -22,12 +22,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..config import Checked, param
 from .correlative import CorrelativeParams, LikelihoodGrid, grid_for
 from .local_map import voxel_keys
 
 
 @dataclass(frozen=True)
-class LocalMapParams:
+class LocalMapParams(Checked):
     """window_distance: keyframes more than this far back along the path leave the map (m, > 0).
     max_keyframes: at most this many keyframes (≥ 1), whatever the distance (turning on the spot).
     min_keyframes: at least this many stay (≥ 1), however far back (a long straight gap).
@@ -38,10 +39,10 @@ class LocalMapParams:
         0.6-2.3° off, each reverting at the next sweep. A log without per-point times (duration
         0) is never held back."""
 
-    window_distance: float = 10.0
-    max_keyframes: int = 60
-    min_keyframes: int = 3
-    max_twist_skew_deg: float = 0.5
+    window_distance: float = param(10.0, "m", gt=0.0, le=1000.0)
+    max_keyframes: int = param(60, "keyframes", ge=1, le=10_000)
+    min_keyframes: int = param(3, "keyframes", ge=1, le=10_000)
+    max_twist_skew_deg: float = param(0.5, "deg", ge=0.0, le=180.0)
 
 
 @dataclass

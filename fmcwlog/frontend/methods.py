@@ -4,14 +4,19 @@ For every sweep (stamp ``t_k`` = its first beam):
 
 improved (paper §4, with NOTES.md's corrections)
   1. ego-motion from Doppler: the sensor's velocity fitted robustly to the
-     static points' radial velocities (:mod:`.egomotion`), turned into the robot's
-     ``(v, ω)`` with the rear axle's no-slide constraint;
+     static points' radial velocities (:mod:`.egomotion`), fused with the wheels'
+     ``(v, ω)`` through the rear axle's no-slide constraint by weighted least squares
+     (:mod:`.twist_fusion`): Doppler gives what it observes at the mount (over the
+     axle, not ``ω``), the wheels the rest, and nothing is singular at any mount;
+     Doppler and the wheels are checked against each other and the scans
+     (:mod:`.sensor_checks`), and a source found faulty is dropped;
   2. segmentation: DBSCAN over position and *ego-motion-compensated* velocity
-     (eq. 17-19, :mod:`.segmentation`); moving points leave matching and the map;
+     (eq. 17-19, :mod:`.segmentation`), and movers followed over time and seen in
+     the map's free space (:mod:`.tracking`); moving points leave matching and the map;
   3. deskew every point to ``t_k`` with the Doppler twist (:mod:`.deskew`);
-  4. prior: the previous pose moved by the Doppler twist over ``t_k - t_{k-1}``,
-     also used as a soft constraint in the ICP so that a geometrically
-     degenerate scene (a bare corridor) cannot slide along its axis;
+  4. prior: the previous pose moved by the fused twist over ``t_k - t_{k-1}``,
+     also used (with the fused covariance) as a soft constraint in the ICP so that
+     a geometrically degenerate scene (a bare corridor) cannot slide along its axis;
   5. correspondences by nearest neighbour in the voxel map (:mod:`.local_map`),
      GMMSC rejection (eq. 20-21, :mod:`.gmmsc`), Huber-robust Gauss-Newton ICP
      (eq. 22-26, :mod:`.robust_icp`).
@@ -23,6 +28,9 @@ baseline (the paper's "before improvement")
 
 Without Doppler (a LaserScan topic, or a cloud with no ``velocity`` field) the
 improved method keeps GMMSC and the robust kernel and uses the odometry prior.
+Along the way it keeps per-sweep sums (Doppler velocity, wheel turns, scan-matched
+heading changes) for the calibration check (:mod:`.self_calibration`), run once at
+the end of the log.
 
 Both maps take a keyframe's points when the robot has moved or turned enough
 since the last one, which also bounds the KD-tree rebuilds.
@@ -45,24 +53,30 @@ from ..io.calibration import Calibration
 from ..io.inputs import SweepInput
 from .correlative import LikelihoodGrid, correlative_match
 from .deskew import deskew, se2_exp
-from .egomotion import (
-    base_twist_from_sensor_velocity,
-    compensated_velocity,
-    fit_sensor_velocity,
-    sensor_velocity_from_base_twist,
-)
+from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
 from .local_map import voxel_downsample
+from .names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY  # noqa: F401 (re-exported)
 from .occupancy import OccupancyGrid, OccupancyParams
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
 from .robust_icp import register
 from .segmentation import segment_moving
-
-WHEEL_ODOMETRY = "wheel_odometry"  # the motion prior's own trajectory, written beside the methods'
+from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
+from .sensor_checks import DOPPLER, WHEELS, SensorChecks
+from .tracking import MoverTracker
+from .twist_fusion import (
+    FusedTwist,
+    TwistSources,
+    doppler_design,
+    fuse_twist,
+    hold_covariance,
+    observability,
+    wheel_covariance,
+)
 
 
 @dataclass(frozen=True)
@@ -73,27 +87,32 @@ class PriorMotion:
     since_last: base_link's motion (x, y, yaw) from the previous sweep's stamp to
         this one's, in its frame at the previous stamp; None for the first sweep or
         without a prior.
+    span: the interval ``[stamp, stamp + span]`` (s) that ``twist`` and ``turns`` cover.
+    turns: how far each rear wheel turned over ``span`` (rad; left, right), from the
+        ticks alone (no radii); None without ticks.
+    turns_since_last: the same from the previous sweep's stamp to this one's.
     """
 
     twist: tuple[float, float] | None = None
     since_last: np.ndarray | None = None
+    span: float = 0.0
+    turns: tuple[float, float] | None = None
+    turns_since_last: tuple[float, float] | None = None
 
 
 @dataclass
 class Doppler:
-    """The Doppler stages' output for one sweep (improved method): the robot's twist from the
-    sensor's velocity (m/s, rad/s; NaN where unobservable), its variances, and the moving mask."""
+    """The Doppler stages' output for one sweep (improved method): the lidar origin's velocity
+    (lidar frame, m/s; NaN where the fit failed), its (2, 2) covariance, and the moving mask.
+    The robot's twist is made from it and the wheels by :mod:`.twist_fusion`."""
 
-    v: float
-    omega: float
-    v_var: float
-    omega_var: float
+    v_sensor: np.ndarray
+    covariance: np.ndarray
     moving: np.ndarray
-    v_omega_cov: float = 0.0
 
     @property
     def usable(self) -> bool:
-        return bool(np.isfinite(self.v) and np.isfinite(self.omega))
+        return bool(np.all(np.isfinite(self.v_sensor)) and np.all(np.isfinite(self.covariance)))
 
 
 @dataclass
@@ -106,6 +125,8 @@ class MotionEstimate:
     doppler: the Doppler stages' output (improved method with Doppler), else None.
     segmented: ``moving`` is a segmentation's verdict (else no point was judged).
     twist_covariance: (2, 2) of ``twist`` when it was measured (the Doppler fit), else None.
+    fused: Doppler and the wheels fused (:mod:`.twist_fusion`), where Doppler was usable;
+        with ``doppler_twist`` off it only sets the ICP's prior, not ``twist``.
     """
 
     twist: tuple[float, float]
@@ -114,6 +135,7 @@ class MotionEstimate:
     doppler: Doppler | None = None
     segmented: bool = False
     twist_covariance: np.ndarray | None = None
+    fused: FusedTwist | None = None
 
 
 @dataclass
@@ -186,6 +208,13 @@ class FrontEnd:
         ``initial`` (default ``motion.predicted``, which stays the prior either way)."""
         raise NotImplementedError  # pragma: no cover - abstract
 
+    def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:
+        """Called with the sweep's final pose before it replaces ``self.pose`` (nothing by default)."""
+
+    def diagnostics(self, prior_name: str) -> tuple[dict, list[str]]:
+        """What ``run.json`` should say about this method's sources, and warnings (none by default)."""
+        return {}, []
+
     # --- what they share ------------------------------------------------------------------
     def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
         """The twist over the sweep from the motion prior, else the last one used."""
@@ -251,6 +280,7 @@ class FrontEnd:
         static_map = transform_points(pose, pts)
         skew = abs(omega - self.last_twist[1]) * float(t.max(initial=0.0)) if self.pose is not None else 0.0
         keyframe = self._update_maps(pose, static_map, skew)
+        self.after_step(pose, ts, iterations > 0, prior)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
         moving = motion.moving & ~near
         moving_xy = xy[moving]
@@ -293,68 +323,181 @@ def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.nd
 
 
 class ImprovedFrontEnd(FrontEnd):
-    """The paper's front end (§4): Doppler ego-motion and segmentation, GMMSC, robust ICP."""
+    """The paper's front end (§4): Doppler ego-motion and segmentation, GMMSC, robust ICP.
 
-    name = "improved"
+    Its twist is Doppler's fused with the wheels' (:mod:`.twist_fusion`), which holds at any
+    mount; :mod:`.sensor_checks` watches the two against each other and against the scans;
+    the per-sweep sums for the calibration check (:mod:`.self_calibration`) are kept here.
+    """
+
+    name = IMPROVED
     segments = True
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         super().__init__(params, cal)
         self.mixture: DistanceMixture | None = None  # the last GMMSC mixture, reused by the next sweep's ICP
+        self.design = doppler_design(cal.mount)
+        self.checks = SensorChecks(self.mount, self.design, params.sensor_checks, params.wheel_noise)
+        self.sources = TwistSources()
+        self.samples = CalibrationSamples()
+        self.scan_twist = (0.0, 0.0)  # (v, ω) scan matching measured over the last interval: the hold
+        self._drop_wheels = False  # for this sweep: the scans sided with Doppler against the wheels
+        self._raw_fit: EgoMotion | None = None  # this sweep's Doppler fit free of the wheels' gate
+        self._registered_last = False
+        self.tracker = MoverTracker(params.tracking)  # movers followed over this log's sweeps
+
+    def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
+        """The wheels' twist, else the last scan-matched one (constant velocity)."""
+        return prior.twist if prior.twist is not None else self.scan_twist
 
     def doppler_stages(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> Doppler | None:
-        """Ego-motion and segmentation of one sweep; None without Doppler.
+        """Ego-motion and segmentation of one sweep; None without Doppler (or once it was dropped).
 
         ``prior_twist``: the odometry's ``(v, ω)`` over the sweep; the Doppler fit
         keeps within ``doppler_prior_gate`` of it, so that a crowd walking together
         cannot pass for the static world.
         """
-        if sweep.velocity is None:
+        if sweep.velocity is None or not self.checks.use_doppler:
             return None
+        ego = self.doppler_fit(sweep, prior_twist)
+        if ego is None:
+            return Doppler(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(len(sweep.xy), bool))
+        eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor)  # NOTES: threshold this, not v_r
+        # the twist only places this sweep's points in the map for tracking: the wheels' (their
+        # 0.5 % bias moves a point < 1 mm over a sweep), else the last scan-matched one
+        twist = prior_twist if prior_twist is not None and all(np.isfinite(prior_twist)) else self.scan_twist
+        moving = self.segment(sweep, eps, twist)
+        return Doppler(ego.v_sensor, ego.covariance, moving)
+
+    def doppler_fit(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> EgoMotion | None:
+        """The lidar's velocity from the sweep's Doppler (None if it cannot be fit, or the scans
+        say it is wrong for this sweep); :mod:`.sensor_checks` decides when it disputes the wheels."""
+        assert sweep.velocity is not None
         p = self.params
         expected = None
         if prior_twist is not None and all(np.isfinite(prior_twist)):
-            expected = sensor_velocity_from_base_twist(prior_twist[0], prior_twist[1], *self.cal.mount)
+            expected = self.design @ np.asarray(prior_twist, dtype=float)
         ego = fit_sensor_velocity(sweep.xy, sweep.velocity, random_state=p.seed, prior=expected,
                                   prior_gate=p.doppler_prior_gate)
-        if not np.all(np.isfinite(ego.v_sensor)):
-            return Doppler(float("nan"), float("nan"), float("nan"), float("nan"), np.zeros(len(sweep.xy), bool))
-        eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor)  # NOTES: threshold this, not v_r
-        moving = segment_moving(sweep.xy, eps, p.segmentation)
-        tw = base_twist_from_sensor_velocity(ego.v_sensor, *self.cal.mount, covariance=ego.covariance)
-        return Doppler(tw.v, tw.omega, float(tw.covariance[0, 0]), float(tw.covariance[1, 1]), moving,
-                       float(tw.covariance[0, 1]))
+        self._raw_fit = ego.unconstrained or ego
+        decision = self.checks.judge(sweep.stamp_ns * 1e-9, sweep.xy, ego, prior_twist)
+        if decision == DOPPLER and ego.unconstrained is not None:
+            self._drop_wheels = True
+            ego = ego.unconstrained
+        elif decision == WHEELS:
+            return None
+        return ego if np.all(np.isfinite(ego.v_sensor)) else None
+
+    def fuse(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
+        """Doppler's two equations and the wheels' (or the hold's) ``(v, ω)`` by weighted least squares."""
+        p = self.params
+        if wheels.twist is not None:
+            x_w, c_w = np.asarray(wheels.twist, dtype=float), wheel_covariance(wheels.twist, p.wheel_noise)
+        else:
+            x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
+        c_d = doppler.covariance + np.eye(2) * p.doppler_sigma_min**2
+        return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
+        """Moving mask (N,): DBSCAN and the Doppler verdict (eq. 17-19) and, with tracking on, the
+        movers followed from earlier sweeps and the map's free space (:mod:`.tracking`). ``eps``:
+        compensated Doppler (m/s); ``twist``: ``(v, ω)`` over the sweep, to place its points in the map."""
+        p = self.params
+        if not p.tracking.enabled:
+            return segment_moving(sweep.xy, eps, p.segmentation)
+        v, omega = twist if twist is not None and all(np.isfinite(twist)) else (0.0, 0.0)
+        ts = sweep.stamp_ns * 1e-9
+        base, yaw_error = np.zeros(3), 0.0
+        if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
+            dt = ts - self.last_stamp
+            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
+            yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
+        return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
+                                    p.segmentation, yaw_error)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
-        doppler = self.doppler_stages(sweep, prior.twist)
+        wheels = prior if self.checks.use_wheels else PriorMotion()
+        self._drop_wheels, self._raw_fit = False, None
+        doppler = self.doppler_stages(sweep, wheels.twist)
+        if self._drop_wheels:
+            wheels = PriorMotion()
+        self._keep_doppler_sample(ts, wheels)
         segmented = doppler is not None and self.params.segment
         moving = doppler.moving.copy() if doppler is not None and segmented else np.zeros(len(sweep.xy), bool)
-        if doppler is None or not doppler.usable or not self.params.doppler_twist:
-            twist = self.prior_twist(prior)
-            return MotionEstimate(twist, self.predict(ts, prior, twist), moving, doppler, segmented)
-        twist = (doppler.v, doppler.omega)
-        twist_cov = np.array([[doppler.v_var, doppler.v_omega_cov], [doppler.v_omega_cov, doppler.omega_var]])
+        fused = self.fuse(doppler, wheels) if doppler is not None and doppler.usable else None
+        self.sources.count(doppler is not None, fused, wheels.twist is not None, self.params.doppler_twist)
+        if fused is None or not self.params.doppler_twist:
+            twist = self.prior_twist(wheels)
+            return MotionEstimate(twist, self.predict(ts, wheels, twist), moving, doppler, segmented, fused=fused)
+        twist = (float(fused.twist[0]), float(fused.twist[1]))
         if self.pose is None:
             predicted = np.zeros(3)
         else:  # the twist at the middle of the interval since the last sweep
             v_mid, w_mid = 0.5 * (twist[0] + self.last_twist[0]), 0.5 * (twist[1] + self.last_twist[1])
             predicted = compose(self.pose, se2_exp(v_mid, 0.0, w_mid, np.array(ts - self.last_stamp)))
-        return MotionEstimate(twist, predicted, moving, doppler, segmented, twist_cov)
+        return MotionEstimate(twist, predicted, moving, doppler, segmented, fused.covariance, fused)
 
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:
         prior_info = None
-        d = motion.doppler
-        if d is not None and np.isfinite(d.v) and self.params.doppler_prior:
-            prior_info = doppler_prior_information(motion.predicted[2], d.v_var, d.omega_var,
+        f = motion.fused
+        if f is not None and self.params.doppler_prior:
+            prior_info = doppler_prior_information(motion.predicted[2], f.covariance[0, 0], f.covariance[1, 1],
                                                    stamp - self.last_stamp, self.params)
+            if initial is None:  # a recovery's second ICP is the same sweep
+                self.sources.prior_sweeps += 1
         start = motion.predicted if initial is None else initial
         res = register(source, self.map.tree, self.map.points, start, self.params.icp,
                        mixture=self.mixture, prior_pose=motion.predicted if prior_info is not None else None,
                        prior_information=prior_info)
         self.mixture = res.mixture
         return res
+
+    def _keep_doppler_sample(self, stamp: float, wheels: PriorMotion) -> None:
+        """This sweep's Doppler velocity and wheel turns, for the calibration check."""
+        fit = self._raw_fit
+        if fit is not None and wheels.turns is not None and wheels.span > 0 and np.all(np.isfinite(fit.covariance)):
+            self.samples.add_doppler(stamp, fit.v_sensor, fit.covariance, wheels.turns, wheels.span)
+
+    def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:
+        if self.pose is None:
+            return
+        dt = stamp - self.last_stamp
+        d = between(self.pose, pose)
+        if dt > 0:
+            self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
+        if registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels:
+            self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
+        self._registered_last = registered
+
+    def calibration_estimate(self) -> CalibrationEstimate | None:
+        """The mount and wheels the log shows (:mod:`.self_calibration`); None when it cannot say
+        (no wheel ticks or Doppler, too little motion, or a source dropped as faulty)."""
+        if self.checks.dropped_at or self.cal.wheels is None:
+            return None
+        return estimate_calibration(self.samples, self.cal, self.params.self_calibration)
+
+    def diagnostics(self, prior_name: str) -> tuple[dict, list[str]]:
+        """Where the twist came from, what the sensor checks found, and warnings about either."""
+        p = self.params
+        seen = observability(self.cal.mount, p.min_lever)
+        out = {"doppler_observes": seen, **self.sources.summary(), "sensor_checks": self.checks.summary()}
+        warnings = self.sources.warnings(seen, prior_name) + self.checks.warnings(prior_name)
+        check, check_warnings = calibration_report(self.calibration_estimate(), self.cal, p.self_calibration,
+                                                   self._why_no_calibration())
+        out["calibration_check"] = check
+        return out, warnings + check_warnings
+
+    def _why_no_calibration(self) -> str | None:
+        """Why there can be no calibration estimate; None when only too little motion would explain it."""
+        if self.cal.wheels is None:
+            return "needs wheel ticks (and the calibration's wheels)"
+        if self.checks.dropped_at:
+            return f"a source was dropped as faulty ({', '.join(sorted(self.checks.dropped_at))})"
+        if not self.samples.doppler:
+            return "needs Doppler and wheel ticks in the same sweeps"
+        return None
 
 
 def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: float,
@@ -380,7 +523,7 @@ def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: fl
 class BaselineFrontEnd(FrontEnd):
     """The classic ICP baseline: all points, the wheel-odometry prior, point-to-point ICP."""
 
-    name = "baseline"
+    name = BASELINE
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         twist = self.prior_twist(prior)
@@ -393,4 +536,3 @@ class BaselineFrontEnd(FrontEnd):
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}
-METHOD_NAMES = tuple(METHODS)

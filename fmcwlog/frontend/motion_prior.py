@@ -22,6 +22,7 @@ class PoseTrack:
         self.keep = keep_seconds
         self._t = np.empty(256)
         self._p = np.empty((256, 3))
+        self._k = np.full((256, 2), np.nan)  # cumulative ticks (left, right) at each pose; NaN from poses
         self._n = 0
         self._ticks: tuple[int, int] | None = None
         self.repeated_stamps = 0
@@ -46,12 +47,15 @@ class PoseTrack:
             if old > 0:
                 self._t[: n - old] = self._t[old:n]
                 self._p[: n - old] = self._p[old:n]
+                self._k[: n - old] = self._k[old:n]
                 n -= old
             else:
                 self._t = np.concatenate([self._t, np.empty(n)])
                 self._p = np.concatenate([self._p, np.empty((n, 3))])
+                self._k = np.concatenate([self._k, np.full((n, 2), np.nan)])
         self._t[n] = t
         self._p[n] = pose
+        self._k[n] = np.nan
         self._n = n + 1
         return True
 
@@ -59,15 +63,26 @@ class PoseTrack:
         """Integrate one encoder reading (cumulative counts) onto the last pose, exactly along an arc."""
         if self._ticks is None:
             self._ticks = (left, right)
-            return self.add_pose(t, np.zeros(3))
-        if self._n and t == self._t[self._n - 1]:
-            self.repeated_stamps += 1
-            return False
-        ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
-        pose = integrate_arcs(ds, dth, self._p[self._n - 1])[-1]
-        ok = self.add_pose(t, pose)
-        self._ticks = (left, right)
+            ok = self.add_pose(t, np.zeros(3))
+        else:
+            if self._n and t == self._t[self._n - 1]:
+                self.repeated_stamps += 1
+                return False
+            ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
+            ok = self.add_pose(t, integrate_arcs(ds, dth, self._p[self._n - 1])[-1])
+            self._ticks = (left, right)
+        if ok:
+            self._k[self._n - 1] = (left, right)
         return ok
+
+    def ticks_between(self, t0: float, t1: float) -> tuple[float, float] | None:
+        """Ticks each wheel turned from ``t0`` to ``t1`` (interpolated linearly; left, right),
+        None without ticks there. Counts are exact below 2**53 ticks."""
+        n = self._n
+        if n < 2 or self._ticks is None:  # no ticks fed (poses from an Odometry topic)
+            return None
+        k = np.interp([t0, t1], self._t[:n], self._k[:n, 0]), np.interp([t0, t1], self._t[:n], self._k[:n, 1])
+        return float(k[0][1] - k[0][0]), float(k[1][1] - k[1][0])
 
     def pose_at(self, t: float | np.ndarray) -> np.ndarray:
         """Interpolated pose(s); clamped to the first/last pose outside the kept span."""

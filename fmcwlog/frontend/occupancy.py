@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import MapSizeError
+
 
 @dataclass(frozen=True)
 class OccupancyParams:
@@ -32,6 +34,10 @@ class OccupancyParams:
     protect_hits: cells hit in a scan get no free update from that scan (keeps
         walls seen at grazing incidence from being erased by neighbouring beams).
     step_fraction: ray sampling step as a fraction of the resolution.
+    max_cells: the most cells the grid may hold. The arrays take 5 bytes a cell and the
+        map images a few times that while written: 5e7 cells (a 350 m square at 5 cm)
+        stay near 1 GB, where points thrown kilometres off by a bad pose or a 10 µm
+        resolution would otherwise ask for terabytes.
     """
 
     resolution: float = 0.05
@@ -43,6 +49,7 @@ class OccupancyParams:
     margin: float = 2.0
     protect_hits: bool = True
     step_fraction: float = 0.5
+    max_cells: int = 50_000_000
 
 
 class OccupancyGrid:
@@ -100,6 +107,7 @@ class OccupancyGrid:
         if self.width:
             nx0, ny0 = min(nx0, self.ix0), min(ny0, self.iy0)
             nx1, ny1 = max(nx1, self.ix0 + self.width), max(ny1, self.iy0 + self.height)
+        self._check_size(int(nx1 - nx0), int(ny1 - ny0))
         lo_new = np.zeros((ny1 - ny0, nx1 - nx0), np.float32)
         ob_new = np.zeros(lo_new.shape, bool)
         if self.width:
@@ -108,6 +116,14 @@ class OccupancyGrid:
             ob_new[r0 : r0 + self.height, c0 : c0 + self.width] = self.observed
         self.ix0, self.iy0 = int(nx0), int(ny0)
         self.log_odds, self.observed = lo_new, ob_new
+
+    def _check_size(self, width: int, height: int) -> None:
+        if width * height > self.params.max_cells:
+            res = self.resolution
+            raise MapSizeError(
+                f"the occupancy grid would grow to {width} x {height} cells ({width * res:.4g} m x "
+                f"{height * res:.4g} m at {res:g} m), over its budget of {self.params.max_cells:.3g} cells: "
+                "points lie far beyond a floor's size, or the map resolution is too fine for the area")
 
     # --- update -------------------------------------------------------------------
     def integrate(self, sensor_origin_xy: np.ndarray, points_map_xy: np.ndarray) -> None:

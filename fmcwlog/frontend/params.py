@@ -3,26 +3,35 @@
 A config file (TOML, YAML or JSON) holds the same structure as
 :class:`FrontEndParams`: the front end's own parameters at the top level (or in
 a ``[frontend]`` table), each stage's in its own table (``[segmentation]``,
-``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
-that, and ``run.json`` records it under ``params``, so either can be fed back.
+``[tracking]``, ``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
+that as TOML (:func:`frontend_params_toml`, each parameter with its unit and valid range),
+and ``run.json`` records it under ``params``, so either can be fed back. Every numeric
+parameter declares its range beside its default (:func:`fmcwlog.config.param`); a value
+outside it is refused with one line naming it.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..backend.params import BackendParams
-from ..config import apply_to_dataclass
+from ..config import Checked, apply_to_dataclass, param, toml_table
 from ..errors import ConfigError
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
 from .recovery import RecoveryParams
 from .segmentation import SegmentationParams
+from .self_calibration import SelfCalibrationParams
+from .sensor_checks import CheckParams
+from .tracking import TrackingParams
+from .twist_fusion import WheelNoise
 
 
 @dataclass(frozen=True)
-class FrontEndParams:
+class FrontEndParams(Checked):
     """Everything a front end needs besides the log; all have documented defaults.
 
     min_range: returns closer than this (m) are dropped (the robot's own body).
@@ -42,6 +51,18 @@ class FrontEndParams:
         prediction by at most this much (m/s; wheels slip and are miscalibrated
         by far less); see :meth:`fmcwlog.frontend.methods.ImprovedFrontEnd.doppler_stages`.
     seed: seed of the Doppler RANSAC (results are deterministic given it).
+    doppler_sigma_min: added in quadrature to each component of a sweep's Doppler
+        velocity before it is fused with the wheels (m/s): the fit's own covariance
+        assumes independent points, which 0.1 m/s quantisation and speed changing within
+        the sweep are not (measured: 2.5 mm/s rms error against 1.7 mm/s claimed).
+    min_lever: a lever arm ``|lidar_x|`` below this (m) is reported as "Doppler does not
+        observe ω" (the fusion itself needs no threshold).
+    wheel_noise: how far the wheels' twist is trusted in the fusion
+        (:class:`fmcwlog.frontend.twist_fusion.WheelNoise`).
+    sensor_checks: Doppler against the wheels and the scans
+        (:class:`fmcwlog.frontend.sensor_checks.CheckParams`).
+    self_calibration: the calibration check
+        (:class:`fmcwlog.frontend.self_calibration.SelfCalibrationParams`).
 
     Stage switches of the improved method, for ablation studies (each True by default;
     ``icp.use_gmmsc`` and ``icp.use_huber`` switch GMMSC and the Huber kernel):
@@ -52,23 +73,34 @@ class FrontEndParams:
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
+    tracking: TrackingParams = field(default_factory=TrackingParams)
     # Stop ICP at 0.5 mm / 0.1 mrad steps: on the 2-minute corridor log this takes the
     # improved front end from 5.5 to 4.3 ms per sweep at the same ATE (1.9 -> 1.5 cm).
     icp: ICPParams = field(default_factory=lambda: ICPParams(translation_tol=5e-4, rotation_tol=1e-4))
-    min_range: float = 0.3
-    keyframe_distance: float = 0.2
-    keyframe_angle_deg: float = 5.0
-    grid_distance: float = 0.5
-    grid_angle_deg: float = 10.0
-    source_voxel: float = 0.1
-    voxel_size: float = 0.05
-    map_resolution: float = 0.05
-    prior_sigma_along: float = 0.002
-    prior_sigma_across: float = 0.005
-    prior_sigma_yaw: float = 0.005
-    residual_sigma: float = 0.03
-    doppler_prior_gate: float = 0.3
-    seed: int = 0
+    min_range: float = param(0.3, "m", ge=0.0, le=10.0)
+    keyframe_distance: float = param(0.2, "m", ge=0.0, le=100.0)  # 0: every sweep is a keyframe
+    keyframe_angle_deg: float = param(5.0, "deg", ge=0.0, le=180.0)
+    grid_distance: float = param(0.5, "m", ge=0.0, le=100.0)
+    grid_angle_deg: float = param(10.0, "deg", ge=0.0, le=180.0)
+    source_voxel: float = param(0.1, "m", ge=0.0, le=10.0)
+    # the map keeps a point per voxel, so its size follows the area seen over voxel_size²; 1 mm is
+    # already finer than any planar LiDAR's range noise
+    voxel_size: float = param(0.05, "m", ge=0.001, le=10.0)
+    # a cell finer than 1 cm cannot be resolved by ranges quantised to 2 cm (Table 1), and costs
+    # area / resolution² cells: 10 µm made a 100 m floor a grid of 1e14 cells
+    map_resolution: float = param(0.05, "m", ge=0.01, le=10.0)
+    # standard deviations: 0 would be an infinitely certain prior (a division by zero)
+    prior_sigma_along: float = param(0.002, "m", gt=0.0, le=10.0)
+    prior_sigma_across: float = param(0.005, "m", gt=0.0, le=10.0)
+    prior_sigma_yaw: float = param(0.005, "rad", gt=0.0, le=math.pi)
+    residual_sigma: float = param(0.03, "m", gt=0.0, le=10.0)
+    doppler_prior_gate: float = param(0.3, "m/s", ge=0.0, le=100.0)
+    seed: int = param(0, "", ge=0, le=2**32 - 1)
+    doppler_sigma_min: float = param(0.002, "m/s", gt=0.0, le=10.0)
+    min_lever: float = param(0.05, "m", gt=0.0, le=10.0)
+    wheel_noise: WheelNoise = field(default_factory=WheelNoise)
+    sensor_checks: CheckParams = field(default_factory=CheckParams)
+    self_calibration: SelfCalibrationParams = field(default_factory=SelfCalibrationParams)
     segment: bool = True
     deskew: bool = True
     doppler_twist: bool = True
@@ -92,6 +124,8 @@ def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:
     for source in sources:
         source = dict(source or {})
         if "params" in source and "fmcwlog_version" in source:  # a run.json
+            if not isinstance(source["params"], dict):
+                raise ConfigError("run.json: 'params' must be a table of parameters")
             source = dict(source["params"])
         own = source.pop("frontend", {})
         if not isinstance(own, dict):
@@ -99,3 +133,17 @@ def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:
         params = apply_to_dataclass(params, own, "frontend")
         params = apply_to_dataclass(params, source)
     return params
+
+
+def frontend_params_toml(params: FrontEndParams) -> str:
+    """Every parameter as TOML (``[frontend]``, then a table per stage: ``[segmentation]``, ``[icp]``, ...), each
+    with its unit and range as a comment; :func:`load_frontend_params` takes it back unchanged."""
+    head = ["# fmcwlog process parameters: every one, with its unit and valid range.",
+            "# Use: fmcwlog process LOG --config FILE (or change one with --set TABLE.NAME=VALUE,",
+            "# e.g. --set icp.huber_delta=0.04 or --set frontend.voxel_size=0.1).", ""]
+    lines = head + toml_table("frontend", params, nested=False)
+    for f in dataclasses.fields(params):  # each stage's table: [segmentation], [icp] (and [icp.gmmsc]), ...
+        stage = getattr(params, f.name)
+        if dataclasses.is_dataclass(stage):
+            lines += toml_table(f.name, stage)
+    return "\n".join(lines).rstrip() + "\n"

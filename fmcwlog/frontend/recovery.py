@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..config import Checked, param
 from ..geometry import transform_points
 from .correlative import CorrelativeParams
 
 
 @dataclass(frozen=True)
-class RecoveryParams:
+class RecoveryParams(Checked):
     """enabled: run the search at all (False: the ICP from the prior is final).
     inlier_distance: a sweep point is an inlier when the map has a point this close after the
         ICP (m, > 0).
@@ -31,8 +32,8 @@ class RecoveryParams:
     """
 
     enabled: bool = True
-    inlier_distance: float = 0.1
-    min_inlier_fraction: float = 0.6
+    inlier_distance: float = param(0.1, "m", gt=0.0, le=10.0)
+    min_inlier_fraction: float = param(0.6, "", ge=0.0, le=1.0)
     correlative: CorrelativeParams = field(default_factory=CorrelativeParams)
 
 

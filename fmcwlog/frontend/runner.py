@@ -3,8 +3,18 @@
 A sweep waits in a short queue until the motion prior (wheel ticks or an
 Odometry topic) covers its whole duration, then every method processes it and
 :meth:`LogRunner.run` yields what each made of it (:class:`SweepStep`). No file
-is read or written here: the inputs come from :func:`fmcwlog.io.inputs.iter_inputs`
+is read or written here: the inputs come from :class:`fmcwlog.io.inputs.LogInputs`
 and the steps go to the output writers (:mod:`fmcwlog.api`).
+
+What is damage and what is a refusal is decided where the inputs are decoded
+(:mod:`fmcwlog.io.inputs`): they arrive here non-empty, with stamps strictly
+increasing per topic, so a sweep that breaks that is a bug upstream (a
+:class:`LogError` here, not a skip). One policy is the runner's, because the
+queue is: a motion prior that stops mid-log (its clock checked at the start by
+the inputs) would hold every later sweep in the queue until the log ends, so a
+sweep waits at most :data:`fmcwlog.io.inputs.MAX_CLOCK_GAP_S` of log and is then
+processed with the prior held at its last pose. Sweeps that begin after the prior's
+last message are counted (a warning), whether they waited or came at the end of the log.
 """
 
 from __future__ import annotations
@@ -19,7 +29,7 @@ import numpy as np
 from ..errors import LogError
 from ..geometry import compose, inverse
 from ..io.calibration import Calibration
-from ..io.inputs import InputTopics, OdomInput, SweepInput, TicksInput
+from ..io.inputs import MAX_CLOCK_GAP_S, InputTopics, OdomInput, SweepInput, TicksInput
 from .methods import METHODS, FrontEnd, PriorMotion, SweepResult
 from .motion_prior import PoseTrack
 from .params import FrontEndParams
@@ -41,7 +51,8 @@ class SweepStep:
 
 
 class LogRunner:
-    """Feeds a log's inputs to the front ends named in ``methods``; counts what it skipped.
+    """Feeds a log's inputs to the front ends named in ``methods``; counts the sweeps that began after
+    the motion prior's last message (:attr:`beyond_prior`: for them it held its last pose).
 
     ``topics`` are those the inputs come from (without a motion-prior topic the
     prior is a constant velocity); ``source`` names the log in error messages.
@@ -55,17 +66,13 @@ class LogRunner:
         self.prior = PoseTrack() if topics.prior else None
         self.source = source
         self.sweeps = 0
-        self.skipped_sweeps = 0  # repeated stamps
+        self.beyond_prior = 0  # sweeps that began after the prior's last message (it held its last pose)
         self.doppler: bool | None = None  # whether the last sweep carried Doppler
         self._pending: deque[SweepInput] = deque()
         self._sweep_span = 0.0  # the longest sweep seen, s
         self._last_queued_ns: int | None = None
         self._last_stamp: float | None = None  # of the last sweep processed, s
         self._wheel0: np.ndarray | None = None
-
-    @property
-    def repeated_prior_stamps(self) -> int:
-        return self.prior.repeated_stamps if self.prior is not None else 0
 
     def run(self, inputs: Iterable[SweepInput | TicksInput | OdomInput]) -> Iterator[SweepStep]:
         """Process every sweep of ``inputs``; raises :class:`LogError` for input that cannot be."""
@@ -74,8 +81,7 @@ class LogRunner:
                 self._queue(item)
             else:
                 self._add_prior(item)
-            while self._pending and (self.prior is None or
-                                     self.prior.latest_time >= self._pending[0].stamp_ns * 1e-9 + self._sweep_span):
+            while self._pending and self._ready(self._pending[0]):
                 yield self._process(self._pending.popleft())
         while self._pending:  # the end of the log: the prior is extrapolated by holding its last pose
             yield self._process(self._pending.popleft())
@@ -84,13 +90,33 @@ class LogRunner:
         if self.prior is not None and len(self.prior) == 0:
             raise LogError(f"{self.source}: no messages on {self.topics.prior}, the motion prior")
 
+    def _ready(self, sweep: SweepInput) -> bool:
+        """Whether the prior covers ``sweep``, or it has waited its longest."""
+        if self.prior is None or self.prior.latest_time >= sweep.stamp_ns * 1e-9 + self._sweep_span:
+            return True
+        assert self._last_queued_ns is not None
+        return (self._last_queued_ns - sweep.stamp_ns) * 1e-9 > MAX_CLOCK_GAP_S
+
+    def diagnostics(self) -> tuple[dict, list[str]]:
+        """For ``run.json``: per method where its twist came from and what the sensor checks found
+        (``motion_sources``), and the calibration check (``calibration_check``); and the warnings."""
+        name = "wheel ticks" if self.topics.ticks else ("odometry" if self.topics.odom else "no motion prior")
+        sources: dict[str, dict] = {}
+        warnings: list[str] = []
+        out: dict = {"motion_sources": sources}
+        for fe in self.fronts:
+            found, said = fe.diagnostics(name)
+            if found:
+                if "calibration_check" in found:
+                    out["calibration_check"] = found.pop("calibration_check")
+                sources[fe.name] = found
+            warnings += [f"{fe.name}: {w}" for w in said]
+        return out, warnings
+
     def _queue(self, sweep: SweepInput) -> None:
         last = self._last_queued_ns
-        if last is not None and sweep.stamp_ns < last:
-            raise LogError(f"{self.source}: sweep stamps go backwards at {sweep.stamp_ns} ns (after {last} ns)")
-        if last is not None and sweep.stamp_ns == last:
-            self.skipped_sweeps += 1
-            return
+        if last is not None and sweep.stamp_ns <= last:
+            raise LogError(f"{self.source}: sweep stamps do not increase at {sweep.stamp_ns} ns (after {last} ns)")
         if len(sweep.xy) == 0:
             raise LogError(f"{self.source}: the sweep at {sweep.stamp_ns} ns has no points")
         self._last_queued_ns = sweep.stamp_ns
@@ -109,15 +135,24 @@ class LogRunner:
             raise LogError(f"{self.source}: {exc}") from None
 
     def _prior_motion(self, ts: float, span: float) -> PriorMotion:
-        """The prior's twist over [ts, ts + span] and its motion since the last sweep."""
+        """The prior's twist over [ts, ts + span], its motion since the last sweep, and the wheels' turns."""
         if self.prior is None or len(self.prior) < 2:
             return PriorMotion()
         d = self.prior.delta(ts, ts + span)
         since_last = self.prior.delta(self._last_stamp, ts) if self._last_stamp is not None else None
-        return PriorMotion((d[0] / span, d[2] / span), since_last)
+        turns = turns_since = None
+        if self.cal.wheels is not None:
+            rad = 2.0 * np.pi / self.cal.wheels.ticks_per_revolution
+            ticks = self.prior.ticks_between(ts, ts + span)
+            turns = None if ticks is None else (ticks[0] * rad, ticks[1] * rad)
+            if self._last_stamp is not None and (ticks := self.prior.ticks_between(self._last_stamp, ts)):
+                turns_since = (ticks[0] * rad, ticks[1] * rad)
+        return PriorMotion((d[0] / span, d[2] / span), since_last, span, turns, turns_since)
 
     def _process(self, sweep: SweepInput) -> SweepStep:
         ts = sweep.stamp_ns * 1e-9
+        if self.prior is not None and len(self.prior) and ts > self.prior.latest_time:
+            self.beyond_prior += 1
         prior = self._prior_motion(ts, max(float(sweep.t.max()), 1e-3))
         results = [fe.step(sweep, prior) for fe in self.fronts]
         wheel_pose = None

@@ -22,9 +22,11 @@ import sklearn
 from scipy.spatial import cKDTree
 from sklearn.cluster import DBSCAN
 
+from ..config import Checked, param
+
 
 @dataclass(frozen=True)
-class SegmentationParams:
+class SegmentationParams(Checked):
     """Parameters of :func:`segment_moving`.
 
     alpha: weight of the velocity difference in eq. 17, s² (so ``√α·ε`` is in m).
@@ -45,13 +47,14 @@ class SegmentationParams:
         point with ``|ε| ≥ v_th`` (see :func:`segment_moving`); 0 looks at all.
     """
 
-    alpha: float = 1.0
-    eps: float = 0.3
-    min_samples: int = 5
-    v_th: float = 0.3
-    min_moving_fraction: float = 0.3
+    # 0 clusters by position alone; at 100 s² one Doppler quantum (0.1 m/s) already counts as 1 m
+    alpha: float = param(1.0, "s^2", ge=0.0, le=100.0)
+    eps: float = param(0.3, "m", gt=0.0, le=10.0)  # a radius beyond a room's size joins everything
+    min_samples: int = param(5, "points", ge=1, le=10_000)
+    v_th: float = param(0.3, "m/s", gt=0.0, le=50.0)
+    min_moving_fraction: float = param(0.3, "", gt=0.0, le=1.0)  # 0 would call every cluster moving
     keep_strong_points: bool = True
-    neighbourhood: float = 2.0
+    neighbourhood: float = param(2.0, "m", ge=0.0, le=1000.0)
 
 
 def cluster_points(
@@ -91,6 +94,53 @@ def moving_from_labels(
     return moving
 
 
+@dataclass
+class Segmentation:
+    """One sweep's clusters and Doppler verdict (:func:`segment_clusters`).
+
+    labels: (N,) DBSCAN cluster of each point; -1 for noise and for points left out of
+        the clustering (farther than ``neighbourhood`` from every seed).
+    clustered: (N,) the points that went into DBSCAN.
+    moving: (N,) the per-cluster Doppler verdict (eq. 19 on ``ε``).
+    """
+
+    labels: np.ndarray
+    clustered: np.ndarray
+    moving: np.ndarray
+
+
+def segment_clusters(
+    xy: np.ndarray,
+    epsilon: np.ndarray,
+    params: SegmentationParams = SegmentationParams(),
+    seeds: np.ndarray | None = None,
+) -> Segmentation:
+    """DBSCAN clusters and the Doppler verdict of one sweep (see :func:`segment_moving`).
+
+    ``seeds`` (K, 2), lidar frame, m: places besides the points with ``|ε| ≥ v_th``
+    around which points are clustered (where a tracked mover is expected, whose
+    Doppler may be nil this sweep: :mod:`.tracking`).
+    """
+    epsilon = np.asarray(epsilon, dtype=float)
+    n = xy.shape[0]
+    labels = np.full(n, -1)
+    strong = np.abs(epsilon) >= params.v_th
+    extra = seeds is not None and len(seeds) > 0
+    if n == 0 or (params.min_moving_fraction > 0 and not strong.any() and not extra):
+        return Segmentation(labels, np.zeros(n, bool), np.zeros(n, bool))
+    if params.neighbourhood <= 0 or params.min_moving_fraction <= 0:
+        near = np.ones(n, bool)
+    else:
+        centres = np.concatenate([xy[strong], seeds]) if extra else xy[strong]
+        dist, _ = cKDTree(centres).query(xy, k=1, distance_upper_bound=params.neighbourhood)
+        near = np.isfinite(dist)
+    moving = np.zeros(n, bool)
+    if near.any():
+        labels[near] = cluster_points(xy[near], epsilon[near], params)
+        moving[near] = moving_from_labels(labels[near], epsilon[near], params)
+    return Segmentation(labels, near, moving)
+
+
 def segment_moving(
     xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
 ) -> np.ndarray:
@@ -107,17 +157,4 @@ def segment_moving(
     points is nil either way. On the corridor log this takes segmentation from
     3.9 to about 1 ms per sweep.
     """
-    epsilon = np.asarray(epsilon, dtype=float)
-    n = xy.shape[0]
-    if n == 0:
-        return np.zeros(0, bool)
-    strong = np.abs(epsilon) >= params.v_th
-    if params.min_moving_fraction > 0 and not strong.any():
-        return np.zeros(n, bool)
-    if params.neighbourhood <= 0 or params.min_moving_fraction <= 0:
-        return moving_from_labels(cluster_points(xy, epsilon, params), epsilon, params)
-    dist, _ = cKDTree(xy[strong]).query(xy, k=1, distance_upper_bound=params.neighbourhood)
-    near = np.isfinite(dist)
-    moving = np.zeros(n, bool)
-    moving[near] = moving_from_labels(cluster_points(xy[near], epsilon[near], params), epsilon[near], params)
-    return moving
+    return segment_clusters(xy, epsilon, params).moving

@@ -1,14 +1,39 @@
-"""The ``fmcwlog.calibration`` metadata record as numbers (LOG_FORMAT.md)."""
+"""The ``fmcwlog.calibration`` metadata record as numbers (LOG_FORMAT.md), each checked against its
+physical range.
+
+MCAP allows several metadata records of one name: identical copies are one calibration (with a
+note), copies that disagree are refused, naming the keys they disagree on: there is no telling
+which one the robot had.
+"""
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 from ..errors import CalibrationError
+from .topics import CALIBRATION_KEY
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
+OPTIONAL_KEYS = ("doppler_resolution", "range_sigma", "max_range", "scan_rate")
+
+# The valid range of each key processing reads (inclusive, SI units), wide enough for any robot
+# that carries a planar LiDAR and narrow enough that a damaged value cannot pass:
+RANGES: dict[str, tuple[float, float, str]] = {
+    "wheel_radius_left": (0.005, 2.0, "m"),  # a 1 cm micro-robot wheel to a 4 m mining-truck tyre
+    "wheel_radius_right": (0.005, 2.0, "m"),
+    "track_width": (0.02, 10.0, "m"),
+    "ticks_per_revolution": (1, 1e8, ""),  # a whole number; a 2^20-count encoder behind a 50:1 gear is 5e7
+    "lidar_x": (-10.0, 10.0, "m"),  # the sensor sits on the robot
+    "lidar_y": (-10.0, 10.0, "m"),
+    "lidar_yaw": (-2 * math.pi, 2 * math.pi, "rad"),
+    "doppler_resolution": (0.0, 10.0, "m/s"),
+    "range_sigma": (0.0, 1.0, "m"),
+    "max_range": (0.1, 10_000.0, "m"),
+    "scan_rate": (0.0, 1000.0, "Hz"),  # 0: not known (fmcwlog import writes it so)
+}
 
 
 @dataclass(frozen=True)
@@ -28,12 +53,18 @@ class WheelCalibration:
 
 @dataclass(frozen=True)
 class Calibration:
-    """What processing knows of the robot: wheels (None if not given) and the lidar mounting."""
+    """What processing knows of the robot: wheels (None if not given) and the lidar mounting.
+
+    max_range: the sensor's rated range (m), scan_rate: sweeps per second (Hz); None where the
+    record does not give them (``scan_rate`` 0 counts as not given).
+    """
 
     wheels: WheelCalibration | None
     mount: tuple[float, float, float]  # lidar pose in base_link: m, m, rad
     doppler_resolution: float | None  # m/s
     range_sigma: float | None  # m
+    max_range: float | None = None  # m
+    scan_rate: float | None = None  # Hz
 
 
 def _number(values: dict[str, str], key: str) -> float:
@@ -45,27 +76,63 @@ def _number(values: dict[str, str], key: str) -> float:
         raise CalibrationError(f"calibration {key!r} is not a number: {values[key]!r}") from None
     if not math.isfinite(x):
         raise CalibrationError(f"calibration {key!r} is not finite")
+    low, high, unit = RANGES[key]
+    if not low <= x <= high:
+        u = f" {unit}" if unit else ""
+        raise CalibrationError(f"calibration {key!r} = {values[key]}{u} is outside its valid range "
+                               f"[{low:g}, {high:g}]{u}")
     return x
+
+
+def _same(a: str | None, b: str | None) -> bool:
+    """Whether two values of a key are equal, as numbers where both are ('0.1' equals '0.10')."""
+    if a is None or b is None:
+        return a == b
+    try:
+        return float(a) == float(b) or a == b
+    except ValueError:
+        return a == b
+
+
+def calibration_record(records: list[dict[str, str]], source: str) -> dict[str, str] | None:
+    """The one calibration among a log's ``fmcwlog.calibration`` records (None if it has none).
+
+    Identical records are one (a warning notes the copies); records that disagree raise
+    :class:`CalibrationError` naming the keys.
+    """
+    if not records:
+        return None
+    first = records[0]
+    for other in records[1:]:
+        differ = sorted(k for k in set(first) | set(other) if not _same(first.get(k), other.get(k)))
+        if differ:
+            shown = ", ".join(f"{k} ({first.get(k, 'absent')} against {other.get(k, 'absent')})" for k in differ[:4])
+            more = f" and {len(differ) - 4} more" if len(differ) > 4 else ""
+            raise CalibrationError(f"its {len(records)} {CALIBRATION_KEY} records disagree on {shown}{more}: "
+                                   "there is no telling which is the robot's")
+    if len(records) > 1:
+        warnings.warn(f"{source}: {len(records)} identical {CALIBRATION_KEY} records; used them as one", stacklevel=2)
+    return first
 
 
 def parse_calibration(values: dict[str, str] | None, need_wheels: bool) -> Calibration:
     """Parse the record; the wheel keys are required only when ticks are the motion prior.
 
     A log without a calibration record (e.g. an imported laser log) gets the
-    lidar at the origin of base_link.
+    lidar at the origin of base_link. Every value read must lie in its range (:data:`RANGES`).
     """
     values = values or {}
     if need_wheels:
         if not values:
-            raise CalibrationError("no fmcwlog.calibration record, which wheel ticks need")
-        r_left, r_right, track = (_number(values, k) for k in WHEEL_KEYS[:3])
-        wheels = WheelCalibration(r_left, r_right, track, int(_number(values, WHEEL_KEYS[3])))
-        if min(wheels.wheel_radius_left, wheels.wheel_radius_right, wheels.track_width,
-               wheels.ticks_per_revolution) <= 0:
-            raise CalibrationError("wheel radii, track width and ticks per revolution must be positive")
+            raise CalibrationError(f"no {CALIBRATION_KEY} record, which wheel ticks need")
+        r_left, r_right, track, ticks = (_number(values, k) for k in WHEEL_KEYS)
+        if ticks != int(ticks):
+            raise CalibrationError(f"calibration 'ticks_per_revolution' = {values['ticks_per_revolution']} "
+                                   "is not a whole number")
+        wheels = WheelCalibration(r_left, r_right, track, int(ticks))
     else:
         wheels = None
     x, y, yaw = (_number(values, k) if k in values else 0.0 for k in MOUNT_KEYS)
-    mount = (x, y, yaw)
-    opt = {k: _number(values, k) if k in values else None for k in ("doppler_resolution", "range_sigma")}
-    return Calibration(wheels, mount, opt["doppler_resolution"], opt["range_sigma"])
+    opt = {k: _number(values, k) if k in values else None for k in OPTIONAL_KEYS}
+    return Calibration(wheels, (x, y, yaw), opt["doppler_resolution"], opt["range_sigma"], opt["max_range"],
+                       opt["scan_rate"] or None)

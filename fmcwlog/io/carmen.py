@@ -17,7 +17,12 @@ CARMEN conventions followed (``carmen/src/logger``):
 - ``PARAM name value ipc_timestamp host logger_timestamp``.
 
 Times are the ``ipc_timestamp`` (s), which benchmark relations refer to. Ranges at or beyond the maximum
-range are no returns. A malformed line is counted and reported by number, never fatal on its own.
+range are no returns. A malformed line is counted and reported by number, never fatal on its own; so is a
+line whose values are impossible: NaN anywhere, a negative or infinite time or one past 2038 (ROS 2 stamps
+count seconds in an int32), a negative range, a pose beyond 1000 km or a heading beyond 1000 rad, a beam
+count below 2, a PARAM value outside its range (the default is kept). A compressed file that ends early is
+read up to its end (a warning); one whose compressed data are damaged is refused, since the lines before the
+damage may be garbage too (gzip and xz check their CRC only at the end).
 """
 
 from __future__ import annotations
@@ -25,12 +30,22 @@ from __future__ import annotations
 import gzip
 import lzma
 import math
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import CarmenImportError
 from ..geometry import between
+
+MAX_STAMP_S = 2**31 - 1  # builtin_interfaces/Time.sec is an int32
+MAX_POSITION_M = 1e6
+MAX_HEADING_RAD = 1e3
+# PARAM values read here and their valid ranges (deg or m)
+PARAM_RANGES = {"robot_front_laser_fov": (1.0, 360.0), "robot_rear_laser_fov": (1.0, 360.0),
+                "robot_frontlaser_offset": (-10.0, 10.0), "robot_rearlaser_offset": (-10.0, 10.0),
+                "robot_front_laser_max": (0.1, 10_000.0), "robot_rear_laser_max": (0.1, 10_000.0)}
 
 
 @dataclass
@@ -60,6 +75,8 @@ class ParsedLog:
     params: dict[str, str] = field(default_factory=dict)
     bad_lines: list[tuple[int, str]] = field(default_factory=list)  # (line number, why)
     ignored: dict[str, int] = field(default_factory=dict)  # message types not used, with counts
+    lines: int = 0  # lines read
+    stopped: str | None = None  # why reading stopped before the end of the file (a compressed file cut off)
 
 
 def open_text(path: Path):
@@ -75,14 +92,44 @@ class _Bad(ValueError):
     pass
 
 
-def _floats(tokens: list[str], what: str) -> list[float]:
+def _floats(tokens: list[str], what: str, finite: bool = True) -> list[float]:
+    """Numbers of ``tokens``; NaN is always bad, infinity unless ``finite`` is False (ranges: no return)."""
     try:
         vals = [float(t) for t in tokens]
     except ValueError:
         raise _Bad(f"{what}: not a number") from None
-    if not all(math.isfinite(v) or math.isinf(v) for v in vals):
-        raise _Bad(f"{what}: NaN")
+    if any(math.isnan(v) or (finite and math.isinf(v)) for v in vals):
+        raise _Bad(f"{what}: NaN or infinite")
     return vals
+
+
+def _stamp(token: str) -> float:
+    t = _floats([token], "timestamp")[0]
+    if not 0.0 <= t <= MAX_STAMP_S:
+        raise _Bad(f"timestamp {token} s is outside [0, {MAX_STAMP_S}] s")
+    return t
+
+
+def _pose(tokens: list[str], what: str, scale: float = 1.0) -> tuple[float, float, float]:
+    x, y, th = _floats(tokens, what)
+    x, y = x * scale, y * scale
+    if max(abs(x), abs(y)) > MAX_POSITION_M or abs(th) > MAX_HEADING_RAD:
+        raise _Bad(f"{what}: ({x:g} m, {y:g} m, {th:g} rad) is beyond {MAX_POSITION_M:g} m or {MAX_HEADING_RAD:g} rad")
+    return x, y, th
+
+
+def _ranges(tokens: list[str]) -> np.ndarray:
+    r = np.array(_floats(tokens, "ranges", finite=False))
+    if r.size and r.min() < 0:
+        raise _Bad(f"ranges: a negative range ({r.min():g} m)")
+    return r
+
+
+def _count(token: str, low: int, what: str) -> int:
+    n = int(token)
+    if n < low:
+        raise _Bad(f"{what} {n} is below {low}")
+    return n
 
 
 def _param(params: dict[str, str], name: str, default: float) -> float:
@@ -93,11 +140,13 @@ def _param(params: dict[str, str], name: str, default: float) -> float:
 
 
 def _flaser(tok: list[str], params: dict[str, str], rear: bool) -> ScanRecord:
-    n = int(tok[1])
-    if n <= 0 or len(tok) < 2 + n + 7:
-        raise _Bad(f"expected {n} ranges and 7 more fields, got {len(tok) - 2} fields")
-    ranges = np.array(_floats(tok[2:2 + n], "ranges"))
-    x, y, th, ox, oy, oth, stamp = _floats(tok[2 + n:2 + n + 7], "pose or timestamp")
+    n = _count(tok[1], 2, "beam count")
+    if len(tok) < 2 + n + 9:  # up to the logger timestamp: a line cut short (a file cut off) fails here
+        raise _Bad(f"expected {n} ranges and 9 more fields, got {len(tok) - 2} fields")
+    ranges = _ranges(tok[2:2 + n])
+    _pose(tok[2 + n:2 + n + 3], "laser pose")
+    ox, oy, oth = _pose(tok[2 + n + 3:2 + n + 6], "odometry pose")
+    stamp = _stamp(tok[2 + n + 6])
     side = "rear" if rear else "front"
     fov = math.radians(_param(params, f"robot_{side}_laser_fov", 180.0))
     # An even count (180, 360) spans the field of view in steps of fov/n from -fov/2 (the Intel and
@@ -114,15 +163,22 @@ def _flaser(tok: list[str], params: dict[str, str], rear: bool) -> ScanRecord:
 
 def _robotlaser1(tok: list[str]) -> ScanRecord:
     start, fov, res, max_range = _floats(tok[2:6], "angles or range")
-    n = int(tok[8])
-    ranges = np.array(_floats(tok[9:9 + n], "ranges"))
-    m = int(tok[9 + n])
+    if not (abs(start) <= 2 * math.pi and 0 < fov <= 2 * math.pi + 1e-6 and 0 < res <= fov and 0.1 <= max_range <= 1e4):
+        raise _Bad(f"start angle {start:g}, field of view {fov:g}, resolution {res:g} rad or "
+                   f"maximum range {max_range:g} m out of range")
+    n = _count(tok[8], 1, "beam count")
+    if len(tok) < 10 + n:
+        raise _Bad(f"expected {n} ranges, got {len(tok) - 9} fields")
+    ranges = _ranges(tok[9:9 + n])
+    m = _count(tok[9 + n], 0, "remission count")
     rest = tok[10 + n + m:]
-    if len(rest) < 12:
-        raise _Bad(f"expected 12 fields after the remissions, got {len(rest)}")
-    lx, ly, lth, rx, ry, rth = _floats(rest[0:6], "poses")
-    stamp = _floats([rest[11]], "timestamp")[0]
-    mount = tuple(float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
+    if len(rest) < 14:
+        raise _Bad(f"expected 14 fields after the remissions, got {len(rest)}")
+    lx, ly, lth = _pose(rest[0:3], "laser pose")
+    rx, ry, rth = _pose(rest[3:6], "robot pose")
+    stamp = _stamp(rest[11])
+    mx, my, mth = (float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
+    mount = (mx, my, mth)
     ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
     return ScanRecord(stamp, start, res, ranges, max_range, mount, (rx, ry, rth))
 
@@ -130,56 +186,79 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
 def _cmu_laser(tok: list[str]) -> ScanRecord:
     if len(tok) != 188:
         raise _Bad(f"an L line has 188 fields, this one {len(tok)}")
-    x, y, th, xl, yl, thl = _floats(tok[1:7], "poses")
-    ranges = np.array(_floats(tok[7:187], "ranges")) / 100.0  # cm -> m
-    stamp = _floats([tok[187]], "timestamp")[0]
-    mount = tuple(float(v) for v in between(np.array([x / 100, y / 100, th]), np.array([xl / 100, yl / 100, thl])))
+    robot = _pose(tok[1:4], "robot pose", 0.01)  # cm -> m
+    laser = _pose(tok[4:7], "laser pose", 0.01)
+    ranges = _ranges(tok[7:187]) / 100.0
+    stamp = _stamp(tok[187])
+    mx, my, mth = (float(v) for v in between(np.array(robot), np.array(laser)))
+    mount = (mx, my, mth)
     ranges = np.where(ranges >= 81.8, np.inf, ranges)  # 8183-8191 cm: no return
     # 180 beams over 180 degrees from the right, 1 degree apart (instruct.txt); -90 deg first (see SOURCE.md)
-    return ScanRecord(stamp, -math.pi / 2, math.pi / 180, ranges, 81.8, mount, (x / 100, y / 100, th))
+    return ScanRecord(stamp, -math.pi / 2, math.pi / 180, ranges, 81.8, mount, robot)
+
+
+def _cmu_line(tok: list[str], out: ParsedLog) -> None:
+    kind = tok[0]
+    if kind == "O":
+        if len(tok) != 5:
+            raise _Bad(f"an O line has 5 fields, this one {len(tok)}")
+        out.odometry.append(OdomRecord(_stamp(tok[4]), _pose(tok[1:4], "pose", 0.01)))
+    elif kind == "L":
+        out.scans.append(_cmu_laser(tok))
+    else:
+        raise _Bad(f"unknown record {kind!r} in a CMU course log")
+
+
+def _carmen_line(tok: list[str], out: ParsedLog) -> None:
+    kind = tok[0]
+    if kind == "PARAM":
+        if len(tok) < 3:
+            raise _Bad("PARAM without a value")
+        if tok[1] in PARAM_RANGES:
+            low, high = PARAM_RANGES[tok[1]]
+            value = _floats([tok[2]], f"PARAM {tok[1]}")[0]
+            if not low <= value <= high:
+                raise _Bad(f"PARAM {tok[1]} = {tok[2]} is outside [{low:g}, {high:g}]; kept the default")
+        out.params[tok[1]] = tok[2]
+    elif kind in ("FLASER", "RLASER"):
+        out.scans.append(_flaser(tok, out.params, rear=kind == "RLASER"))
+    elif kind == "ROBOTLASER1":
+        out.scans.append(_robotlaser1(tok))
+    elif kind == "ODOM":
+        if len(tok) < 10:
+            raise _Bad(f"ODOM has at least 10 fields, this one {len(tok)}")
+        out.odometry.append(OdomRecord(_stamp(tok[7]), _pose(tok[1:4], "pose")))
+    else:
+        out.ignored[kind] = out.ignored.get(kind, 0) + 1
 
 
 def parse_log(path: str | Path) -> ParsedLog:
-    """Parse a CARMEN or CMU course log; the format is recognised from its first data line."""
+    """Parse a CARMEN or CMU course log; the format is recognised from its first data line.
+
+    A compressed file cut off is parsed up to its end (:attr:`ParsedLog.stopped` says so; the
+    importer warns); damaged compressed data raise :class:`CarmenImportError`.
+    """
     path = Path(path)
     out = ParsedLog(path, "carmen")
-    fmt = None
-    with open_text(path) as fh:
-        for lineno, line in enumerate(fh, 1):
-            tok = line.split()
-            if not tok or tok[0].startswith("#"):
-                continue
-            kind = tok[0]
-            if fmt is None:
-                fmt = "cmu" if kind in ("O", "L") else "carmen"
-                out.format = fmt
-            try:
-                if fmt == "cmu":
-                    if kind == "O":
-                        if len(tok) != 5:
-                            raise _Bad(f"an O line has 5 fields, this one {len(tok)}")
-                        x, y, th, ts = _floats(tok[1:5], "pose or timestamp")
-                        out.odometry.append(OdomRecord(ts, (x / 100, y / 100, th)))
-                    elif kind == "L":
-                        out.scans.append(_cmu_laser(tok))
-                    else:
-                        raise _Bad(f"unknown record {kind!r} in a CMU course log")
-                elif kind == "PARAM":
-                    if len(tok) < 3:
-                        raise _Bad("PARAM without a value")
-                    out.params[tok[1]] = tok[2]
-                elif kind in ("FLASER", "RLASER"):
-                    out.scans.append(_flaser(tok, out.params, rear=kind == "RLASER"))
-                elif kind == "ROBOTLASER1":
-                    out.scans.append(_robotlaser1(tok))
-                elif kind == "ODOM":
-                    if len(tok) < 8:
-                        raise _Bad(f"ODOM has at least 8 fields, this one {len(tok)}")
-                    x, y, th = _floats(tok[1:4], "pose")
-                    out.odometry.append(OdomRecord(_floats([tok[7]], "timestamp")[0], (x, y, th)))
-                else:
-                    out.ignored[kind] = out.ignored.get(kind, 0) + 1
-            except (_Bad, IndexError, ValueError) as exc:
-                why = str(exc) if isinstance(exc, _Bad) else f"{kind}: too few or malformed fields"
-                out.bad_lines.append((lineno, why))
+    data_lines = 0
+    try:
+        with open_text(path) as fh:
+            for lineno, line in enumerate(fh, 1):
+                out.lines = lineno
+                tok = line.split()
+                if not tok or tok[0].startswith("#"):
+                    continue
+                data_lines += 1
+                if data_lines == 1:
+                    out.format = "cmu" if tok[0] in ("O", "L") else "carmen"
+                try:
+                    (_cmu_line if out.format == "cmu" else _carmen_line)(tok, out)
+                except (_Bad, IndexError, ValueError) as exc:
+                    why = str(exc) if isinstance(exc, _Bad) else f"{tok[0]}: too few or malformed fields"
+                    out.bad_lines.append((lineno, why))
+    except EOFError:
+        out.stopped = f"the compressed file ends early, after line {out.lines}"
+    except (lzma.LZMAError, gzip.BadGzipFile, zlib.error) as exc:
+        where = f"after line {out.lines}" if out.lines else "from its start"
+        raise CarmenImportError(f"{path}: its compressed data are damaged {where} ({exc})") from None
     return out

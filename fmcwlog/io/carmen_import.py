@@ -10,16 +10,19 @@ carries is used. The laser's pose on the robot goes into ``fmcwlog.calibration``
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import CarmenImportError
-from .carmen import ParsedLog
+from .carmen import ParsedLog, ScanRecord
 from .mcap_log import LogWriter
 from .messages import odometry_message, stamp
 from .topics import CALIBRATION_KEY, IMPORT_KEY
+
+logger = logging.getLogger(__name__)  # the command line prints its warnings as 'fmcwlog: warning: ...'
 
 
 @dataclass
@@ -36,10 +39,47 @@ def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
+def _no_scans(parsed: ParsedLog) -> str:
+    """Why a parsed file gives no log: what its lines were instead."""
+    readable = sorted(k for k in parsed.ignored if k.isascii() and k.isprintable())
+    if len(readable) < len(parsed.ignored):
+        other = f", {sum(parsed.ignored.values())} of binary data or unknown records: not a text log?"
+    else:
+        kinds = ", ".join(readable[:5]) + (", ..." if len(readable) > 5 else "")
+        other = f", {sum(parsed.ignored.values())} of kinds not imported: {kinds}" if readable else ""
+    first = f"; first malformed: line {parsed.bad_lines[0][0]}: {parsed.bad_lines[0][1]}" if parsed.bad_lines else ""
+    stopped = f"; {parsed.stopped}" if parsed.stopped else ""
+    return (f"{parsed.path}: no laser scans found in {parsed.lines} lines "
+            f"({len(parsed.bad_lines)} malformed{other}){first}{stopped}")
+
+
+def _calibration(scans: list[ScanRecord]) -> dict[str, str]:
+    """The ``fmcwlog.calibration`` record: the front laser's pose on the robot and its beams."""
+    front = [s for s in scans if s.topic == "/scan"] or scans
+    mount = front[0].laser_pose
+    return {"lidar_x": repr(float(mount[0])), "lidar_y": repr(float(mount[1])), "lidar_yaw": repr(float(mount[2])),
+            "max_range": repr(float(front[0].range_max)),
+            "angular_resolution": repr(float(front[0].angle_increment)),
+            "fov": repr(float(front[0].angle_increment * (len(front[0].ranges) - (len(front[0].ranges) % 2 == 0)))),
+            "scan_rate": "0"}
+
+
+def _import_record(parsed: ParsedLog, scans: int, odometry: int, source: str) -> dict[str, str]:
+    """The ``fmcwlog.import`` record: the source, its format and what was skipped."""
+    info = {"source": str(parsed.path), "format": parsed.format, "scans": str(scans), "odometry": str(odometry),
+            "odometry_source": source, "bad_lines": json.dumps(parsed.bad_lines[:1000]),
+            "ignored": json.dumps(parsed.ignored), "params": json.dumps(parsed.params)}
+    if parsed.stopped:
+        info["stopped"] = parsed.stopped
+    return info
+
+
 def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     scans = [s for s in parsed.scans if s.topic == "/scan"] + [s for s in parsed.scans if s.topic != "/scan"]
     if not parsed.scans:
-        raise CarmenImportError(f"{parsed.path}: no laser scans found ({len(parsed.bad_lines)} malformed lines)")
+        raise CarmenImportError(_no_scans(parsed))
+    if parsed.stopped:
+        logger.warning(f"{parsed.path}: {parsed.stopped}; imported the lines before it")
     if parsed.odometry:
         odom = [(o.stamp, o.pose) for o in parsed.odometry]
         source = "odometry messages"
@@ -47,20 +87,10 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
         odom = [(s.stamp, s.odom_pose) for s in parsed.scans if s.odom_pose is not None and s.topic == "/scan"]
         source = "the odometry pose of each laser line"
     events = sorted([(s.stamp, 0, i) for i, s in enumerate(scans)] + [(t, 1, i) for i, (t, _) in enumerate(odom)])
-    front = [s for s in scans if s.topic == "/scan"] or scans
-    mount = front[0].laser_pose
-    calibration = {"lidar_x": repr(float(mount[0])), "lidar_y": repr(float(mount[1])), "lidar_yaw": repr(float(mount[2])),
-                   "max_range": repr(float(front[0].range_max)),
-                   "angular_resolution": repr(float(front[0].angle_increment)),
-                   "fov": repr(float(front[0].angle_increment * (len(front[0].ranges) - (len(front[0].ranges) % 2 == 0)))),
-                   "scan_rate": "0"}
-    info = {"source": str(parsed.path), "format": parsed.format, "scans": str(len(scans)), "odometry": str(len(odom)),
-            "odometry_source": source, "bad_lines": json.dumps(parsed.bad_lines[:1000]),
-            "ignored": json.dumps(parsed.ignored), "params": json.dumps(parsed.params)}
     last: dict[str, int] = {}
     with LogWriter(out) as w:
-        w.add_metadata(CALIBRATION_KEY, calibration)
-        w.add_metadata(IMPORT_KEY, info)
+        w.add_metadata(CALIBRATION_KEY, _calibration(scans))
+        w.add_metadata(IMPORT_KEY, _import_record(parsed, len(scans), len(odom), source))
         for t, kind, i in events:
             ns = _ns(t)
             topic = scans[i].topic if kind == 0 else "/odom"

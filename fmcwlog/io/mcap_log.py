@@ -1,4 +1,4 @@
-"""Reading and writing MCAP logs: the one module that knows the MCAP container.
+"""Reading and writing MCAP logs: with :mod:`fmcwlog.io.mcap_scan`, the only code that knows the MCAP container.
 
 The log format is the contract in ``LOG_FORMAT.md`` (kept beside the project
 in ``shared/``): MCAP with the ``ros2`` profile, CDR-encoded messages whose
@@ -6,9 +6,10 @@ in ``shared/``): MCAP with the ``ros2`` profile, CDR-encoded messages whose
 (:mod:`fmcwlog.io.schemas`).
 
 Writing goes through ``mcap``'s writer with ``mcap_ros2``'s CDR encoders;
-reading through ``mcap`` and ``mcap_ros2.decoder``. Readers accept compressed or uncompressed chunks, and
-fall back to a sequential scan when a file has no summary (a recording cut off
-before it finished).
+reading through :class:`fmcwlog.io.mcap_scan.McapScan` (``mcap``'s record parsers under
+framing that steps over damage) and ``mcap_ros2.decoder``. Readers accept compressed or
+uncompressed chunks, read a file without a summary (a recording cut off before it
+finished) up to its end, and report each damaged place with its byte offset.
 """
 
 from __future__ import annotations
@@ -22,10 +23,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
@@ -35,6 +33,7 @@ from mcap_ros2.decoder import DecoderFactory
 from .. import __version__
 from ..errors import LogError
 from .atomic import partial_path
+from .mcap_scan import Damaged, McapScan
 from .schemas import message_definition
 
 # Types whose last field is a large primitive array given as a numpy array: written as raw
@@ -54,9 +53,13 @@ class LogWriter:
         self.path = Path(path)
         self._tmp = partial_path(self.path)
         self._file: IO[bytes] = open(self._tmp, "wb")
-        self._writer = McapWriter(self._file, chunk_size=chunk_size,
-                                  compression=CompressionType[compression.upper() or "NONE"])
-        self._writer.start(profile="ros2", library=f"fmcwlog {__version__}")
+        try:
+            self._writer = McapWriter(self._file, chunk_size=chunk_size,
+                                      compression=CompressionType[compression.upper() or "NONE"])
+            self._writer.start(profile="ros2", library=f"fmcwlog {__version__}")
+        except BaseException:  # the header could not be written (a full disk): leave nothing behind
+            self.abort()
+            raise
         self._schemas: dict[str, tuple[int, Callable[[Any], bytes]]] = {}
         self._channels: dict[str, int] = {}
 
@@ -132,27 +135,34 @@ class LogMessage:
 
 @dataclass
 class LogContents:
-    """What a scan of a log found besides its messages."""
+    """What a scan of a log found besides its messages.
+
+    metadata: the first record of each name; ``metadata_records`` keeps every record, in
+    file order (MCAP allows several of one name).
+    truncated: reading stopped before the end of the data section (a cut or damage that no
+    index let it step over). damage: one sentence per damaged place, each naming its byte offset.
+    """
 
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    metadata_records: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     topics: dict[str, str] = field(default_factory=dict)  # topic -> schema name
     counts: dict[str, int] = field(default_factory=dict)  # topic -> messages, when the summary says
     truncated: bool = False
+    damage: list[str] = field(default_factory=list)
 
 
-def _check_magic(path: Path, fh: IO[bytes]) -> None:
-    head = fh.read(8)
-    fh.seek(0)
-    if head[:5] != b"\x89MCAP":
-        raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+class UndecodableMessage(LogError):
+    """One message's bytes do not decode with its schema (damage local to that message)."""
 
 
 class LogReader:
-    """Streams decoded messages of a log in file order, whoever wrote it.
+    """Streams decoded messages of a log in file order, whoever wrote it, damaged or not.
 
-    An indexed file is read through its summary; a file without one (cut off
-    before the footer) is scanned record by record up to where it ends, and
-    :attr:`contents.truncated` is set.
+    The container is read by :class:`fmcwlog.io.mcap_scan.McapScan`: an indexed file
+    through its summary, a file without one (cut off before the footer, or with a
+    damaged summary) record by record. Each damaged place is a warning naming its byte
+    offset, once per reader (:attr:`contents.damage`); a file that holds nothing readable
+    before its damage is a :class:`LogError`.
     """
 
     def __init__(self, path: str | os.PathLike):
@@ -164,43 +174,52 @@ class LogReader:
         self.contents = LogContents()
         self._decoders: dict[int, Any] = {}
         self._factory = DecoderFactory()
-        with open(self.path, "rb") as fh:
-            _check_magic(self.path, fh)
-            self._indexed = self._read_summary(fh)
-        if not self._indexed:
+        self._reported: set[int] = set()
+        self._causes: list[str] = []
+        try:
+            self._scan = McapScan(self.path, self._report)
+        except Damaged as exc:
+            raise LogError(f"{self.path}: {exc}") from None
+        summary = self._scan.summary
+        if summary is not None:
+            for ch in summary.channels.values():
+                schema = summary.schemas.get(ch.schema_id)
+                self.contents.topics[ch.topic] = schema.name if schema is not None else ""
+            if summary.message_counts is not None:
+                self.contents.counts = {summary.channels[c].topic: n
+                                        for c, n in summary.message_counts.items() if c in summary.channels}
+            for md in self._scan.metadata():
+                self._note_metadata(md)
+        else:
             self._scan_headers()
 
-    def _read_summary(self, fh: IO[bytes]) -> bool:
-        try:
-            reader = make_reader(fh)
-            summary = reader.get_summary()
-            if summary is None:
-                return False
-            for ch in summary.channels.values():
-                self.contents.topics[ch.topic] = summary.schemas[ch.schema_id].name
-            if summary.statistics is not None:
-                self.contents.counts = {summary.channels[c].topic: n
-                                        for c, n in summary.statistics.channel_message_counts.items()}
-            for md in reader.iter_metadata():
-                self.contents.metadata[md.name] = dict(md.metadata)
-            return True
-        except (McapError, ValueError, AssertionError, EOFError, OSError):
-            return False
+    def _report(self, offset: int, cause: str, effect: str) -> None:
+        """One warning per damaged place and reader, however many passes meet it."""
+        if offset not in self._reported:
+            self._reported.add(offset)
+            self._causes.append(cause)
+            text = f"{self.path}: {cause}: {effect}"
+            self.contents.damage.append(text)
+            warnings.warn(text, stacklevel=2)
 
-    def _stream_records(self, fh: IO[bytes]) -> Iterator[Any]:
-        reader = StreamReader(fh, skip_magic=False, emit_chunks=False)
-        try:
-            yield from reader.records
-        except (McapError, EOFError, ValueError, AssertionError) as exc:
-            if not self.contents.truncated:
-                self.contents.truncated = True
-                warnings.warn(f"{self.path}: log ends early ({type(exc).__name__}); reading up to where it ends",
-                              stacklevel=2)
+    def damage_note(self) -> str:
+        """What went wrong first, for an error that follows from it ('' for an intact log)."""
+        return f" (the log is damaged: {self._causes[0]})" if self._causes else ""
+
+    def _note_metadata(self, md: Metadata) -> None:
+        self.contents.metadata_records.append((md.name, dict(md.metadata)))
+        self.contents.metadata.setdefault(md.name, dict(md.metadata))
 
     def _scan_headers(self) -> None:
-        """Collect metadata and topics of an unindexed file with one sequential pass."""
-        for _ in self._raw_messages(set()):
+        """Collect metadata and topics of a file without a usable summary with one sequential pass."""
+        for _ in self._records(None, metadata=True):
             pass
+        problem = self._scan.summary_problem
+        if self._scan.complete and problem is not None:
+            self._report(self._scan.size, problem, "read every message, without the summary's index")
+        if not self.contents.topics:
+            why = self._causes[0] if self._causes else "it holds no channels"
+            raise LogError(f"{self.path}: nothing readable: {why}")
 
     @property
     def metadata(self) -> dict[str, dict[str, str]]:
@@ -210,49 +229,64 @@ class LogReader:
     def topics(self) -> dict[str, str]:
         return self.contents.topics
 
+    def metadata_all(self, name: str) -> list[dict[str, str]]:
+        """Every metadata record called ``name``, in file order."""
+        return [values for n, values in self.contents.metadata_records if n == name]
+
     def message_count(self, topic: str) -> int | None:
         """Messages on ``topic`` by the summary's statistics; None for an unindexed file."""
         return self.contents.counts.get(topic)
 
-    def _raw_messages(self, wanted: set[str] | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
-        """Undecoded messages on the ``wanted`` topics (all when None), in file order; topics and
-        metadata met on the way are noted in :attr:`contents` (an unindexed file has no summary).
+    def _records(self, wanted: set[str] | None, metadata: bool = False) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        summary = self._scan.summary
+        schemas: dict[int, Schema] = dict(summary.schemas) if summary is not None else {}
+        channels: dict[int, Channel] = dict(summary.channels) if summary is not None else {}
+        for rec in self._scan.records():
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+                self.contents.topics.setdefault(rec.topic, schemas[rec.schema_id].name if rec.schema_id in schemas else "")
+            elif isinstance(rec, Metadata):
+                if metadata:
+                    self._note_metadata(rec)
+            else:
+                ch = channels.get(rec.channel_id)
+                if ch is not None and (wanted is None or ch.topic in wanted):
+                    yield schemas.get(ch.schema_id), ch, rec
+        if not self._scan.complete:
+            self.contents.truncated = True
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """Undecoded messages on ``topics`` (all when None), in file order; :meth:`decode` decodes one.
 
         Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
         indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
         """
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        with open(self.path, "rb") as fh:
-            for rec in self._stream_records(fh):
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                    self.contents.topics.setdefault(rec.topic, schemas[rec.schema_id].name if rec.schema_id in schemas else "")
-                elif isinstance(rec, Metadata):
-                    self.contents.metadata.setdefault(rec.name, dict(rec.metadata))
-                elif isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is not None and (wanted is None or ch.topic in wanted):
-                        yield schemas.get(ch.schema_id), ch, rec
+        return self._records(None if topics is None else set(topics))
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
         """Decoded messages on ``topics`` (all when None), in file order."""
-        for schema, channel, rec in self._raw_messages(None if topics is None else set(topics)):
-            yield self._decode(schema, channel, rec)
+        for schema, channel, rec in self.raw_messages(topics):
+            yield self.decode(schema, channel, rec)
 
     def log_times(self, topic: str) -> Iterator[int]:
         """``log_time`` (ns) of every message on ``topic``, without decoding them."""
-        for _, _, rec in self._raw_messages({topic}):
+        for _, _, rec in self.raw_messages([topic]):
             yield rec.log_time
 
-    def _decode(self, schema: Schema | None, channel: Channel, message: Message) -> LogMessage:
+    def decode(self, schema: Schema | None, channel: Channel, message: Message) -> LogMessage:
+        """One message decoded; :class:`LogError` where its topic cannot be decoded at all,
+        :class:`UndecodableMessage` where only this message's bytes are at fault."""
         if schema is None:
             raise LogError(f"{self.path}: topic {channel.topic} has no schema")
         dec = self._decoders.get(channel.id)
         if dec is None:
-            dec = self._factory.decoder_for(channel.message_encoding, schema)
+            try:
+                dec = self._factory.decoder_for(channel.message_encoding, schema)
+            except Exception as exc:  # mcap_ros2 raises several types for a schema it cannot parse
+                raise LogError(f"{self.path}: topic {channel.topic}: its schema {schema.name!r} "
+                               f"cannot be parsed ({exc})") from None
             if dec is None:
                 raise LogError(
                     f"{self.path}: topic {channel.topic} is encoded as {channel.message_encoding!r}, expected 'cdr'"
@@ -261,7 +295,5 @@ class LogReader:
         try:
             msg = dec(message.data)
         except Exception as exc:  # the CDR decoder raises several unrelated types
-            raise LogError(f"{self.path}: cannot decode a message on {channel.topic} ({exc})") from exc
+            raise UndecodableMessage(f"{self.path}: cannot decode a message on {channel.topic} ({exc})") from exc
         return LogMessage(channel.topic, schema.name, message.log_time, msg)
-
-

@@ -15,7 +15,7 @@ import numpy as np
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 
 # PointField datatype codes (sensor_msgs/PointField) -> numpy dtypes, little-endian.
-_POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 8: "<f8"}
+POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 8: "<f8"}
 FLOAT32 = 7
 
 
@@ -72,9 +72,9 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
     out = {}
     for name in names:
         f = by_name[name]
-        if f.datatype not in _POINTFIELD_DTYPES:
+        if f.datatype not in POINTFIELD_DTYPES:
             raise ValueError(f"field {name!r} has unknown datatype {f.datatype}")
-        dt = np.dtype(_POINTFIELD_DTYPES[f.datatype])
+        dt = np.dtype(POINTFIELD_DTYPES[f.datatype])
         if n == 0:
             out[name] = np.zeros(0)
             continue

@@ -26,6 +26,7 @@ in ``map`` (the ground truth's frame) the robot started, so no estimate claims `
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -33,6 +34,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from .mcap_log import LogWriter
 from .messages import (
@@ -99,10 +101,33 @@ def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
 
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (s) and poses (N, 3) of a planar TUM file."""
-    a = np.loadtxt(path, ndmin=2)
+    """Stamps (s) and poses (N, 3) of a planar TUM file.
+
+    A file that is not one (a line without 8 numbers, a NaN, stamps that go backwards or
+    repeat, a quaternion of zero length) raises :class:`ReportError` naming it and the line.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: numpy warns, we return no poses
+            a = np.loadtxt(path, ndmin=2, comments="#")
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ReportError(f"{path}: not a TUM trajectory ({str(exc).splitlines()[0] if str(exc) else 'unreadable'}); "
+                          "each line is t x y z qx qy qz qw") from None
     if a.size == 0:
         return np.zeros(0), np.zeros((0, 3))
+    if a.shape[1] != 8:
+        raise ReportError(f"{path}: lines have {a.shape[1]} values, a TUM pose has 8 (t x y z qx qy qz qw)")
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        raise ReportError(f"{path}: pose {int(np.argmax(bad)) + 1} holds a value that is not finite")
+    back = np.diff(a[:, 0]) <= 0
+    if back.any():
+        raise ReportError(f"{path}: stamps do not increase at pose {int(np.argmax(back)) + 2}")
+    norm = np.linalg.norm(a[:, 4:8], axis=1)
+    if (norm < 1e-6).any():
+        raise ReportError(f"{path}: pose {int(np.argmax(norm < 1e-6)) + 1} has a zero quaternion")
     return a[:, 0], np.column_stack([a[:, 1], a[:, 2], quaternion_to_yaw(a[:, 4], a[:, 5], a[:, 6], a[:, 7])])
 
 

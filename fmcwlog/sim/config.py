@@ -12,28 +12,36 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ..config import apply_to_dataclass
+from ..config import Checked, apply_to_dataclass, check_params, param, toml_table
 from ..errors import ConfigError
+
+# Ranges: what a planar robot LiDAR and a small ground robot can physically be, wide enough
+# for any real one, and bounded on every side so that a typo cannot make the simulator run
+# for days or allocate without limit (``--set sensor.scan_rate=1e6`` used to hang: 3e7 sweeps).
+MAX_SEED = 2**32 - 1  # numpy seeds any non-negative integer; 32 bits is what every tool prints and takes
 
 
 @dataclass(frozen=True)
-class SensorConfig:
+class SensorConfig(Checked):
     """The FMCW LiDAR (paper Table 1) and where it sits on the robot."""
 
-    wavelength: float = 1550e-9  # m
-    fov_deg: float = 270.0  # total field of view, centred on the sensor's x axis
-    resolution_deg: float = 0.25  # beam spacing
-    max_range: float = 30.0  # m; beams with nothing closer give no return
-    min_range: float = 0.1  # m; closer returns are dropped (blind zone)
-    range_sigma: float = 0.02  # m, Gaussian range noise
-    range_resolution: float = 0.02  # m, reported ranges are multiples of this
-    doppler_resolution: float = 0.1  # m/s, reported velocities are multiples of this
-    doppler_sigma: float = 0.02  # m/s, noise added before quantisation
-    scan_rate: float = 10.0  # Hz
-    dropout: float = 0.002  # probability that a beam with a target returns nothing
-    mount_x: float = 0.35  # m, lidar origin in base_link
-    mount_y: float = 0.0  # m
-    mount_yaw_deg: float = 0.0
+    # 100 nm - 10 um: from UV to far-infrared lasers; only recorded in the calibration
+    wavelength: float = param(1550e-9, "m", ge=1e-7, le=1e-5)
+    fov_deg: float = param(270.0, "deg", gt=0.0, le=360.0)  # total field of view, centred on the sensor's x axis
+    # beam spacing; 0.01 deg is 27 001 beams in 270 deg, denser than any planar scanner
+    resolution_deg: float = param(0.25, "deg", ge=0.01, le=45.0)
+    max_range: float = param(30.0, "m", gt=0.0, le=1000.0)  # beams with nothing closer give no return
+    min_range: float = param(0.1, "m", ge=0.0, le=1000.0)  # closer returns are dropped (blind zone)
+    range_sigma: float = param(0.02, "m", ge=0.0, le=10.0)  # Gaussian range noise
+    range_resolution: float = param(0.02, "m", ge=0.0, le=10.0)  # reported ranges are multiples of this (0: exact)
+    doppler_resolution: float = param(0.1, "m/s", ge=0.0, le=10.0)  # reported velocities are multiples of this
+    doppler_sigma: float = param(0.02, "m/s", ge=0.0, le=10.0)  # noise added before quantisation
+    # spinning scanners turn at 5-40 Hz; 100 Hz bounds the sweep count (duration x rate)
+    scan_rate: float = param(10.0, "Hz", ge=0.1, le=100.0)
+    dropout: float = param(0.002, "", ge=0.0, lt=1.0)  # probability that a beam with a target returns nothing
+    mount_x: float = param(0.35, "m", ge=-10.0, le=10.0)  # lidar origin in base_link: on the robot
+    mount_y: float = param(0.0, "m", ge=-10.0, le=10.0)
+    mount_yaw_deg: float = param(0.0, "deg", ge=-180.0, le=180.0)
 
     @property
     def n_beams(self) -> int:
@@ -50,27 +58,31 @@ class SensorConfig:
 
 
 @dataclass(frozen=True)
-class RobotConfig:
+class RobotConfig(Checked):
     """Car-like chassis with encoders on the (unsteered) rear wheels."""
 
-    speed: float = 1.0  # m/s cruise speed along the route
-    acceleration: float = 0.5  # m/s^2 at start and stop
-    wheelbase: float = 0.5  # m, rear to front axle
-    track_width: float = 0.45  # m, between the rear wheels
-    wheel_radius: float = 0.1  # m, the calibrated (nominal) radius
-    wheel_radius_error_left: float = 0.005  # true radius = nominal * (1 + error)
-    wheel_radius_error_right: float = 0.003
-    slip_sigma: float = 0.002  # relative wheel slip per encoder interval (white)
-    ticks_per_revolution: int = 4096
-    encoder_rate: float = 50.0  # Hz, also the ground-truth odometry rate
+    speed: float = param(1.0, "m/s", gt=0.0, le=10.0)  # cruise speed along the route (a ground robot indoors)
+    acceleration: float = param(0.5, "m/s^2", gt=0.0, le=10.0)  # at start and stop (10 m/s^2 is about 1 g)
+    wheelbase: float = param(0.5, "m", gt=0.0, le=10.0)  # rear to front axle
+    track_width: float = param(0.45, "m", gt=0.0, le=10.0)  # between the rear wheels
+    wheel_radius: float = param(0.1, "m", gt=0.0, le=5.0)  # the calibrated (nominal) radius
+    # true radius = nominal * (1 + error); a wheel 50 % off its calibration is a broken robot
+    wheel_radius_error_left: float = param(0.005, "", ge=-0.5, le=0.5)
+    wheel_radius_error_right: float = param(0.003, "", ge=-0.5, le=0.5)
+    slip_sigma: float = param(0.002, "", ge=0.0, le=0.5)  # relative wheel slip per encoder interval (white)
+    ticks_per_revolution: int = param(4096, "", ge=1, le=2**24)  # up to a 24-bit absolute encoder
+    encoder_rate: float = param(50.0, "Hz", ge=1.0, le=1000.0)  # also the ground-truth odometry rate
 
 
 @dataclass(frozen=True)
-class RunConfig:
-    duration: float = 30.0  # s
-    seed: int = 0
-    start_time_ns: int = 1_700_000_000_000_000_000  # the log's first stamp
-    compression: str = "zstd"
+class RunConfig(Checked):
+    # a day; the default sensor writes about 0.2 GB of log per hour (zstd)
+    duration: float = param(30.0, "s", gt=0.0, le=86400.0)
+    seed: int = param(0, "", ge=0, le=MAX_SEED)
+    # ns since the epoch of the log's first stamp; ROS 2 stamps hold int32 seconds (2038), so the
+    # start must leave room for the run: 2e18 ns is in 2033
+    start_time_ns: int = param(1_700_000_000_000_000_000, "ns", ge=0, le=2_000_000_000_000_000_000)
+    compression: str = param("zstd", choices=("zstd", "lz4", ""))  # "": none
 
 
 @dataclass(frozen=True)
@@ -83,26 +95,19 @@ class SimConfig:
         return asdict(self)
 
     def validate(self) -> SimConfig:
-        s, r, u = self.sensor, self.robot, self.run
-        checks = [
-            (u.duration > 0, "run.duration must be positive"),
-            (0 < s.fov_deg <= 360, "sensor.fov_deg must be in (0, 360]"),
-            (s.resolution_deg > 0, "sensor.resolution_deg must be positive"),
-            (s.max_range > s.min_range >= 0, "sensor.max_range must exceed sensor.min_range >= 0"),
-            (s.range_sigma >= 0 and s.doppler_sigma >= 0, "noise sigmas must be >= 0"),
-            (s.range_resolution >= 0 and s.doppler_resolution >= 0, "resolutions must be >= 0"),
-            (s.scan_rate > 0, "sensor.scan_rate must be positive"),
-            (0 <= s.dropout < 1, "sensor.dropout must be in [0, 1)"),
-            (r.speed > 0 and r.acceleration > 0, "robot.speed and robot.acceleration must be positive"),
-            (r.track_width > 0 and r.wheel_radius > 0 and r.wheelbase > 0, "robot dimensions must be positive"),
-            (r.ticks_per_revolution > 0, "robot.ticks_per_revolution must be positive"),
-            (r.encoder_rate > 0, "robot.encoder_rate must be positive"),
-            (u.compression in ("zstd", "lz4", ""), "run.compression must be zstd, lz4 or empty"),
-        ]
-        for ok, why in checks:
-            if not ok:
-                raise ConfigError(why)
+        """Each field's range (:func:`fmcwlog.config.check_params`) and what the fields must satisfy together."""
+        check_params(self)
+        if self.sensor.min_range >= self.sensor.max_range:
+            raise ConfigError(f"sensor.min_range = {self.sensor.min_range:g} m must be below "
+                              f"sensor.max_range = {self.sensor.max_range:g} m")
         return self
+
+    def toml(self) -> str:
+        """Every parameter as TOML, each with its unit and range; ``record --config`` takes it back."""
+        head = ["# fmcwlog record parameters: every one, with its unit and valid range.",
+                "# Use: fmcwlog record --config FILE (or change one with --set SECTION.NAME=VALUE).", ""]
+        return "\n".join(head + toml_table("sensor", self.sensor) + toml_table("robot", self.robot)
+                         + toml_table("run", self.run)).rstrip() + "\n"
 
 
 _SECTIONS = ("sensor", "robot", "run")

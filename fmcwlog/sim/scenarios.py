@@ -1,4 +1,4 @@
-"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``long-corridor``, ``ring``.
+"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``dense-crowd``, ``long-corridor``, ``ring``.
 
 ``corridor`` stands in for the paper's Figure 3: a floor of 26.681 m by
 25.534 m, a ring corridor 3 m wide around a hall, with the nine labelled
@@ -101,6 +101,41 @@ def crowd() -> World:
     return World("crowd", np.array(walls, dtype=float), route, features, movers)
 
 
+DENSE_ALONG, DENSE_ACROSS, DENSE_CARTS = 12, 16, 3  # added to the ``crowd`` hall's 28 people and 4 carts
+
+
+def dense_crowd() -> World:
+    """The ``crowd`` hall packed: about half of all returns hit people and carts, and many of
+    them walk across the robot's loop, so that they cross its beams broadside (``ε ≈ 0``)."""
+    hall = crowd()
+    rng = np.random.default_rng(2025)  # a fixed crowd: the scenario is data, not randomness
+    movers: list[Mover] = list(hall.movers)
+    for i in range(DENSE_ALONG):  # along the loop's sides, close to its line, both directions
+        lane = rng.uniform(-1.2, 1.2)
+        if i % 2:
+            y = (4.0 if i % 4 == 1 else 16.0) + lane
+            path = [[2.0, y], [28.0, y]]
+        else:
+            x = (4.0 if i % 4 == 0 else 26.0) + lane
+            path = [[x, 2.0], [x, 18.0]]
+        movers.append(Mover("person", path, rng.uniform(0.8, 1.5), phase=rng.uniform(0, 60)))
+    for i in range(DENSE_ACROSS):  # short walks across one side of the loop
+        side = i % 4
+        if side < 2:  # across the south (y = 4) or north (y = 16) side
+            x, y = rng.uniform(5.0, 25.0), 4.0 if side == 0 else 16.0
+            path = [[x + rng.uniform(-1, 1), y - 3.0], [x + rng.uniform(-1, 1), y + 3.0]]
+        else:  # across the west (x = 4) or east (x = 26) side
+            x, y = 4.0 if side == 2 else 26.0, rng.uniform(5.0, 15.0)
+            path = [[x - 3.0, y + rng.uniform(-1, 1)], [x + 3.0, y + rng.uniform(-1, 1)]]
+        movers.append(Mover("person", path, rng.uniform(0.8, 1.5), phase=rng.uniform(0, 12)))
+    for _ in range(DENSE_CARTS):  # carts across the loop too
+        x = rng.uniform(6.0, 24.0)
+        y = 4.0 if rng.random() < 0.5 else 16.0
+        movers.append(Mover("cart", [[x, y - 3.5], [x, y + 3.5]], rng.uniform(0.5, 1.0), phase=rng.uniform(0, 14)))
+    return World("dense-crowd", hall.walls, hall.route, hall.features, movers)
+
+
+
 def long_corridor() -> World:
     """A 100 m corridor, 3 m wide, with a turning room at each end and bare walls between:
     geometry alone cannot tell where along its axis the robot is."""
@@ -155,5 +190,6 @@ def ring() -> World:
     return World("ring", np.array(walls, dtype=float), route, features, movers)
 
 
-SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "long-corridor": long_corridor, "ring": ring}
+SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "dense-crowd": dense_crowd,
+             "long-corridor": long_corridor, "ring": ring}
 DEFAULT_SCENARIO = "corridor"

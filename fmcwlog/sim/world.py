@@ -80,17 +80,36 @@ class World:
         return World(name or self.name, self.walls, self.route, self.features, [])
 
 
+# Coordinates within 100 km of the origin: float64 still resolves micrometres there, and no
+# floor is larger. Sizes and speeds: what people and carts can be.
+MAX_COORDINATE = 1e5  # m
+
+
 def _num_list(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    if isinstance(value, str | bytes | dict):
+        raise WorldError(f"{where} must be a list of numbers")
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise WorldError(f"{where} must be numbers") from None
     if arr.ndim != len(shape) or any(s != -1 and s != n for s, n in zip(shape, arr.shape)):
         want = " x ".join("N" if s == -1 else str(s) for s in shape)
         raise WorldError(f"{where} must be a list of shape {want}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise WorldError(f"{where} has a value that is not finite")
+    if np.any(np.abs(arr) > MAX_COORDINATE):
+        raise WorldError(f"{where} has a coordinate beyond {MAX_COORDINATE:g} m of the origin")
     return arr
+
+
+def _number(value: Any, where: str, lo: float, hi: float, lo_open: bool = False, unit: str = "") -> float:
+    """A finite number in ``[lo, hi]`` (``(lo, hi]`` if ``lo_open``) or a one-line :class:`WorldError`."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise WorldError(f"{where} must be a number, got {value!r:.40}")
+    x = float(value)
+    if not np.isfinite(x) or x > hi or x < lo or (lo_open and x == lo):
+        raise WorldError(f"{where} = {value!r:.40} is out of range: {'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}".rstrip())
+    return x
 
 
 def world_from_dict(data: Any, source: str = "world") -> World:
@@ -99,12 +118,20 @@ def world_from_dict(data: Any, source: str = "world") -> World:
         raise WorldError(f"{source}: expected a mapping with walls, route (and optionally features, movers)")
     unknown = set(data) - {"name", "walls", "features", "movers", "route"}
     if unknown:
-        raise WorldError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+        raise WorldError(f"{source}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     if "walls" not in data or "route" not in data:
         raise WorldError(f"{source}: needs 'walls' and 'route'")
     walls = _num_list(data["walls"], (-1, 4), f"{source}: walls")
     if len(walls) == 0:
         raise WorldError(f"{source}: walls is empty")
+    short = np.hypot(walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]) < 1e-6
+    if short.any():
+        raise WorldError(f"{source}: walls[{int(np.argmax(short))}] has zero length")
+    if not isinstance(data.get("name", ""), str):
+        raise WorldError(f"{source}: name must be a string")
+    for key in ("features", "movers"):
+        if not isinstance(data.get(key) or [], list):
+            raise WorldError(f"{source}: {key} must be a list")
 
     route = _route(data["route"], source)
     features = _features(data.get("features") or [], source)
@@ -115,13 +142,16 @@ def world_from_dict(data: Any, source: str = "world") -> World:
 def _route(r: Any, source: str) -> RouteSpec:
     if not isinstance(r, dict) or "waypoints" not in r:
         raise WorldError(f"{source}: route needs 'waypoints'")
+    unknown = set(r) - {"waypoints", "loop", "corner_radius"}
+    if unknown:
+        raise WorldError(f"{source}: route: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    if not isinstance(r.get("loop", True), bool):
+        raise WorldError(f"{source}: route.loop must be true or false")
     route = RouteSpec(
         waypoints=_num_list(r["waypoints"], (-1, 2), f"{source}: route.waypoints"),
-        loop=bool(r.get("loop", True)),
-        corner_radius=float(r.get("corner_radius", 1.0)),
+        loop=r.get("loop", True),
+        corner_radius=_number(r.get("corner_radius", 1.0), f"{source}: route.corner_radius", 0.0, 1e4, True, "m"),
     )
-    if route.corner_radius <= 0:
-        raise WorldError(f"{source}: route.corner_radius must be positive")
     try:
         route.build()
     except ValueError as exc:
@@ -137,7 +167,13 @@ def _features(entries: list, source: str) -> list[Feature]:
             raise WorldError(f"{where} needs 'a' and 'b'")
         a = _num_list(f["a"], (2,), f"{where}.a")
         b = _num_list(f["b"], (2,), f"{where}.b")
-        features.append(Feature(int(f.get("id", i + 1)), str(f.get("name", f"feature {i + 1}")), tuple(a), tuple(b)))
+        fid = f.get("id", i + 1)
+        if isinstance(fid, bool) or not isinstance(fid, int) or abs(fid) > 2**53:
+            raise WorldError(f"{where}.id must be a whole number, got {fid!r:.40}")
+        name = f.get("name", f"feature {i + 1}")
+        if not isinstance(name, str):
+            raise WorldError(f"{where}.name must be a string")
+        features.append(Feature(fid, name, (float(a[0]), float(a[1])), (float(b[0]), float(b[1]))))
     if len({f.id for f in features}) != len(features):
         raise WorldError(f"{source}: feature ids must be unique")
     return features
@@ -149,22 +185,21 @@ def _mover(m: Any, where: str) -> Mover:
     kind = m.get("kind", "person")
     if kind not in ("person", "cart"):
         raise WorldError(f"{where}.kind must be 'person' or 'cart', got {kind!r}")
+    unknown = set(m) - {"kind", "path", "speed", "phase", "radius", "length", "width"}
+    if unknown:
+        raise WorldError(f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     path = _num_list(m["path"], (-1, 2), f"{where}.path")
-    try:
-        mover = Mover(
-            kind=kind,
-            path=path,
-            speed=float(m.get("speed", 1.2 if kind == "person" else 0.8)),
-            phase=float(m.get("phase", 0.0)),
-            radius=float(m.get("radius", 0.25)),
-            length=float(m.get("length", 1.0)),
-            width=float(m.get("width", 0.6)),
-        )
-    except (TypeError, ValueError):
-        raise WorldError(f"{where}: speed, phase, radius, length and width must be numbers") from None
-    if mover.speed < 0 or mover.radius <= 0 or mover.length <= 0 or mover.width <= 0:
-        raise WorldError(f"{where}: speed must be >= 0 and sizes positive")
-    return mover
+    if len(path) == 0:
+        raise WorldError(f"{where}.path is empty")
+    return Mover(
+        kind=kind,
+        path=path,
+        speed=_number(m.get("speed", 1.2 if kind == "person" else 0.8), f"{where}.speed", 0.0, 20.0, unit="m/s"),
+        phase=_number(m.get("phase", 0.0), f"{where}.phase", -MAX_COORDINATE, MAX_COORDINATE, unit="m"),
+        radius=_number(m.get("radius", 0.25), f"{where}.radius", 0.0, 10.0, True, "m"),
+        length=_number(m.get("length", 1.0), f"{where}.length", 0.0, 20.0, True, "m"),
+        width=_number(m.get("width", 0.6), f"{where}.width", 0.0, 20.0, True, "m"),
+    )
 
 
 def load_world(path: str | Path) -> World:

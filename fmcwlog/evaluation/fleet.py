@@ -1,0 +1,350 @@
+"""``fmcwlog report OUT`` on a batch folder: one row per log, totals, and the logs a person should look at.
+
+Each log's numbers come from its own report (:func:`fmcwlog.evaluation.evaluate.evaluate`,
+written beside its results as usual) and from what ``fmcwlog process`` left in its folder
+(run.json, trajectories.parquet, the TUM files); a failed log's row carries the reason
+recorded in ``OUT/batch.json``. fleet.json keys (schema ``fmcwlog.fleet/1``; ``null`` where
+a value cannot be computed):
+
+- ``logs``: a row per log: ``name``, ``log``, ``status`` (done, failed), ``reason`` (why it
+  failed), ``report`` (its report.html, relative to OUT), ``report_error``, ``duration_s``
+  (first to last sweep), ``distance_m`` and ``distance_from`` (along the ground truth, else
+  along the improved estimate), ``sweeps``, ``wall_s`` (processing time), ``ms_per_sweep``
+  (median, per method), ``warnings``, ``truncated_log``, ``ground_truth``, ``ate_rmse_m`` and
+  ``feature_avg_rel_error_pct`` (per method, where ground truth exists),
+  ``methods_disagreement_m``, ``icp_starved_sweeps`` (per method), ``flags``;
+- ``totals``: counts, sums, and per method the median and worst ATE over the logs with
+  ground truth;
+- ``flagged``: ``{name, flags}`` of every log with a flag, worst first.
+
+What is flagged, and why a person should look:
+
+- a failed log (its reason), a log whose report failed, a log cut off before its summary;
+- with ground truth: the worst ``FLAG_FRACTION`` of the logs by the improved method's ATE
+  RMSE, and by its average feature-length error, when also ``OUTLIER_RATIO`` times the
+  median of those logs (the worst of a fleet of good logs needs no look);
+- without ground truth: the same by the methods' disagreement (the RMSE
+  between the improved and baseline positions at the same sweeps after the best SE(2)
+  alignment of one onto the other: where two independent estimates part, at least one is
+  wrong), and any log where ICP ran out of correspondences (fewer than
+  ``icp.min_correspondences`` pairs, so that sweep kept its motion prior) on more than
+  ``STARVED_FRACTION`` of its sweeps.
+
+A ranking needs at least two logs to compare; with one log only the absolute flags apply.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from ..frontend.methods import WHEEL_ODOMETRY, BaselineFrontEnd, ImprovedFrontEnd
+from ..io.atomic import json_text, write_text
+from ..io.outputs import read_tum
+from .evaluate import Evaluation
+from .metrics import ate
+
+FLEET_SCHEMA = "fmcwlog.fleet/1"
+FLAG_FRACTION = 0.10  # the worst tenth of a ranking is flagged (at least one log)...
+OUTLIER_RATIO = 2.0  # ...when it is also at least twice the ranking's median: the worst of good logs is good
+STARVED_FRACTION = 0.01  # more than 1 % of sweeps without enough ICP pairs
+_IMPROVED, _BASELINE = ImprovedFrontEnd.name, BaselineFrontEnd.name
+
+
+@dataclass
+class FleetEntry:
+    """One log of a batch: its folder when it holds results, and its batch.json record."""
+
+    name: str
+    folder: Path | None
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+def _run_json(folder: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads((folder / "run.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _path_length(xy: np.ndarray) -> float:
+    return float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(xy) > 1 else 0.0
+
+
+def starved_sweeps(table: Any, min_correspondences: int) -> dict[str, int]:
+    """Per method, the sweeps where ICP ran (``icp_iterations`` > 0) but kept fewer than
+    ``min_correspondences`` pairs: it gave up and the sweep kept its motion prior."""
+    method = np.asarray(table.column("method").to_pylist(), dtype=object)
+    it = np.asarray(table.column("icp_iterations").to_pylist(), dtype=object)
+    kept = np.asarray(table.column("correspondences").to_pylist(), dtype=object)
+    out = {}
+    for m in sorted(set(method) - {WHEEL_ODOMETRY}):
+        sel = (method == m) & np.array([i is not None for i in it]) & np.array([k is not None for k in kept])
+        if sel.any():
+            out[str(m)] = int(np.sum((it[sel].astype(int) > 0) & (kept[sel].astype(int) < min_correspondences)))
+    return out
+
+
+def methods_disagreement(folder: Path) -> float | None:
+    """RMSE (m) between the improved and baseline positions at their common sweeps, after the
+    best SE(2) alignment of the baseline onto the improved trajectory; None without both."""
+    a, b = folder / f"{_IMPROVED}.tum", folder / f"{_BASELINE}.tum"
+    if not (a.is_file() and b.is_file()):
+        return None
+    ta, pa_ = read_tum(a)
+    tb, pb = read_tum(b)
+    common, ia, ib = np.intersect1d(np.round(ta, 6), np.round(tb, 6), return_indices=True)
+    if len(common) < 3:
+        return None
+    return float(ate(pb[ib], pa_[ia], "se2").rmse)
+
+
+def _from_folder(row: dict[str, Any], folder: Path) -> tuple[float, float] | None:
+    """What ``fmcwlog process`` left: counts, timings, warnings, duration, disagreement, starved ICP;
+    returns the first and last sweep's time (s)."""
+    run = _run_json(folder)
+    row.update(sweeps=run.get("sweeps", row["sweeps"]), wall_s=run.get("wall_seconds", row["wall_s"]),
+               warnings=list(run.get("warnings") or []), truncated_log=bool(run.get("truncated_log")),
+               ms_per_sweep=dict(run.get("ms_per_sweep_median") or {}))
+    row["log"] = row["log"] or run.get("log")
+    min_corr = int(((run.get("params") or {}).get("icp") or {}).get("min_correspondences", 10))
+    try:
+        table = pq.read_table(folder / "trajectories.parquet",
+                              columns=["method", "t", "icp_iterations", "correspondences"])
+    except (OSError, ValueError, KeyError):
+        return None
+    t = table.column("t").to_numpy()
+    span = (float(t.min()), float(t.max())) if len(t) else None
+    if span is not None:
+        row["duration_s"] = span[1] - span[0]
+    row["icp_starved_sweeps"] = starved_sweeps(table, min_corr)
+    row["methods_disagreement_m"] = methods_disagreement(folder)
+    est = folder / f"{_IMPROVED}.tum"
+    if est.is_file():
+        row["distance_m"], row["distance_from"] = _path_length(read_tum(est)[1][:, :2]), f"{_IMPROVED} estimate"
+    return span
+
+
+def _from_report(row: dict[str, Any], ev: Evaluation, span: tuple[float, float] | None) -> None:
+    """ATE and feature errors from the log's report; the distance along the ground truth."""
+    methods = ev.result.get("methods", {})
+    row["ate_rmse_m"] = {m: r.get("ate_rmse_m") for m, r in methods.items()}
+    row["feature_avg_rel_error_pct"] = {m: r.get("feature_avg_rel_error_pct") for m, r in methods.items()
+                                        if m != WHEEL_ODOMETRY}
+    row["ground_truth"] = ev.gt is not None
+    if ev.gt is not None and ev.gt_t is not None and span is not None:
+        inside = (ev.gt_t >= span[0]) & (ev.gt_t <= span[1])
+        row["distance_m"], row["distance_from"] = _path_length(ev.gt[inside, :2]), "ground truth"
+
+
+def log_row(entry: FleetEntry, ev: Evaluation | None, report_error: str | None = None) -> dict[str, Any]:
+    """One log's row of the fleet page (keys: the module's docstring)."""
+    rec = entry.record
+    failed = rec.get("status") == "failed"
+    row: dict[str, Any] = {
+        "name": entry.name, "log": rec.get("log"), "status": "failed" if failed else "done",
+        "reason": rec.get("reason") if failed else None,
+        "report": f"{entry.name}/report.html" if ev is not None else None, "report_error": report_error,
+        "duration_s": None, "distance_m": None, "distance_from": None, "sweeps": None if failed else rec.get("sweeps"),
+        "wall_s": rec.get("wall_s"), "ms_per_sweep": {}, "warnings": [], "truncated_log": False,
+        "ground_truth": False, "ate_rmse_m": {}, "feature_avg_rel_error_pct": {}, "methods_disagreement_m": None,
+        "icp_starved_sweeps": {}, "flags": [],
+    }
+    if entry.folder is not None and not failed:
+        span = _from_folder(row, entry.folder)
+        if ev is not None:
+            _from_report(row, ev, span)
+    return row
+
+
+def _primary(row: dict[str, Any], key: str) -> tuple[str, float] | None:
+    vals = row[key]
+    for m in (_IMPROVED, _BASELINE):
+        if vals.get(m) is not None:
+            return m, float(vals[m])
+    return None
+
+
+def _flag_worst(rows: list[dict[str, Any]], value: Callable[[dict[str, Any]], float | None],
+                describe: Callable[[dict[str, Any], float], str], population: str) -> None:
+    """Flag the worst FLAG_FRACTION (at least one) of ``rows`` by ``value(row)`` (larger is worse)
+    that are also at least OUTLIER_RATIO times the median."""
+    scored = [(v, r) for r in rows if (v := value(r)) is not None]
+    if len(scored) < 2:
+        return
+    k = max(1, math.ceil(FLAG_FRACTION * len(scored)))
+    median = float(np.median([v for v, _ in scored]))
+    for v, r in sorted(scored, key=lambda x: -x[0])[:k]:
+        if v >= OUTLIER_RATIO * median:
+            r["flags"].append(f"{describe(r, v)}: among the worst {k} of the {len(scored)} logs {population}, "
+                              f"{v / median:.1f} times their median" if median > 0 else
+                              f"{describe(r, v)}: the worst of the {len(scored)} logs {population}")
+
+
+def flag_logs(rows: list[dict[str, Any]]) -> None:
+    """Add to each row's ``flags`` why a person should look at it (see the module's docstring)."""
+    for r in rows:
+        if r["status"] == "failed":
+            r["flags"].append(f"failed: {r['reason']}")
+        if r["report_error"]:
+            r["flags"].append(f"no report: {r['report_error']}")
+        if r["truncated_log"]:
+            r["flags"].append("the log is cut off before its summary: processed up to where it ends")
+    done = [r for r in rows if r["status"] == "done"]
+    with_gt = [r for r in done if r["ground_truth"]]
+    without = [r for r in done if not r["ground_truth"]]
+
+    def ranked(key: str, what: str, fmt: Callable[[float], str]) -> None:
+        def value(r: dict[str, Any]) -> float | None:
+            p = _primary(r, key)
+            return None if p is None else p[1]
+
+        def describe(r: dict[str, Any], v: float) -> str:
+            p = _primary(r, key)
+            return f"{what} {fmt(v)} ({p[0] if p else '?'})"
+
+        _flag_worst(with_gt, value, describe, "with ground truth")
+
+    ranked("ate_rmse_m", "ATE RMSE", lambda v: f"{v * 100:.1f} cm")
+    ranked("feature_avg_rel_error_pct", "feature error", lambda v: f"{v:.2f} %")
+    _flag_worst(without, lambda r: r["methods_disagreement_m"],
+                lambda r, v: f"improved and baseline disagree by {v * 100:.1f} cm RMSE", "without ground truth")
+    for r in without:
+        sweeps = max(int(r["sweeps"] or 0), 1)
+        for m, n in r["icp_starved_sweeps"].items():
+            if n > STARVED_FRACTION * sweeps:
+                r["flags"].append(f"ICP ({m}) ran out of correspondences on {n} of {sweeps} sweeps")
+
+
+def _totals(rows: list[dict[str, Any]], batch: dict[str, Any]) -> dict[str, Any]:
+    done = [r for r in rows if r["status"] == "done"]
+    total = lambda key: float(sum(r[key] or 0 for r in done))
+    sweeps = int(total("sweeps"))
+    wall = batch.get("wall_s")  # the last 'fmcwlog process' run over this folder
+    per_method: dict[str, dict[str, float | None]] = {}
+    for m in sorted({m for r in done for m in r["ate_rmse_m"]}):
+        vals = [r["ate_rmse_m"][m] for r in done if r["ate_rmse_m"].get(m) is not None]
+        if vals:
+            per_method[m] = {"ate_rmse_m_median": float(np.median(vals)), "ate_rmse_m_max": float(np.max(vals)),
+                             "logs": len(vals)}
+    return {"logs": len(rows), "done": len(done), "failed": len(rows) - len(done),
+            "with_ground_truth": sum(r["ground_truth"] for r in done), "sweeps": sweeps,
+            "duration_s": total("duration_s"), "distance_m": total("distance_m"), "processing_s": total("wall_s"),
+            "batch_wall_s": wall, "methods": per_method}
+
+
+def fleet_result(out_dir: Path, rows: list[dict[str, Any]], batch: dict[str, Any]) -> dict[str, Any]:
+    """fleet.json's document: rows flagged, totals, the flagged logs (most flags first)."""
+    flag_logs(rows)
+    flagged = sorted((r for r in rows if r["flags"]), key=lambda r: (r["status"] != "failed", -len(r["flags"]),
+                                                                      r["name"]))
+    return {"schema": FLEET_SCHEMA, "out_dir": str(out_dir), "executor": batch.get("executor"),
+            "options_sha256": batch.get("options_sha256"), "totals": _totals(rows, batch),
+            "flagged": [{"name": r["name"], "flags": r["flags"]} for r in flagged], "logs": rows}
+
+
+def _fmt(x: Any, digits: int = 1, scale: float = 1.0) -> str:
+    return "—" if x is None else f"{x * scale:.{digits}f}"
+
+
+FLEET_HEADER = ["log", "status", "duration s", "distance m", "sweeps", "ms/sweep improved", "ATE cm improved",
+                "ATE cm baseline", "feature err % improved", "disagreement cm", "ICP starved", "warnings", "flags"]
+
+
+def fleet_rows(result: dict[str, Any]) -> list[list[str]]:
+    out = []
+    for r in result["logs"]:
+        out.append([r["name"], r["status"], _fmt(r["duration_s"]), _fmt(r["distance_m"]), str(r["sweeps"] or "—"),
+                    _fmt(r["ms_per_sweep"].get(_IMPROVED), 2), _fmt(r["ate_rmse_m"].get(_IMPROVED), 1, 100),
+                    _fmt(r["ate_rmse_m"].get(_BASELINE), 1, 100),
+                    _fmt(r["feature_avg_rel_error_pct"].get(_IMPROVED), 2),
+                    _fmt(r["methods_disagreement_m"], 1, 100),
+                    str(sum(r["icp_starved_sweeps"].values())) if r["icp_starved_sweeps"] else "—",
+                    str(len(r["warnings"])), str(len(r["flags"]))])
+    return out
+
+
+def _cell(text: str, link: str | None = None) -> str:
+    body = html.escape(text)
+    return f'<td><a href="{html.escape(link)}">{body}</a></td>' if link else f"<td>{body}</td>"
+
+
+def render_fleet_html(result: dict[str, Any]) -> str:
+    t = result["totals"]
+    rows_html = []
+    for r, cells in zip(result["logs"], fleet_rows(result)):
+        tds = [_cell(cells[0], r["report"])] + [_cell(c) for c in cells[1:]]
+        cls = ' class="failed"' if r["status"] == "failed" else (' class="flagged"' if r["flags"] else "")
+        rows_html.append(f"<tr{cls}>{''.join(tds)}</tr>")
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in FLEET_HEADER)
+    by_name = {r["name"]: r for r in result["logs"]}
+    flagged = "".join(
+        f"<li><b>{_link(by_name[f['name']])}</b><ul>{''.join(f'<li>{html.escape(x)}</li>' for x in f['flags'])}</ul></li>"
+        for f in result["flagged"])
+    method_rows = "".join(f"<tr><td>{html.escape(m)}</td><td>{v['logs']}</td><td>{_fmt(v['ate_rmse_m_median'], 1, 100)}"
+                          f"</td><td>{_fmt(v['ate_rmse_m_max'], 1, 100)}</td></tr>" for m, v in t["methods"].items())
+    warn = "".join(f"<li><b>{html.escape(r['name'])}</b>: {html.escape(w)}</li>" for r in result["logs"]
+                   for w in r["warnings"])
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>fmcwlog fleet: {html.escape(Path(result['out_dir']).name)}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; max-width: 1300px; margin: 2em auto; padding: 0 1em; color: #222; }}
+table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.88em; }}
+th, td {{ border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }}
+th {{ background: #f3f3f3; }} td:first-child, th:first-child {{ text-align: left; }}
+tr.failed td {{ background: #fde0e0; }} tr.flagged td {{ background: #fff4d6; }}
+</style></head><body>
+<h1>fmcwlog fleet: {html.escape(result['out_dir'])}</h1>
+<p>{t['logs']} logs: {t['done']} done, {t['failed']} failed; {t['with_ground_truth']} with ground truth.
+{t['sweeps']} sweeps, {_fmt(t['duration_s'] / 3600, 2)} h of log, {_fmt(t['distance_m'] / 1000, 2)} km;
+{_fmt(t['processing_s'])} s of processing{_batch_rate(t)}.</p>
+<h2>Needs a look ({len(result['flagged'])})</h2>
+{"<ul>" + flagged + "</ul>" if flagged else "<p>Nothing flagged.</p>"}
+<h2>ATE over the logs with ground truth</h2>
+{_ate_table(method_rows)}
+<h2>Every log</h2>
+<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows_html)}</tbody></table>
+<p>Each log's name links to its own report. Disagreement: RMSE between the improved and baseline positions
+after the best SE(2) alignment of one onto the other. ICP starved: sweeps where ICP kept fewer pairs than
+it needs and the sweep kept its motion prior.
+Flags: the worst {FLAG_FRACTION:.0%} of the logs with ground
+truth by ATE and by feature error; without ground truth, the worst {FLAG_FRACTION:.0%} by disagreement
+(each only when at least {OUTLIER_RATIO:g} times the median); and any log where ICP ran out of
+correspondences on more than {STARVED_FRACTION:.0%} of its sweeps.</p>
+<h2>Warnings</h2>{"<ul>" + warn + "</ul>" if warn else "<p>None.</p>"}
+</body></html>
+"""
+
+
+def _ate_table(method_rows: str) -> str:
+    if not method_rows:
+        return "<p>No log has ground truth.</p>"
+    return ("<table><thead><tr><th>method</th><th>logs</th><th>median ATE RMSE cm</th><th>worst ATE RMSE cm</th></tr>"
+            f"</thead><tbody>{method_rows}</tbody></table>")
+
+
+def _link(row: dict[str, Any]) -> str:
+    name = html.escape(row["name"])
+    return f'<a href="{html.escape(row["report"])}">{name}</a>' if row["report"] else name
+
+
+def _batch_rate(t: dict[str, Any]) -> str:
+    if not t["batch_wall_s"]:
+        return ""
+    return f"; the last batch took {_fmt(t['batch_wall_s'])} s"
+
+
+def write_fleet(out_dir: Path, result: dict[str, Any]) -> list[Path]:
+    """fleet.json and fleet.html in ``out_dir`` (each through a temporary name)."""
+    write_text(out_dir / "fleet.json", json_text(result))
+    write_text(out_dir / "fleet.html", render_fleet_html(result))
+    return [out_dir / "fleet.json", out_dir / "fleet.html"]

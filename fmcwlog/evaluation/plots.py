@@ -1,0 +1,374 @@
+"""The report's figures (matplotlib, Agg), each returned as a self-contained ``data:image/png`` URI.
+
+With ground truth (as evo's plots): every trajectory SE(2)-aligned over the world's walls;
+each one coloured by its position error with a colorbar (``evo_ape --plot_colormap_*``);
+position error over time; RPE per pair against the distance travelled where the pair starts
+(``evo_rpe``'s per-pair values, 1 m and 10 m); heading error over time. Always: the time
+per sweep as a distribution (box from quartiles, whisker to p95, the slower sweeps as dots,
+median, p95 and max written out), each map with its own trajectory, and how far the
+trajectories disagree once aligned onto the improved one (needs no ground truth). With
+feature lengths: their relative errors (the paper's Figure 4).
+
+Axis units are in every label. Legends sit outside the axes wherever a path could run under
+them. Figures are rendered at :data:`DPI` for a page about 1100 px wide.
+"""
+
+from __future__ import annotations
+
+import base64
+import inspect
+import io
+import json
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..io.outputs import pgm_pixels, read_tum
+from .evaluate import Evaluation
+
+LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry"}
+COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#6e6e6e", "truth": "#000000"}
+_OTHER_COLORS = ("#1f77b4", "#ff7f0e", "#9467bd", "#17becf", "#bcbd22")
+DPI = 100
+ERROR_CMAP = "turbo"  # dark at both ends, so low and high errors both stand out on white
+
+
+def label(m: str) -> str:
+    return LABELS.get(m, m)
+
+
+def color(m: str) -> str:
+    if m in COLORS:
+        return COLORS[m]
+    return _OTHER_COLORS[sum(map(ord, m)) % len(_OTHER_COLORS)]  # a peer: stable across runs
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def png(fig) -> str:
+    """The figure as a base64 PNG data URI; closes it."""
+    plt = _pyplot()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def _walls(ax, walls: np.ndarray | None) -> None:
+    if walls is not None and len(walls):
+        from matplotlib.collections import LineCollection
+
+        ax.add_collection(LineCollection(list(walls.reshape(-1, 2, 2)), colors="#b0b0b0", linewidths=1.5, zorder=1))
+
+
+def _legend_below(fig, ax, ncol: int) -> None:
+    """A legend under the axes and their x label (the figure must use the constrained layout)."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, ncol), fontsize=9, frameon=False)
+
+
+def _log_y(ax, scale: str = "log", **kw) -> None:
+    """A log (or symlog) y axis labelled with plain numbers (0.1, 1, 10) and no minor ticks:
+    easier to read than 10^x, and the minor ticks were half the drawing time of these figures."""
+    from matplotlib.ticker import FuncFormatter, NullLocator
+
+    ax.set_yscale(scale, **kw)
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_locator(NullLocator())
+
+
+def _t0(ev: Evaluation) -> float:
+    return float(min(t[0] for t, _, _ in ev.aligned.values()))
+
+
+def trajectories_over_walls(ev: Evaluation):
+    """All SE(2)-aligned trajectories and the ground truth, over the world's walls."""
+    plt = _pyplot()
+    assert ev.gt is not None
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    _walls(ax, ev.walls)
+    ax.plot(ev.gt[:, 0], ev.gt[:, 1], color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
+    for m, (_, est, _) in ev.aligned.items():
+        ax.plot(est[:, 0], est[:, 1], color=color(m), lw=1.2, label=label(m))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("Trajectories (SE(2)-aligned to ground truth) over the world's walls")
+    _legend_below(fig, ax, len(ev.aligned) + 1)
+    return fig
+
+
+def error_colored(ev: Evaluation, method: str):
+    """One method's aligned trajectory coloured by its position error (cm), with a colorbar."""
+    plt = _pyplot()
+    from matplotlib.collections import LineCollection
+
+    assert ev.gt is not None
+    _, est, err = ev.aligned[method]
+    fig, ax = plt.subplots(figsize=(5.6, 5.2))
+    _walls(ax, ev.walls)
+    ax.plot(ev.gt[:, 0], ev.gt[:, 1], color="#000000", lw=0.6, ls=":", zorder=2)
+    seg = np.stack([est[:-1, :2], est[1:, :2]], axis=1)
+    cm = 100.0 * 0.5 * (err[:-1] + err[1:])  # a segment takes its ends' mean error
+    lc = LineCollection(list(seg), cmap=ERROR_CMAP, linewidths=2.6, capstyle="round", zorder=3)  # round: no gaps
+    lc.set_array(cm)
+    lc.set_clim(0.0, max(100.0 * float(err.max()), 1e-6))  # the bar's top is the stated max
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, fraction=0.046, pad=0.03, label="position error (cm)")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{label(method)}: position error along the path\n"
+                 f"(RMSE {100 * np.sqrt(np.mean(err**2)):.1f} cm, max {100 * err.max():.1f} cm; "
+                 "dotted: ground truth)", fontsize=10)
+    return fig
+
+
+def ate_over_time(ev: Evaluation):
+    plt = _pyplot()
+    t0 = _t0(ev)
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
+    for m, (t, _, err) in ev.aligned.items():
+        ax.plot(t - t0, np.maximum(err * 100, 1e-3), color=color(m), lw=1,
+                label=f"{label(m)} (RMSE {100 * np.sqrt(np.mean(err**2)):.1f} cm)")
+    ax.set_xlabel("time since the first sweep (s)")
+    ax.set_ylabel("position error (cm, log)")
+    _log_y(ax)
+    ax.set_title("Absolute position error along the path (SE(2)-aligned, as evo_ape -a)")
+    ax.grid(True, which="major", alpha=0.3)
+    _legend_below(fig, ax, len(ev.aligned))
+    return fig
+
+
+def rpe_over_distance(ev: Evaluation):
+    """Per-pair RPE (translation % of delta, yaw deg/m) against the distance where each pair starts."""
+    plt = _pyplot()
+    deltas = sorted({s.delta for series in ev.rpe.values() for s in series})
+    fig, axes = plt.subplots(len(deltas), 2, figsize=(11, 2.9 * len(deltas) + 0.6), squeeze=False,
+                             layout="constrained")
+    for row, delta in enumerate(deltas):
+        for m, series in ev.rpe.items():
+            for s in series:
+                if s.delta != delta:
+                    continue
+                marker = "." if len(s.start_m) <= 60 else None  # dots only where they can be told apart
+                for col, y in enumerate((s.trans_pct, s.rot_deg_per_m)):
+                    axes[row, col].plot(s.start_m, np.maximum(y, 1e-4), color=color(m), lw=1, marker=marker, ms=4,
+                                        label=label(m))
+        axes[row, 0].set_ylabel(f"over {delta:g} m:\ntranslation (% of {delta:g} m)")
+        axes[row, 1].set_ylabel(f"over {delta:g} m:\nyaw (deg/m)")
+    for ax in axes.ravel():
+        _log_y(ax)
+        ax.grid(True, which="major", alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("distance travelled where the pair starts (m)")
+    fig.suptitle("Relative pose error of each pair (as evo_rpe --delta_unit m, pairs on ground truth; log scale)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, len(labels)), frameon=False)
+    return fig
+
+
+def heading_over_time(ev: Evaluation):
+    plt = _pyplot()
+    t0 = _t0(ev)
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
+    for m, h in ev.heading.items():
+        ax.plot(ev.aligned[m][0] - t0, h, color=color(m), lw=1,
+                label=f"{label(m)} (RMSE {np.sqrt(np.mean(h**2)):.2f}°, largest {np.max(np.abs(h)):.2f}°)")
+    ax.axhline(0.0, color="#444444", lw=0.6)
+    _log_y(ax, "symlog", linthresh=0.1)  # tenths of a degree and tens of degrees on one axis
+    ax.set_xlabel("time since the first sweep (s)")
+    ax.set_ylabel("heading error (deg)\nlinear within ±0.1, log beyond")
+    ax.set_title("Heading error (estimate − ground truth, after SE(2) alignment)")
+    ax.grid(True, which="major", alpha=0.3)
+    _legend_below(fig, ax, len(ev.heading))
+    return fig
+
+
+def sweep_times(ev: Evaluation):
+    """Time per sweep per method: box (quartiles), whisker (min to p95), dots beyond p95, ▲ max."""
+    plt = _pyplot()
+    items = [(m, ms) for m, ms in ev.sweep_ms.items() if len(ms)]
+    fig, ax = plt.subplots(figsize=(10, 0.9 * len(items) + 1.3))
+    data = [ms for _, ms in items]
+    # matplotlib >= 3.10 says `orientation`, older ones only `vert` (deprecated from 3.11)
+    flat = {"orientation": "horizontal"} if "orientation" in inspect.signature(ax.boxplot).parameters else {"vert": False}
+    ax.boxplot(data, **flat, whis=(0, 95), widths=0.5, medianprops={"color": "#000000", "lw": 2},
+               flierprops={"marker": ".", "markersize": 3, "markerfacecolor": "#666666", "markeredgecolor": "none"})
+    ax.set_yticks(range(1, len(items) + 1), [label(m) for m, _ in items])
+    hi = max(float(ms.max()) for ms in data)
+    for i, (m, ms) in enumerate(items, start=1):
+        med, p95, mx = np.median(ms), np.percentile(ms, 95), ms.max()
+        ax.plot([p95], [i], marker="|", ms=16, mew=2, color="#d62728")
+        ax.plot([mx], [i], marker="^", ms=7, color=color(m))
+        ax.annotate(f"median {med:.1f} · p95 {p95:.1f} · max {mx:.1f} ms", (1.0, i), xycoords=("axes fraction", "data"),
+                    xytext=(8, 0), textcoords="offset points", va="center", fontsize=9)
+    if hi > 20 * min(float(np.median(ms)) for ms in data):  # a long tail: log, with plain-number ticks
+        from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+
+        ax.set_xscale("log")
+        lo = min(float(ms.min()) for ms in data)
+        ticks = [v for e in range(-2, 6) for v in (10.0**e, 2 * 10.0**e, 5 * 10.0**e) if lo / 2 <= v <= hi * 2]
+        ax.xaxis.set_major_locator(FixedLocator(ticks))
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.invert_yaxis()
+    ax.set_xlabel("time per sweep (ms)")
+    ax.grid(True, axis="x", which="major", alpha=0.3)
+    ax.set_title("Time per sweep: box = quartiles, whisker to p95 (red |), dots = slower sweeps, ▲ = max")
+    return fig
+
+
+def feature_errors(result: dict):
+    plt = _pyplot()
+    feats = {m: result["methods"][m]["features"] for m in ("baseline", "improved")
+             if (result["methods"].get(m) or {}).get("features")}
+    if not feats:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
+    first = next(iter(feats.values()))
+    x = np.arange(len(first))
+    width = 0.8 / len(feats)
+    for i, (m, fs) in enumerate(feats.items()):
+        vals = [f["rel_error_pct"] if f.get("rel_error_pct") is not None else np.nan for f in fs]
+        ax.bar(x + (i - (len(feats) - 1) / 2) * width, vals, width, color=color(m), label=label(m))
+    ax.set_xticks(x, [str(f["id"]) for f in first])
+    ax.set_xlabel("feature (id; a missing bar: not measured)", labelpad=2)
+    ax.set_ylabel("relative error (%)")
+    ax.set_title("Relative error of the feature lengths (as the paper's Figure 4)")
+    _legend_below(fig, ax, len(feats))
+    return fig
+
+
+def _map_image(out_dir: Path, method: str) -> tuple[np.ndarray, tuple[float, float, float, float]] | None:
+    import yaml
+
+    pgm, meta = out_dir / f"{method}_map.pgm", out_dir / f"{method}_map.yaml"
+    if not (pgm.is_file() and meta.is_file()):
+        return None
+    info = yaml.safe_load(meta.read_text())
+    img = pgm_pixels(pgm.read_bytes())
+    res, (ox, oy) = float(info["resolution"]), info["origin"][:2]
+    h, w = img.shape
+    return img, (ox, ox + w * res, oy, oy + h * res)
+
+
+def trajectory_over_own_map(out_dir: Path, method: str):
+    """The occupancy map a method built, with its own trajectory on it (its own frame; no ground truth needed)."""
+    plt = _pyplot()
+    image, tum = _map_image(out_dir, method), out_dir / f"{method}.tum"
+    if image is None or not tum.is_file():
+        return None
+    _, poses = read_tum(tum)
+    fig, ax = plt.subplots(figsize=(5.6, 5.6))
+    ax.imshow(image[0], cmap="gray", vmin=0, vmax=255, extent=image[1], interpolation="nearest")
+    ax.plot(poses[:, 0], poses[:, 1], color=color(method), lw=1.2)
+    ax.set_xlabel(f"x in {method}/odom (m)")
+    ax.set_ylabel(f"y in {method}/odom (m)")
+    ax.set_title(f"Map built by the {label(method)} method,\nwith its trajectory (coloured line)", fontsize=10)
+    return fig
+
+
+def loop_closures_over_map(out_dir: Path, method: str):
+    """The back end's loop closures (``<method>_backend.json``) drawn on the method's map: each a
+    segment between its two nodes at their optimised poses, blue where the Cauchy kernel kept it,
+    red where it did not; the front end's own trajectory dashed. None without a back end."""
+    graph = out_dir / f"{method}_backend.json"
+    fig = trajectory_over_own_map(out_dir, method) if graph.is_file() else None
+    if fig is None:
+        return None
+    ax = fig.axes[0]
+    data = json.loads(graph.read_text())
+    xy = np.column_stack([data["nodes"]["x"], data["nodes"]["y"]])
+    at = {int(s): i for i, s in enumerate(data["nodes"]["stamp_ns"])}
+    for kept, colour in ((True, "#1565c0"), (False, "#d32f2f")):
+        segs = [(xy[at[c["candidate_stamp_ns"]]], xy[at[c["query_stamp_ns"]]]) for c in data["closures"]
+                if c["accepted"] is kept]
+        for a, b in segs:
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=colour, lw=0.8, alpha=0.8)
+        ax.plot([], [], color=colour, lw=0.8, label=f"loop closures {'kept' if kept else 'down-weighted'} ({len(segs)})")
+    front = out_dir / f"{method}_frontend.tum"
+    if front.is_file():
+        _, fposes = read_tum(front)
+        ax.plot(fposes[:, 0], fposes[:, 1], color="#777777", lw=0.7, ls="--", label="front end alone")
+    ax.set_title(f"Loop closures of the {label(method)} method's back end, on its map", fontsize=10)
+    ax.legend(loc="upper right", fontsize=7)
+    return fig
+
+
+def aligned_over_reference_map(ev: Evaluation):
+    """Every trajectory SE(2)-aligned onto the reference one, over the reference's map (no ground truth)."""
+    plt = _pyplot()
+    ref = ev.disagreement_reference
+    if ref is None or not ev.disagreements:
+        return None
+    image = _map_image(ev.out_dir, ref)
+    _, ref_poses = read_tum(ev.out_dir / f"{ref}.tum")
+    fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
+    if image is not None:
+        ax.imshow(image[0], cmap="gray", vmin=0, vmax=255, extent=image[1], interpolation="nearest", alpha=0.6)
+    ax.plot(ref_poses[:, 0], ref_poses[:, 1], color=color(ref), lw=1.4, label=f"{label(ref)} (reference)",
+            zorder=3)
+    for m, d in ev.disagreements.items():
+        ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), lw=1.1, label=f"{label(m)}, aligned")
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x in {ref}/odom (m)")
+    ax.set_ylabel(f"y in {ref}/odom (m)")
+    ax.set_title(f"Trajectories SE(2)-aligned onto the {label(ref)} one, over its map")
+    _legend_below(fig, ax, len(ev.disagreements) + 1)
+    return fig
+
+
+def disagreement_along(ev: Evaluation):
+    plt = _pyplot()
+    ref = ev.disagreement_reference
+    if ref is None or not ev.disagreements:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
+    for m, d in ev.disagreements.items():
+        ax.plot(d.along_m, d.gap_m, color=color(m), lw=1, label=f"{label(m)} (RMSE {d.stats.rmse:.2f} m)")
+    ax.set_xlabel(f"distance travelled along the {label(ref)} trajectory (m)")
+    ax.set_ylabel(f"distance to {label(ref)} (m)")
+    ax.set_title(f"Disagreement with the {label(ref)} trajectory after SE(2) alignment (not an error: "
+                 "no ground truth)", fontsize=10)
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    _legend_below(fig, ax, len(ev.disagreements))
+    return fig
+
+
+def all_plots(ev: Evaluation) -> dict[str, str]:
+    """Every figure that can be drawn for ``ev``, keyed by name, as data URIs."""
+    makers: list[tuple[str, Callable[[], Any]]] = []
+    if ev.gt is not None and ev.aligned:
+        makers += [("trajectories", partial(trajectories_over_walls, ev))]
+        makers += [(f"error_{m}", partial(error_colored, ev, m)) for m in ev.aligned]
+        makers += [("errors", partial(ate_over_time, ev))]
+        if any(ev.rpe.values()):
+            makers += [("rpe", partial(rpe_over_distance, ev))]
+        makers += [("heading", partial(heading_over_time, ev))]
+    else:
+        makers += [("aligned_on_map", partial(aligned_over_reference_map, ev)),
+                   ("disagreement", partial(disagreement_along, ev))]
+    if any(len(ms) for ms in ev.sweep_ms.values()):
+        makers += [("sweep_times", partial(sweep_times, ev))]
+    makers += [("features", partial(feature_errors, ev.result))]
+    makers += [(f"map_{m}", partial(trajectory_over_own_map, ev.out_dir, m)) for m in ("improved", "baseline")]
+    makers += [(f"closures_{m}", partial(loop_closures_over_map, ev.out_dir, m)) for m in ("improved", "baseline")]
+    out = {}
+    for key, make in makers:
+        fig = make()
+        if fig is not None:
+            out[key] = png(fig)
+    return out

@@ -1,0 +1,103 @@
+"""Which logs a batch covers, and the sub-folder of the output each one's results go to.
+
+A path on the command line is a log, or a folder searched (recursively, in sorted order)
+for logs by their file names (``*.mcap``; for ``import carmen`` the CARMEN names). What a
+search does not enter: hidden files and folders (``.name``, where fmcwlog's own temporary
+outputs live), the batch's output folder, and any folder holding a ``run.json`` (a
+``fmcwlog process`` output: its ``processed.mcap`` is a result, not a log).
+
+Names: a log's results go to ``OUT/<stem>``; when two logs share a stem, the names of
+their parent folders are prefixed (``day1-run``, ``day2-run``) until the names differ,
+then ``-2``, ``-3``... in path order. Names depend only on the set of logs, so running
+the same command again finds the same folders (:mod:`fmcwlog.fleet.state`).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from ..errors import LogError
+
+MCAP_PATTERNS = ("*.mcap",)
+CARMEN_PATTERNS = tuple(f"*.{ext}{comp}" for ext in ("clf", "log") for comp in ("", ".gz", ".xz"))
+OUTPUT_MARKER = "run.json"  # a folder holding it is a 'fmcwlog process' output
+
+
+def strip_suffixes(name: str, patterns: Sequence[str]) -> str:
+    """``name`` without the suffix its pattern matched (``run.clf.xz`` -> ``run``)."""
+    for pat in sorted(patterns, key=len, reverse=True):
+        if fnmatch.fnmatch(name, pat) and pat.startswith("*"):
+            return name[: len(name) - len(pat) + 1] or name
+    return Path(name).stem
+
+
+def _search(folder: Path, patterns: Sequence[str], skip: Path | None) -> Iterable[Path]:
+    for root, dirs, files in os.walk(folder):
+        here = Path(root)
+        if OUTPUT_MARKER in files or (skip is not None and here.resolve() == skip):
+            dirs[:] = []
+            continue
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for f in sorted(files):
+            if not f.startswith(".") and any(fnmatch.fnmatch(f, p) for p in patterns) and (here / f).is_file():
+                yield here / f
+
+
+def find_logs(paths: Sequence[str | os.PathLike], patterns: Sequence[str] = MCAP_PATTERNS,
+              skip: str | os.PathLike | None = None) -> list[Path]:
+    """Every log the ``paths`` name: files as given, folders searched; each log once, in order.
+
+    ``skip``: a folder not to enter (the batch's own output). Raises :class:`LogError` for a
+    path that does not exist, or when no log at all is found.
+    """
+    skip_dir = Path(skip).resolve() if skip is not None else None
+    found: list[Path] = []
+    seen: set[Path] = set()
+    for p in map(Path, paths):
+        if p.is_dir():
+            logs = list(_search(p, patterns, skip_dir))
+        elif p.is_file():
+            logs = [p]
+        else:
+            raise LogError(f"{p}: no such file or folder")
+        for log in logs:
+            key = log.resolve()
+            if key not in seen:
+                seen.add(key)
+                found.append(log)
+    if not found:
+        names = ", ".join(str(p) for p in paths)
+        raise LogError(f"{names}: no logs found (looked for {', '.join(patterns)})")
+    return found
+
+
+def unique_names(logs: Sequence[Path], patterns: Sequence[str] = MCAP_PATTERNS) -> list[str]:
+    """A folder name per log, distinct, from its stem (see the module's docstring)."""
+    stems = [strip_suffixes(p.name, patterns) for p in logs]
+    parents = [list(reversed(p.resolve().parent.parts)) for p in logs]
+    names = list(stems)
+    depth = 0
+    while True:
+        clashing = _clashes(names)
+        if not clashing or depth >= max(len(x) for x in parents):
+            break
+        depth += 1
+        for i in clashing:
+            prefix = [part.strip(os.sep) for part in parents[i][:depth] if part.strip(os.sep)]
+            names[i] = "-".join([*reversed(prefix), stems[i]])
+    counts: dict[str, int] = {}
+    for i in sorted(_clashes(names)):  # the same path components all the way up: number them
+        counts[names[i]] = counts.get(names[i], 0) + 1
+        if counts[names[i]] > 1:
+            names[i] = f"{names[i]}-{counts[names[i]]}"
+    return names
+
+
+def _clashes(names: list[str]) -> list[int]:
+    seen: dict[str, int] = {}
+    for n in names:
+        seen[n] = seen.get(n, 0) + 1
+    return [i for i, n in enumerate(names) if seen[n] > 1]

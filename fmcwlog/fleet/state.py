@@ -1,0 +1,124 @@
+"""What a batch remembers, so that running the same command again redoes only what changed.
+
+A log's results are complete when its folder ``OUT/<name>`` exists (``fmcwlog process``
+renames it into place only once everything is written) and its ``run.json`` says it was
+made from a file of the same size and SHA-256 (``log_size_bytes``, ``log_sha256``) with the
+same options (``options_sha256``: :func:`options_digest`). Anything else is done again.
+
+``OUT/batch.json`` records the latest outcome of every log of the batch: done, skipped
+(complete already) or failed with its one-line reason (schema ``fmcwlog.batch/1``). A
+failed log has no folder (or keeps the complete folder of an earlier run), so the reason
+lives here; ``fmcwlog report OUT`` reads it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .. import __version__
+from ..io.atomic import read_marker, write_json
+from ..io.digest import file_sha256
+
+if TYPE_CHECKING:
+    from ..api import ProcessOptions
+
+BATCH_FILE = "batch.json"
+BATCH_SCHEMA = "fmcwlog.batch/1"
+
+
+def options_digest(opts: ProcessOptions) -> str:
+    """SHA-256 of everything that shapes the results: methods, topics, every parameter, the
+    publishing period and fmcwlog's version (new code may give different results)."""
+    doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, str]:
+    """Whether ``out_dir`` holds complete results of ``log`` with these options, and if not, why."""
+    run_json = out_dir / "run.json"
+    if not out_dir.is_dir():
+        return False, "no results yet"
+    try:
+        run = json.loads(run_json.read_text())
+    except (OSError, json.JSONDecodeError):
+        return False, f"{out_dir} holds no readable run.json"
+    if run.get("options_sha256") != options_sha256:
+        return False, "the options changed"
+    if run.get("log_size_bytes") != log.stat().st_size or run.get("log_sha256") != file_sha256(log):
+        return False, "the log changed"
+    return True, "complete"
+
+
+def is_fmcwlog_output(out_dir: Path) -> bool:
+    """An existing folder that ``fmcwlog process`` wrote (its marker says so), which it may replace
+    (:func:`fmcwlog.io.atomic.check_output_folder` still refuses one holding anything else)."""
+    marker = read_marker(out_dir) if out_dir.is_dir() else None
+    return marker is not None and marker.get("made_by") == "fmcwlog process"
+
+
+_PARTIAL = re.compile(r"^\.(?P<name>.+)\.partial-(?P<pid>\d+)$")
+
+
+def remove_partial(out_root: Path, name: str, pid: int) -> bool:
+    """Remove what a worker of process ``pid`` left of ``OUT/<name>`` when it was killed."""
+    tmp = out_root / f".{name}.partial-{pid}"
+    if tmp.exists():
+        shutil.rmtree(tmp, ignore_errors=True)
+        return True
+    return False
+
+
+def remove_stale_partials(out_root: Path, names: set[str]) -> list[Path]:
+    """Temporary folders of these logs whose writer no longer runs (a batch killed earlier)."""
+    removed: list[Path] = []
+    if not out_root.is_dir():
+        return removed
+    for p in out_root.iterdir():
+        m = _PARTIAL.match(p.name)
+        if m and m["name"] in names and not _alive(int(m["pid"])):
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def read_batch(out_root: Path) -> dict[str, Any]:
+    """``OUT/batch.json``, or an empty record."""
+    try:
+        doc = json.loads((out_root / BATCH_FILE).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {"schema": BATCH_SCHEMA, "logs": {}}
+    if not isinstance(doc, dict) or doc.get("schema") != BATCH_SCHEMA or not isinstance(doc.get("logs"), dict):
+        return {"schema": BATCH_SCHEMA, "logs": {}}
+    return doc
+
+
+def write_batch(out_root: Path, doc: dict[str, Any]) -> None:
+    out_root.mkdir(parents=True, exist_ok=True)
+    write_json(out_root / BATCH_FILE, doc)
+
+
+def is_batch_folder(out_dir: Path) -> bool:
+    """A folder of ``fmcwlog process``'s per-log results (not one log's results itself)."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir() or (out_dir / "run.json").is_file():
+        return False
+    if (out_dir / BATCH_FILE).is_file():
+        return True
+    return any(p.is_dir() and (p / "run.json").is_file() for p in out_dir.iterdir() if not p.name.startswith("."))

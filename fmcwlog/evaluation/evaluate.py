@@ -198,6 +198,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
         "relations_file": str(relations) if relations is not None else None,
         "relations_published": _published_relations(relations),
         "params": run.get("params"),
+        "motion_sources": run.get("motion_sources"),
+        "calibration_check": run.get("calibration_check"),
         "disagreement": _disagreements(ev, tums, notes),
         "notes": notes,
     }

@@ -134,6 +134,7 @@ def run_case(name: str, scenario: str, sensor: dict, calibration: str | None, se
     row["kiss_icp"] = _kiss(log, out.with_name(out.name + "-kiss")) if with_kiss and calibration is None else None
     seg = result["methods"]["improved"].get("segmentation") or {}
     row["precision"], row["recall"] = seg.get("precision"), seg.get("recall")
+    row["false_moving"] = seg.get("false_positives")
     row["calibration_check"] = _check_said(run)
     row["warnings"] = run.get("warnings", [])
     shutil.rmtree(out, ignore_errors=True)
@@ -146,7 +147,7 @@ def _fmt(x: float | None, digits: int, scale: float = 1.0) -> str:
 
 def _mean_row(rows: list[dict]) -> dict:
     out = dict(rows[0])
-    for k in (*METHODS, "precision", "recall"):
+    for k in (*METHODS, "precision", "recall", "false_moving"):
         v = [r[k] for r in rows if r[k] is not None]
         out[k] = float(np.mean(v)) if v else None
         out[f"{k}_max"] = float(np.max(v)) if v else None
@@ -157,15 +158,16 @@ def _mean_row(rows: list[dict]) -> dict:
 def markdown(table: list[dict], meta: dict) -> str:
     lines = [f"{meta['duration_s']:g} s logs, seeds {meta['seeds']} (mean; worst in brackets when several), "
              f"{meta['machine']}; {meta['wall_s']:.0f} s in all. ATE RMSE in cm after SE(2) alignment.", "",
-             "| case | improved | baseline | wheel odometry | KISS-ICP | moving precision | moving recall | calibration check |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| case | improved | baseline | wheel odometry | KISS-ICP | moving precision | moving recall | static points judged moving | calibration check |",
+             "|---|---|---|---|---|---|---|---|---|"]
     several = len(meta["seeds"]) > 1
     for r in table:
         def cell(k: str, digits: int = 2, scale: float = 100.0, r: dict = r) -> str:
             s = _fmt(r[k], digits, scale)
             return f"{s} ({_fmt(r[k + '_max'], digits, scale)})" if several and r[k] is not None else s
         lines.append(f"| {r['case']} | {cell('improved')} | {cell('baseline', 1)} | {cell('wheel_odometry', 0)} | "
-                     f"{cell('kiss_icp', 1)} | {_fmt(r['precision'], 4)} | {_fmt(r['recall'], 4)} | "
+                     f"{cell('kiss_icp', 1)} | {_fmt(r['precision'] if r['recall'] is not None else None, 4)} | "
+                     f"{_fmt(r['recall'], 4)} | {_fmt(r['false_moving'], 0)} | "
                      f"{r['calibration_check']} |")
     return "\n".join(lines) + "\n"
 
@@ -176,8 +178,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=None, help="seconds per log (default 120)")
     ap.add_argument("--no-kiss", action="store_true", help="skip the KISS-ICP peer")
+    ap.add_argument("--cases", nargs="+", default=None, metavar="NAME",
+                    help="only the cases whose name starts with one of these (e.g. dense-crowd)")
     ap.add_argument("--out", type=Path, default=HERE / "results")
     args = ap.parse_args()
+    cases = [c for c in CASES if args.cases is None or c[0].startswith(tuple(args.cases))]
     duration = args.duration or (30.0 if args.quick else 120.0)
     with_kiss = not args.no_kiss
     if with_kiss:
@@ -192,7 +197,7 @@ def main() -> None:
         tmp = Path(tmp_name)
         for seed in args.seeds:
             logs: dict = {}
-            for case in CASES:
+            for case in cases:
                 t0 = time.perf_counter()
                 row = run_case(*case, seed, duration, tmp, logs, with_kiss)
                 per_seed.append(row)
@@ -201,13 +206,14 @@ def main() -> None:
                       f"{row['calibration_check']} ({time.perf_counter() - t0:.0f} s)", flush=True)
             for f in logs.values():
                 f.unlink(missing_ok=True)
-    for case in CASES:
+    for case in cases:
         table.append(_mean_row([r for r in per_seed if r["case"] == case[0]]))
     meta = {"seeds": args.seeds, "duration_s": duration, "kiss_icp": with_kiss,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
             "wall_s": time.perf_counter() - started}
     args.out.mkdir(parents=True, exist_ok=True)
-    name = "robustness_quick" if args.quick else "robustness"
+    name = ("robustness_quick" if args.quick else "robustness") + ("" if args.cases is None else "_" + "_".join(
+        c.replace(" ", "-") for c in args.cases))
     md = markdown(table, meta)
     (args.out / f"{name}.md").write_text(md)
     (args.out / f"{name}.json").write_text(json.dumps({"meta": meta, "table": table, "per_seed": per_seed}, indent=2))

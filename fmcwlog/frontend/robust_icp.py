@@ -77,7 +77,7 @@ def register(
     whole walls as "outliers", stalling the pose in that direction.
 
     ``mixture``: a mixture from a previous registration (``ICPResult.mixture``);
-    if given it is used instead of a first fit (saves one sklearn EM run per
+    if given it is used instead of a first fit (saves one EM run per
     sweep) and refit only by the ``gmm_refit_ratio`` rule.
 
     ``prior_pose`` (3,) and ``prior_information`` (3, 3): optional Gaussian prior

@@ -214,15 +214,15 @@ class OccupancyGrid:
         step = p.step_fraction * res
         n = np.floor(length / step).astype(np.int64) + 1  # s = 0, step, ... ≤ length
         first = np.cumsum(n) - n  # each ray's first sample
-        ray = np.repeat(np.arange(len(pts), dtype=np.int32), n)
-        s = np.arange(ray.size, dtype=np.int32)
+        # per-ray values are spread with np.repeat, a sequential copy, not gathered by ray index
+        s = np.arange(int(n.sum()), dtype=np.int32)
         s -= np.repeat(first.astype(np.int32), n)
         s = s * step
-        np.minimum(s, length[ray], out=s)
+        np.minimum(s, np.repeat(length, n), out=s)
         with np.errstate(invalid="ignore", divide="ignore"):
             u = np.where(length[:, None] > 0, d / length[:, None], 0.0)
-        sx = np.floor((o[0] + u[:, 0][ray] * s) / res).astype(np.int64)
-        sy = np.floor((o[1] + u[:, 1][ray] * s) / res).astype(np.int64)
+        sx = np.floor((o[0] + np.repeat(u[:, 0], n) * s) / res).astype(np.int64)
+        sy = np.floor((o[1] + np.repeat(u[:, 1], n) * s) / res).astype(np.int64)
 
         # work in the scan's bounding window of the grid (cost independent of map size)
         x0, x1 = min(sx.min(), ex.min()), max(sx.max(), ex.max()) + 1
@@ -236,19 +236,25 @@ class OccupancyGrid:
         new[0] = True
         np.not_equal(flat[1:], flat[:-1], out=new[1:])
         new[first[1:]] = True  # a ray's first sample (its cell may repeat the last ray's)
-        new &= flat != end_flat[ray]  # the end cell is not free for its own ray
-        hit_counts = np.bincount(end_flat[hit], minlength=size)
+        new &= flat != np.repeat(end_flat, n)  # the end cell is not free for its own ray
+        hit_cells, hit_counts = np.unique(end_flat[hit], return_counts=True)
         cells = flat[new]
         if p.protect_hits:
-            cells = cells[hit_counts[cells] == 0]
+            is_hit = np.zeros(size, bool)
+            is_hit[hit_cells] = True
+            cells = cells[~is_hit[cells]]
         free_counts = np.bincount(cells, minlength=size)
-        shape = (int(y1 - y0), ww)
-        r0, c0 = int(y0 - self._iy0), int(x0 - self._ix0)  # window in array indices
-        win = self._log_odds[r0 : r0 + shape[0], c0 : c0 + ww]
-        win += (p.l_free * free_counts + p.l_occ * hit_counts).reshape(shape).astype(np.float32)
-        np.clip(win, p.l_min, p.l_max, out=win)
-        seen = (free_counts > 0) | (hit_counts > 0)
-        self._observed[r0 : r0 + shape[0], c0 : c0 + ww] |= seen.reshape(shape)
+        # only the cells this scan reached change (the rest would get + 0 and a clip that keeps them)
+        hit_inc = p.l_free * free_counts[hit_cells] + p.l_occ * hit_counts
+        free_counts[hit_cells] = 0
+        free_cells = np.flatnonzero(free_counts)
+        touched = np.concatenate([free_cells, hit_cells])
+        inc = np.concatenate([p.l_free * free_counts[free_cells], hit_inc]).astype(np.float32)
+        rows, cols = np.divmod(touched, ww)
+        rows += y0 - self._iy0  # window -> array indices
+        cols += x0 - self._ix0
+        self._log_odds[rows, cols] = np.clip(self._log_odds[rows, cols] + inc, p.l_min, p.l_max)
+        self._observed[rows, cols] = True
 
     # --- export -------------------------------------------------------------------
     def probability(self) -> np.ndarray:

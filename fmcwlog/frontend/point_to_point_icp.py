@@ -22,7 +22,8 @@ def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarr
 
     ``θ = atan2(Σ p'×q', Σ p'·q')`` on centred pairs, ``t = q̄ - R p̄``.
     """
-    pc, qc = source_pts.mean(axis=0), target_pts.mean(axis=0)
+    n = len(source_pts)  # sum / n: the bits of .mean() without its per-call overhead (~10 µs an iteration)
+    pc, qc = source_pts.sum(axis=0) / n, target_pts.sum(axis=0) / n
     p, q = source_pts - pc, target_pts - qc
     th = np.arctan2(np.sum(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]), np.sum(p * q))
     c, s = np.cos(th), np.sin(th)

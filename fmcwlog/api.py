@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .allocator import keep_freed_memory
 from .errors import CalibrationError, CarmenImportError, LogError, MapSizeError, OutputError
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.pages import comparison_rows, markdown_table, write_report
@@ -124,6 +125,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     """
     opts = opts or ProcessOptions()
     log, out_dir = Path(log), Path(out_dir)
+    keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from .allocator import keep_freed_memory
 from .errors import CalibrationError, CarmenImportError, FmcwlogError, LogError, MapSizeError, OutputError, ReportError
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.fleet import FleetEntry, fleet_result, log_row, write_fleet
@@ -134,6 +135,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     """
     opts = opts or ProcessOptions()
     log, out_dir = Path(log), Path(out_dir)
+    keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

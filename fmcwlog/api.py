@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from .allocator import keep_freed_memory
 from .backend import BackendResult, PoseGraphBackend
 from .errors import (
     CalibrationError,
@@ -153,6 +154,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     if opts.backend not in BACKENDS:
         raise ConfigError(f"unknown back end {opts.backend!r} (known: {', '.join(BACKENDS)})")
     log, out_dir = Path(log), Path(out_dir)
+    keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

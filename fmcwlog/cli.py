@@ -212,10 +212,11 @@ _PROCESS_HELP = """Estimate the robot's trajectory and map from LOG with the pap
 front end and the classic ICP baseline, side by side, and write them to OUT_DIR.
 
 \b
-improved  Doppler ego-motion -> DBSCAN segmentation of moving points (eq. 17-19, on
-          ego-motion-compensated velocity) -> deskew -> nearest neighbours in a voxel
-          map -> GMMSC rejection (eq. 20-21) -> Huber-robust Gauss-Newton ICP (eq. 22-26),
-          with the Doppler velocity as a soft prior along the path
+improved  Doppler ego-motion, fused with the wheels by weighted least squares at any
+          mount -> DBSCAN segmentation of moving points (eq. 17-19, on ego-motion-
+          compensated velocity), movers followed over time -> deskew -> nearest
+          neighbours in a voxel map -> GMMSC rejection (eq. 20-21) -> Huber-robust
+          Gauss-Newton ICP (eq. 22-26), with the fused motion as a soft prior
 baseline  all points, wheel-odometry prior, classic point-to-point ICP (unit weights)
 
 \b

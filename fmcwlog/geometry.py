@@ -23,8 +23,10 @@ def rot2(yaw: np.ndarray | float) -> np.ndarray:
 def yaw_to_quaternion(yaw: np.ndarray | float) -> np.ndarray:
     """Quaternion ``(qx, qy, qz, qw)`` of a rotation by ``yaw`` about z; shape (..., 4)."""
     yaw = np.asarray(yaw, dtype=float)
-    z = np.zeros_like(yaw)
-    return np.stack([z, z, np.sin(yaw / 2.0), np.cos(yaw / 2.0)], -1)
+    out = np.zeros((*yaw.shape, 4))
+    out[..., 2] = np.sin(yaw / 2.0)
+    out[..., 3] = np.cos(yaw / 2.0)
+    return out
 
 
 def quaternion_to_yaw(qx, qy, qz, qw) -> np.ndarray:
@@ -37,18 +39,23 @@ def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
-    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
-    return np.stack([x, y, wrap_angle(a[..., 2] + b[..., 2])], -1)
+    # filled in place rather than np.stack-ed: these run a few thousand times a second
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    out[..., 1] = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
+    return out
 
 
 def inverse(a: np.ndarray) -> np.ndarray:
     """Inverse pose ``⊖a``; broadcasts over (..., 3)."""
     a = np.asarray(a, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = -c * a[..., 0] - s * a[..., 1]
-    y = s * a[..., 0] - c * a[..., 1]
-    return np.stack([x, y, wrap_angle(-a[..., 2])], -1)
+    out = np.empty(a.shape)
+    out[..., 0] = -c * a[..., 0] - s * a[..., 1]
+    out[..., 1] = s * a[..., 0] - c * a[..., 1]
+    out[..., 2] = wrap_angle(-a[..., 2])
+    return out
 
 
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -63,9 +70,10 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     """
     pose = np.asarray(pose, dtype=float)
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    x = c * points[:, 0] - s * points[:, 1] + pose[..., 0]
-    y = s * points[:, 0] + c * points[:, 1] + pose[..., 1]
-    return np.stack([x, y], -1)
+    out = np.empty((len(points), 2))
+    out[:, 0] = c * points[:, 0] - s * points[:, 1] + pose[..., 0]
+    out[:, 1] = s * points[:, 0] + c * points[:, 1] + pose[..., 1]
+    return out
 
 
 def interpolate_poses(t_query: np.ndarray, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
@@ -75,13 +83,8 @@ def interpolate_poses(t_query: np.ndarray, t: np.ndarray, poses: np.ndarray) -> 
     queries outside ``[t[0], t[-1]]`` are clamped to the ends.
     """
     yaw = np.unwrap(poses[:, 2])
-    out = np.stack(
-        [
-            np.interp(t_query, t, poses[:, 0]),
-            np.interp(t_query, t, poses[:, 1]),
-            np.interp(t_query, t, yaw),
-        ],
-        -1,
-    )
-    out[..., 2] = wrap_angle(out[..., 2])
+    out = np.empty((*np.shape(t_query), 3))
+    out[..., 0] = np.interp(t_query, t, poses[:, 0])
+    out[..., 1] = np.interp(t_query, t, poses[:, 1])
+    out[..., 2] = wrap_angle(np.interp(t_query, t, yaw))
     return out

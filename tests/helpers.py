@@ -52,6 +52,12 @@ def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None, 
         w.finish()
 
 
+def metadata(log: Path) -> dict[str, dict[str, str]]:
+    """Every metadata record of the log, by name (read with plain mcap)."""
+    with open(log, "rb") as fh:
+        return {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}
+
+
 def ground_truth(path: Path):
     rows = []
     for _, _, message, m in decoded(path, ["/ground_truth/odom"]):

@@ -128,3 +128,19 @@ def test_calibrate_does_not_overwrite_without_force(logs, tmp_path):
     target.write_text("mine\n")
     res = run_cli("calibrate", str(logs["right"]), "-o", str(target))
     assert res.returncode == 2 and "--force" in res.stderr and target.read_text() == "mine\n"
+
+
+def test_the_report_says_where_the_motion_came_from_and_what_the_check_found(outs, logs):
+    """report.json carries run.json's motion sources and calibration check; the page and the
+    Markdown show the wrong lidar_x as disagreeing and the right ones as agreeing."""
+    from fmcwlog.evaluation.evaluate import evaluate
+    from fmcwlog.evaluation.pages import render_markdown
+
+    ev = evaluate(outs["wrong"], logs["wrong"])
+    run = json.loads((outs["wrong"] / "run.json").read_text())
+    assert ev.result["calibration_check"] == run["calibration_check"]
+    assert ev.result["motion_sources"] == run["motion_sources"]
+    md = render_markdown(ev)
+    rows = {ln.split("|")[1].strip(): ln for ln in md.splitlines() if ln.startswith("| lidar_")}
+    assert "disagrees" in rows["lidar_x"] and "disagrees" not in rows["lidar_yaw"]
+    assert "| improved | v and omega" in md

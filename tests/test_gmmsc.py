@@ -106,3 +106,31 @@ def test_deterministic_and_evaluate_without_refit():
     np.testing.assert_array_equal(a.weights, c.weights)
     warm = gmmsc_weights(d, mixture=a.mixture)  # warm-started refit converges to the same
     np.testing.assert_allclose(warm.weights, a.weights, atol=5e-3)  # EM tolerance
+
+
+def test_em_matches_sklearn_gaussian_mixture():
+    """The EM written out for 1-D distances is sklearn's GaussianMixture (a second implementation),
+    from the same start, over K, budgets and data with and without outliers."""
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.mixture import GaussianMixture
+
+    from fmcwlog.frontend.gmmsc import _initial_guess
+
+    rng = np.random.default_rng(7)
+    cases = [(_contaminated(3)[0], 2, 10, 1e-3), (_contaminated(4, outlier_frac=0.5)[0], 3, 50, 1e-6),
+             (np.abs(rng.normal(0, 0.02, 400)), 2, 100, 1e-8), (rng.uniform(0, 0.5, 300), 4, 5, 1e-3)]
+    for d, k, max_iter, tol in cases:
+        p = GMMSCParams(n_components=k, max_iter=max_iter, tol=tol, max_fit_samples=10_000)
+        means, var, mix = _initial_guess(d, k)
+        gmm = GaussianMixture(n_components=k, covariance_type="diag", max_iter=max_iter, tol=tol,
+                              reg_covar=p.reg_covar, weights_init=mix, means_init=means[:, None],
+                              precisions_init=(1.0 / var)[:, None], random_state=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gmm.fit(d[:, None])
+        m = fit_distance_mixture(d, p)
+        np.testing.assert_allclose(m.means, gmm.means_[:, 0], rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(m.sigmas, np.sqrt(gmm.covariances_[:, 0]), rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(m.mix, gmm.weights_, rtol=1e-7, atol=1e-12)

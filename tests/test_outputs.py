@@ -136,3 +136,19 @@ def test_a_second_report_does_not_score_its_own_ground_truth(processed, tmp_path
     second = report(out).result["methods"]  # gt.tum now lies beside the estimates
     assert list(first) == list(second)
     assert set(first) == {"improved", "baseline", "wheel_odometry", "improved_frontend", "baseline_frontend"}
+
+
+def test_arrow_columns_built_from_buffers_equal_pyarrows_own():
+    """The parquet's columns are built from Arrow buffers (to skip pandas' import); pyarrow's own
+    ``pa.array`` is the reference, nulls, booleans and non-ASCII text included."""
+    import pyarrow as pa
+
+    from fmcwlog.io.outputs import _arrow_column
+
+    cases = [([1.5, None, -2.0, float("inf")] * 5, pa.float64()), ([None] * 3, pa.float64()),
+             ([3, None, 2**40, -1] * 3, pa.int64()), ([True, None, False, True, True, None, False, True, False], pa.bool_()),
+             (["improved", None, "wheel_odometry", "", "fahrtrichtung ä"], pa.string()), ([], pa.int64())]
+    for values, kind in cases:
+        built = _arrow_column(values, kind)
+        built.validate(full=True)
+        assert built.equals(pa.array(values, kind)), (kind, built)

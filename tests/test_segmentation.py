@@ -121,3 +121,25 @@ def test_noise_points_judged_individually_and_empty_input():
     eps = np.array([0.5, 0.1, -0.4])
     np.testing.assert_array_equal(segment_moving(xy, eps), [True, False, True])
     assert segment_moving(np.zeros((0, 2)), np.zeros(0)).shape == (0,)
+
+
+def test_dbscan_labels_are_sklearns():
+    """The DBSCAN used here numbers clusters, borders and noise exactly as sklearn's does (a second
+    implementation): on the scene's (x, y, ε) points, on random clouds with ties, chains and lone points."""
+    from sklearn.cluster import DBSCAN
+
+    from fmcwlog.frontend.segmentation import dbscan
+
+    rng = np.random.default_rng(3)
+    xy, v_r, _ = _scene(np.array([1.0, 0.0]), rng)
+    ego = fit_sensor_velocity(xy, v_r)
+    clouds = [np.column_stack([xy, compensated_velocity(xy, v_r, ego.v_sensor)])]
+    for n in (0, 1, 7, 200, 1500):
+        pts = rng.uniform(0, 6, (n, 3))
+        pts[: n // 3] = np.round(pts[: n // 3] * 4) / 4  # repeated points and exact-eps spacings
+        clouds.append(pts)
+    clouds.append(np.column_stack([np.arange(100) * 0.3, np.zeros(100), np.zeros(100)]))  # a chain at exactly eps
+    for pts in clouds:
+        for eps, min_samples in ((0.3, 5), (0.5, 3), (0.25, 1), (1.0, 12)):
+            want = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(pts) if len(pts) else np.zeros(0, int)
+            np.testing.assert_array_equal(dbscan(pts, eps, min_samples), want)

@@ -7,6 +7,21 @@ is invented. Feature lengths: :mod:`fmcwlog.evaluation.features`; moving-point
 scores: :mod:`fmcwlog.evaluation.segmentation_score`; per-pose and per-pair series for the
 plots and the methods' disagreement (which needs no ground truth):
 :mod:`fmcwlog.evaluation.along_path`.
+
+``report.json`` (schema ``fmcwlog.report/1``; SI units: m, s, rad unless a key says
+``_pct``, ``_deg``, ``_cm`` or ``ms``):
+
+- ``header``: versions, date, log, scenario, seed, the parameters' digest;
+- ``methods.<name>``: ``ate_*_m`` (SE(2)-aligned, evo's ``-a``; ``ate_first_aligned_rmse_m``
+  aligned at the first pose), ``rpe_{1,10}m_pct`` and ``rpe_{1,10}m_deg_per_m``, ``features``
+  (each feature's length in the method's map, or why it is not measurable) and
+  ``feature_avg_rel_error_pct``, ``segmentation`` (precision, recall, F1, counts),
+  ``ms_per_sweep_*``, ``heading_*_deg``, and ``notes`` for what could not be computed;
+- ``feature_avg_rel_error_reduction_pct`` (improved against baseline) and ``paper`` (its figures);
+- ``relations_*``: the benchmark relations metric where a relations file was given;
+- ``motion_sources`` and ``calibration_check``: run.json's, as processing found them;
+- ``disagreement``: how far the methods' trajectories differ (needs no ground truth);
+- ``params``: the parameters processing used; ``notes``: the report's own remarks.
 """
 
 from __future__ import annotations
@@ -198,6 +213,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
         "relations_file": str(relations) if relations is not None else None,
         "relations_published": _published_relations(relations),
         "params": run.get("params"),
+        "motion_sources": run.get("motion_sources"),
+        "calibration_check": run.get("calibration_check"),
         "disagreement": _disagreements(ev, tums, notes),
         "notes": notes,
     }

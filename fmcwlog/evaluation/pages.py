@@ -219,6 +219,12 @@ def render_markdown(ev: Evaluation) -> str:
     rel = relations_rows(r)
     if rel:
         parts += [f"## Relations metric ({r['relations_file']})", "", markdown_table(RELATIONS_HEADER, rel), ""]
+    if sources_rows(r) or calibration_rows(r):
+        parts += ["## Motion sources and the calibration check", ""]
+        if sources_rows(r):
+            parts += [markdown_table(SOURCES_HEADER, sources_rows(r)), ""]
+        if calibration_rows(r):
+            parts += [markdown_table(CALIBRATION_HEADER, calibration_rows(r)), ""]
     notes = _notes(r)
     if notes:
         parts += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
@@ -314,17 +320,70 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 {_html_table(fh, fr, text_columns=2) if fr else "<p>No feature lengths (see the notes).</p>"}
 <p>{html.escape(_summary_line(r))}</p>
 {img("features", "relative error of each feature, both methods")}
-<p>How a feature is measured: the points each method kept for its map that saw an end of the feature
-(found by placing them with the ground-truth pose) are averaged as the method placed them; the
-distance between the two ends' averages, less the same distance with ground-truth placement, is the
-method's error on that length.</p>
+<p>How a feature is measured: its two ends are found in the occupancy map the method built (its own
+frame) and its length is their distance in that map. The ground truth only says where to look (the
+trajectory aligned to it over the poses within 8 m of the end) and what to look for (a corner or a
+wall end); the walls there are fitted in the map's occupied cells. A feature the map does not show
+well enough is not measurable and not scored (its row says why).</p>
 {_relations_html(r)}
+{_sources_html(r)}
 <h2>Maps</h2><div class="grid">{maps}</div>
 <h2>Notes</h2>{"<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>" if notes else "<p>None.</p>"}
 <h2>Parameters (digest {html.escape(str(digest))})</h2>
 <details><summary>run.json's params</summary><pre>{html.escape(json.dumps(r['params'], indent=2))}</pre></details>
 </body></html>
 """
+
+
+SOURCES_HEADER = ["method", "Doppler observes", "Doppler share of v", "Doppler share of ω", "sweeps held to the fused motion",
+                  "source dropped"]
+CALIBRATION_HEADER = ["value", "calibration", "estimate from the log", "σ", "verdict"]
+
+
+def sources_rows(result: dict) -> list[list[str]]:
+    """Where each method's motion came from (run.json's ``motion_sources``)."""
+    rows = []
+    for m, s in (result.get("motion_sources") or {}).items():
+        checks = s.get("sensor_checks") or {}
+        dropped = [f"{what} at {checks[key]:.1f} s" for what, key in (("Doppler", "doppler_dropped_at_s"),
+                                                                       ("wheels", "wheels_dropped_at_s"))
+                   if checks.get(key) is not None]
+        rows.append([m, str(s.get("doppler_observes", "—")), _fmt(s.get("doppler_share_v"), 3),
+                     _fmt(s.get("doppler_share_omega"), 3), str(s.get("doppler_prior_sweeps", "—")),
+                     ", ".join(dropped) or "none"])
+    return rows
+
+
+def calibration_rows(result: dict) -> list[list[str]]:
+    """The calibration check (run.json's ``calibration_check``): each value against the log's own estimate."""
+    check = result.get("calibration_check") or {}
+    rows = []
+    for name, v in (check.get("values") or {}).items():
+        if v.get("disagrees"):
+            verdict = "disagrees (beyond 3σ and its tolerance)"
+        else:
+            verdict = "differs by over 3σ, within its tolerance" if v.get("differs") else "agrees"
+        rows.append([name, _fmt(v.get("calibration"), 4), _fmt(v.get("estimate"), 4), _fmt(v.get("sigma"), 4), verdict])
+    rows += [[name, "—", "not estimated", "—", str(why)] for name, why in (check.get("not_estimated") or {}).items()]
+    return rows
+
+
+def _sources_html(r: dict) -> str:
+    sources, cal = sources_rows(r), calibration_rows(r)
+    if not sources and not cal:
+        return ""
+    parts = ["<h2>Motion sources and the calibration check</h2>"]
+    if sources:
+        parts.append(_html_table(SOURCES_HEADER, sources, text_columns=2))
+    check = r.get("calibration_check") or {}
+    if cal:
+        parts.append("<p>The LiDAR's mount and the wheels estimated from this log (Doppler, wheel turns and "
+                     "scan-matched heading changes); <code>fmcwlog calibrate</code> writes them as a file "
+                     "<code>process --calibration</code> takes. Units: m and rad.</p>")
+        parts.append(_html_table(CALIBRATION_HEADER, cal))
+    elif check.get("reason"):
+        parts.append(f"<p>No calibration check: {html.escape(str(check['reason']))}</p>")
+    return "".join(parts)
 
 
 def _relations_html(r: dict) -> str:

@@ -40,7 +40,7 @@ class ICPParams(Checked):
         median pair distance leaves ``[r, 1/r] ×`` the median the mixture was
         fit to (``DistanceMixture.fit_median``; this also applies to a mixture
         reused from a previous sweep); otherwise eq. 21 is just evaluated with
-        the last mixture (~0.05 ms instead of a ~1-3 ms sklearn EM run).
+        the last mixture (~0.05 ms instead of an EM run).
         ≥ 1 refits every iteration.
     extrapolate, max_extrapolation, extrapolation_min_cos, extrapolation_lever:
         step extrapolation of the robust variant (``_extrapolation_factor``);

@@ -44,11 +44,14 @@ class VoxelMap:
             return 0
         keys = voxel_keys(xy, self.voxel_size)
         keys, first = np.unique(keys, return_index=True)
-        new = ~np.isin(keys, self._keys, assume_unique=True, kind="sort")
+        # the map's keys are kept sorted: a binary search per new key instead of sorting the map's
+        # keys with them (np.isin) at every keyframe
+        at = np.searchsorted(self._keys, keys)
+        new = self._keys.take(at, mode="clip") != keys if len(self._keys) else np.ones(len(keys), bool)
         if not new.any():
             return 0
         self.points = np.concatenate([self.points, xy[first[new]]])
-        self._keys = np.concatenate([self._keys, keys[new]])
+        self._keys = np.insert(self._keys, at[new], keys[new])
         # An unbalanced, uncompacted tree builds in 2.6 ms instead of 4.7 ms for 20k wall points
         # and answers the ICP's queries as fast (0.19 vs 0.20 ms for 500 points): it is rebuilt
         # at every keyframe, queried ~5 times per sweep.

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..geometry import between, interpolate_poses
 from ..io.calibration import WheelCalibration
-from .odometry import body_increments, integrate_arcs
+from .odometry import body_increments, integrate_arc
 
 
 class PoseTrack:
@@ -69,7 +69,7 @@ class PoseTrack:
                 self.repeated_stamps += 1
                 return False
             ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
-            ok = self.add_pose(t, integrate_arcs(ds, dth, self._p[self._n - 1])[-1])
+            ok = self.add_pose(t, integrate_arc(ds[0], dth[0], self._p[self._n - 1]))
             self._ticks = (left, right)
         if ok:
             self._k[self._n - 1] = (left, right)

@@ -64,3 +64,13 @@ def integrate_arcs(
     x = x0 + np.concatenate(([0.0], np.cumsum(chord * np.cos(mid))))
     y = y0 + np.concatenate(([0.0], np.cumsum(chord * np.sin(mid))))
     return np.stack([x, y, wrap_angle(heading)], -1)
+
+
+def integrate_arc(ds: float, dtheta: float, pose: np.ndarray) -> np.ndarray:
+    """The pose (3,) one arc of :func:`integrate_arcs` leads to from ``pose``: the same float operations
+    on scalars (the motion prior adds one encoder reading at a time, 50 a second; the array version's
+    concatenations and cumulative sums cost 60 us for that)."""
+    x0, y0, th0 = (float(c) for c in pose)
+    mid = (th0 + 0.0) + 0.5 * dtheta
+    chord = ds * np.sinc(dtheta / (2.0 * np.pi))
+    return np.array([x0 + chord * np.cos(mid), y0 + chord * np.sin(mid), wrap_angle(th0 + dtheta)])

@@ -22,7 +22,8 @@ def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarr
 
     ``θ = atan2(Σ p'×q', Σ p'·q')`` on centred pairs, ``t = q̄ - R p̄``.
     """
-    pc, qc = source_pts.mean(axis=0), target_pts.mean(axis=0)
+    n = len(source_pts)  # sum / n: the bits of .mean() without its per-call overhead (~10 µs an iteration)
+    pc, qc = source_pts.sum(axis=0) / n, target_pts.sum(axis=0) / n
     p, q = source_pts - pc, target_pts - qc
     th = np.arctan2(np.sum(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]), np.sum(p * q))
     c, s = np.cos(th), np.sin(th)
@@ -45,6 +46,7 @@ def register_point_to_point(
     pose = np.asarray(initial_pose, dtype=float).copy()
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
+    last_distances = None  # of the last pairs used: the RMS is taken once, after the loop
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
         c = find_correspondences(
@@ -58,11 +60,12 @@ def register_point_to_point(
         step = new - pose
         step[2] = wrap_angle(step[2])
         pose = new
-        n_kept = int(c.distances.size)
-        rmse = float(np.sqrt(np.mean(c.distances**2)))
+        n_kept, last_distances = int(c.distances.size), c.distances
         if step_is_small(step, params):
             converged = True
             break
+    if last_distances is not None:
+        rmse = float(np.sqrt(np.mean(last_distances**2)))
     if n_kept:  # information matrix of the last pairs at the final pose (unit weights)
         _, h = gauss_newton_step(transform_points(pose, src), c.target, pose, np.ones(n_kept))
     return ICPResult(pose, iterations, n_kept, converged, rmse, h, 0)

@@ -77,7 +77,7 @@ def register(
     whole walls as "outliers", stalling the pose in that direction.
 
     ``mixture``: a mixture from a previous registration (``ICPResult.mixture``);
-    if given it is used instead of a first fit (saves one sklearn EM run per
+    if given it is used instead of a first fit (saves one EM run per
     sweep) and refit only by the ``gmm_refit_ratio`` rule.
 
     ``prior_pose`` (3,) and ``prior_information`` (3, 3): optional Gaussian prior
@@ -90,6 +90,7 @@ def register(
     n_fits = 0
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
+    last_distances = None  # of the last pairs used: the RMS is taken once, after the loop
     prev_delta: np.ndarray | None = None
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
@@ -125,7 +126,7 @@ def register(
         prev_delta = delta
         pose = pose + step
         pose[2] = wrap_angle(pose[2])
-        n_kept, rmse = int(keep.sum()), float(np.sqrt(np.mean(d * d)))
+        n_kept, last_distances = int(keep.sum()), d
         if params.use_gmmsc and not gmm_on:
             gmm_on = bool(
                 np.hypot(delta[0], delta[1]) < params.gmm_start_translation
@@ -137,4 +138,6 @@ def register(
         if step_is_small(delta, params):
             converged = True
             break
+    if last_distances is not None:
+        rmse = float(np.sqrt(np.mean(last_distances * last_distances)))
     return ICPResult(pose, iterations, n_kept, converged, rmse, h, n_fits, mixture)

@@ -71,7 +71,7 @@ class SelfCalibrationParams(Checked):
     min_samples: fewer moving sweeps than this and nothing is estimated.
     check_sigmas: a value *differs* from the calibration when it is off by more than this
         many of its standard deviations (``fmcwlog calibrate`` writes it), and *disagrees*
-        (a warning) when it also is off by more than ...
+        (a warning) when it is off by more than this many standard deviations beyond ...
     tol_mount_xy, tol_mount_yaw_deg, tol_radius_rel, tol_track_rel: ... these (m, deg,
         fraction, fraction): a difference too small to matter is not worth a warning. For the
         radii 1 %: worn or soft tyres are that far off, and the simulator's radii are 0.5 %
@@ -305,7 +305,8 @@ def _tolerance(name: str, value: float, prm: SelfCalibrationParams) -> float:
 def check_calibration(est: CalibrationEstimate, cal: Calibration, prm: SelfCalibrationParams) -> dict[str, dict]:
     """Per estimated value: the calibration's, the estimate, its σ, the difference and whether it disagrees.
 
-    A value disagrees when it is off by more than ``check_sigmas`` σ *and* by more than its tolerance.
+    A value disagrees when it is off by more than its tolerance plus ``check_sigmas`` σ: out of
+    tolerance with that confidence.
     """
     found = {n: {"estimate": v, "sigma": est.sigmas[n]} for n, v in est.values.items()
              if v is not None and est.sigmas[n] is not None}
@@ -351,7 +352,11 @@ def recheck(check: dict[str, dict], cal: Calibration, prm: SelfCalibrationParams
     for name, c in check.items():
         diff = c["estimate"] - float(p0[name])
         differs = abs(diff) > prm.check_sigmas * c["sigma"]
-        bad = differs and abs(diff) > _tolerance(name, c["estimate"], prm)
+        # out of tolerance with check_sigmas confidence, not merely beyond each: on the other
+        # writer's 20 s log the track width came out 491.5 ± 2.5 mm against 500 recorded and
+        # 496.5 true (its ground truth and true radii): 3.4 σ off the record, though the record
+        # is within its 1 % tolerance of the truth
+        bad = abs(diff) - prm.check_sigmas * c["sigma"] > _tolerance(name, c["estimate"], prm)
         out[name] = {**c, "calibration": float(p0[name]), "difference": diff, "differs": bool(differs),
                      "disagrees": bool(bad)}
     return out

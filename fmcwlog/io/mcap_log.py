@@ -42,6 +42,32 @@ from .schemas import message_definition
 _RAW_TAIL = {"nav_msgs/msg/OccupancyGrid": "data"}
 
 
+def _odometry_cdr(m: dict) -> bytes:
+    """``nav_msgs/Odometry`` as little-endian CDR: the stamp, the two frame names, then 85 float64
+    (pose, its 36 covariances, twist, its 36) in one block aligned to 8 bytes.
+
+    mcap_ros2 writes each float through its generic encoder (79 us a message: 10 % of ``record``,
+    which writes the ground truth at 50 Hz); this is 6 us, with identical bytes
+    (``tests/test_mcap_io.py`` compares them over frame names of every alignment).
+    """
+    h, pose, twist = m["header"], m["pose"], m["twist"]
+    out = bytearray(b"\x00\x01\x00\x00")  # CDR little endian
+    out += struct.pack("<iI", h["stamp"]["sec"], h["stamp"]["nanosec"])
+    for name in (h["frame_id"], m["child_frame_id"]):  # alignment counts from after the 4-byte header
+        raw = name.encode()
+        out += bytes(-(len(out) - 4) % 4) + struct.pack("<I", len(raw) + 1) + raw + b"\0"
+    out += bytes(-(len(out) - 4) % 8)
+    p, q = pose["pose"]["position"], pose["pose"]["orientation"]
+    lin, ang = twist["twist"]["linear"], twist["twist"]["angular"]
+    out += struct.pack("<85d", p["x"], p["y"], p["z"], q["x"], q["y"], q["z"], q["w"], *pose["covariance"],
+                       lin["x"], lin["y"], lin["z"], ang["x"], ang["y"], ang["z"], *twist["covariance"])
+    return bytes(out)
+
+
+# Types encoded here in full (the layout is fixed by the .msg; the bytes are mcap_ros2's)
+_ENCODERS: dict[str, Callable[[dict], bytes]] = {"nav_msgs/msg/Odometry": _odometry_cdr}
+
+
 class LogWriter:
     """Writes an MCAP log (``ros2`` profile, CDR) to ``path`` via a temporary file renamed on :meth:`close`.
 
@@ -73,6 +99,8 @@ class LogWriter:
     def encode(self, datatype: str, message: dict) -> bytes:
         """CDR bytes of ``message`` (a dict of the type's fields)."""
         encoder = self._schema(datatype)[1]
+        if datatype in _ENCODERS:
+            return _ENCODERS[datatype](message)
         tail = _RAW_TAIL.get(datatype)
         if tail is not None and isinstance(message.get(tail), np.ndarray):
             raw = np.ascontiguousarray(message[tail]).tobytes()

@@ -7,6 +7,8 @@ estimates -> outputs -> report:
                    parquet, map_server, processed.mcap), atomic writes
 - ``frontend/``    estimation, one module per stage (pure numpy functions), the two
                    methods and the loop over a log; never reads ground truth
+- ``backend/``     the pose graph both methods share: verified loop closures,
+                   optimised with gtsam; reads only what a front end made (estimation too)
 - ``evaluation/``  the only readers of ground truth: metrics, feature lengths,
                    relations, report pages
 - ``sim/``         ``fmcwlog record``'s simulator

@@ -27,7 +27,17 @@ import numpy as np
 
 from . import __version__
 from .allocator import keep_freed_memory
-from .errors import CalibrationError, CarmenImportError, FmcwlogError, LogError, MapSizeError, OutputError, ReportError
+from .backend import BackendResult, PoseGraphBackend
+from .errors import (
+    CalibrationError,
+    CarmenImportError,
+    ConfigError,
+    FmcwlogError,
+    LogError,
+    MapSizeError,
+    OutputError,
+    ReportError,
+)
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.fleet import FleetEntry, fleet_result, log_row, write_fleet
 from .evaluation.pages import comparison_rows, markdown_table, write_report
@@ -96,6 +106,8 @@ class ProcessOptions:
         when the log has no ticks).
     publish_period: paths and occupancy grids go into ``processed.mcap`` every this many
         seconds of log (s), and once more at the end.
+    backend: ``pose-graph`` (loop closures for every method, :mod:`fmcwlog.backend`; the outputs
+        come from the optimised poses) or ``none`` (the front ends alone).
     calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
         the log's ``fmcwlog.calibration`` record.
     """
@@ -107,6 +119,10 @@ class ProcessOptions:
     params: FrontEndParams = field(default_factory=FrontEndParams)
     publish_period: float = 5.0
     calibration: Path | None = None
+    backend: str = "pose-graph"
+
+
+BACKENDS = ("pose-graph", "none")
 
 
 @dataclass
@@ -121,6 +137,7 @@ class ProcessSummary:
     ms_median: dict[str, float]
     truncated: bool
     warnings: list[str]
+    backend: dict[str, dict] = field(default_factory=dict)  # per method: BackendResult.summary()
 
 
 def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
@@ -134,6 +151,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     (:func:`fmcwlog.io.atomic.check_output_folder`).
     """
     opts = opts or ProcessOptions()
+    if opts.backend not in BACKENDS:
+        raise ConfigError(f"unknown back end {opts.backend!r} (known: {', '.join(BACKENDS)})")
     log, out_dir = Path(log), Path(out_dir)
     keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
@@ -153,15 +172,12 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             grids = {fe.name: fe.grid for fe in runner.fronts}
+            backends = {m: PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
+                        for m in opts.methods} if opts.backend == "pose-graph" else {}
             try:
-                for step in _steps(runner, inputs, log):
-                    for r in step.results:
-                        outputs.add(r)
-                    if step.wheel_pose is not None:
-                        outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
-                    outputs.end_sweep(step.sweep.stamp_ns, grids)
-                    if on_sweep:
-                        on_sweep(runner.sweeps, total)
+                searches = _feed(runner, _steps(runner, inputs, log), outputs, backends, grids,
+                                 lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
+                optimised = _optimise(backends, outputs, grids, tmp)
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
@@ -174,7 +190,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
             summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
-                                     reader.contents.truncated, notes)
+                                     reader.contents.truncated, notes,
+                                     {m: res.summary() for m, res in optimised.items()})
             write_json(tmp / "run.json", {
                 "fmcwlog_version": __version__,
                 "log": str(log.resolve()),
@@ -197,9 +214,58 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 "truncated_log": summary.truncated,
                 "warnings": summary.warnings,
                 "ms_per_sweep_median": summary.ms_median,
+                "correlative_searches": {m: {"run": n, "kept": k, "sweeps": summary.sweeps}
+                                         for m, (n, k) in searches.items()},
+                "backend": {"kind": opts.backend, **summary.backend},
                 "wall_seconds": round(time.perf_counter() - started, 3),
             }, sort_keys=True)
     return summary
+
+
+def _feed(runner: LogRunner, steps: Iterator[SweepStep], outputs: ProcessOutputs,
+          backends: dict[str, PoseGraphBackend], grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
+    """Every sweep through the front ends, into the outputs and the back ends. Returns, per method,
+    how many correlative searches ran and how many of them replaced the ICP's match."""
+    searches = {fe.name: [0, 0] for fe in runner.fronts}
+    for step in steps:
+        for r in step.results:
+            outputs.add(r)
+            searches[r.method][0] += r.searched
+            searches[r.method][1] += r.recovered
+            if r.method in backends:
+                backends[r.method].add(r)
+        if step.wheel_pose is not None:
+            outputs.add_pose(WHEEL_ODOMETRY, step.sweep.stamp_ns, step.wheel_pose, step.wheel_twist)
+        outputs.end_sweep(step.sweep.stamp_ns, grids)
+        after_sweep()
+    return searches
+
+
+def _optimise(backends: dict[str, PoseGraphBackend], outputs: ProcessOutputs, grids: dict,
+              folder: Path) -> dict[str, BackendResult]:
+    """Each back end's last optimisation: its trajectory replaces the front end's in the outputs,
+    its map the front end's grid, and ``<method>_backend.json`` records its graph."""
+    optimised = {m: be.finish() for m, be in backends.items()}
+    for m, res in optimised.items():
+        outputs.correct(m, res.poses)
+        grids[m] = res.grid
+        write_json(folder / f"{m}_backend.json", backend_json(res))
+    return optimised
+
+
+def backend_json(res: BackendResult) -> dict:
+    """What ``<method>_backend.json`` holds: the nodes (optimised poses) and the verified closures."""
+    return {
+        "frame": "the method's own <method>/odom; base_link",
+        "nodes": {"stamp_ns": res.node_stamps_ns.tolist(), "x": res.node_poses[:, 0].round(6).tolist(),
+                  "y": res.node_poses[:, 1].round(6).tolist(), "yaw": res.node_poses[:, 2].round(6).tolist()},
+        "closures": [{"query": c.query, "candidate": c.candidate, "query_stamp_ns": c.query_stamp_ns,
+                      "candidate_stamp_ns": c.candidate_stamp_ns, "relative": [round(float(v), 6) for v in c.relative],
+                      "score": round(c.score, 4), "second_score": round(c.second_score, 4),
+                      "inlier_fraction": round(c.inlier_fraction, 4), "free_directions": c.free_directions,
+                      "whitened_error": round(c.whitened_error, 4), "accepted": c.accepted} for c in res.closures],
+        "summary": res.summary(),
+    }
 
 
 def _steps(runner: LogRunner, inputs: LogInputs, log: Path) -> Iterator[SweepStep]:

@@ -127,6 +127,7 @@ Scenarios (--scenario, default {DEFAULT_SCENARIO}):
   crowd          a hall where 20-40 % of the returns come from walking people and carts
   dense-crowd    the same hall packed: about half of the returns on movers, many crossing the beams
   long-corridor  100 m bare corridor: geometry alone cannot fix the along-axis position
+  ring           a ring of corridors around a solid block: a lap's drift is left to loop closure
 Or --world FILE: your own walls, features, movers and route (YAML/JSON; see the README).
 
 \b
@@ -277,6 +278,9 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys) "
                    "to use instead of the log's record.")
+@click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
+              help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
+                   "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
 @click.option("--show-config", is_flag=True,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
@@ -295,7 +299,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+                backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from .frontend.params import frontend_params_toml, load_frontend_params
 
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
@@ -309,7 +313,8 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
     methods = api.ProcessOptions().methods if method == "all" else (method,)
-    opts = api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file)
+    opts = api.ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
+                              backend=backend)
     if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
         if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
             console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
@@ -343,6 +348,9 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
                f"prior: {summary.prior}; Doppler: {'on' if summary.doppler else 'off'}")
     for m, ms in summary.ms_median.items():
         console.info(f"  {m:9s} median {ms:.2f} ms per sweep")
+    for m, b in summary.backend.items():
+        console.info(f"  {m:9s} back end: {b['closures_accepted']} loop closures accepted of {b['closures_verified']} "
+                     f"verified, {b['closures_proposed']} proposed; {b['seconds']:.1f} s")
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.out_dir}/")

@@ -93,7 +93,9 @@ def test_processed_mcap_carries_twist_covariance_paths_maps_and_velocity(process
     maps = msgs["/improved/map"]
     assert len(maps) >= 6
     known = [int((m.data >= 0).sum()) for _, m in maps]
-    assert known == sorted(known) and known[-1] > 1.5 * known[0]  # it grows as the robot explores
+    assert known[:-1] == sorted(known[:-1]) and known[-2] > 1.5 * known[0]  # it grows as the robot explores
+    # the last map is rebuilt from the back end's optimised nodes: the same floor, drawn again
+    assert abs(known[-1] - known[-2]) < 0.05 * known[-2]
     last = maps[-1][1]
     assert last.header.frame_id == "improved/odom" and len(last.data) == last.info.width * last.info.height
     assert set(np.unique(last.data)) <= set(range(-1, 101)) and (last.data == 100).any() | (last.data > 65).any()
@@ -132,7 +134,8 @@ def test_a_second_report_does_not_score_its_own_ground_truth(processed, tmp_path
     shutil.copytree(processed["corridor_30s"], out)
     first = report(out).result["methods"]
     second = report(out).result["methods"]  # gt.tum now lies beside the estimates
-    assert list(first) == list(second) == ["improved", "baseline", "wheel_odometry"]
+    assert list(first) == list(second)
+    assert set(first) == {"improved", "baseline", "wheel_odometry", "improved_frontend", "baseline_frontend"}
 
 
 def test_arrow_columns_built_from_buffers_equal_pyarrows_own():

@@ -19,16 +19,22 @@ import pytest
 from conftest import SAMPLE_LOGS
 from helpers import assert_one_line_error, copy_log, run_cli_here
 
+from fmcwlog.backend.params import BackendParams
+from fmcwlog.backend.registration import LineICPParams
 from fmcwlog.config import check_params, parse_set_option, range_of
 from fmcwlog.errors import ConfigError, MapSizeError
+from fmcwlog.frontend.correlative import CorrelativeParams
 from fmcwlog.frontend.gmmsc import GMMSCParams
 from fmcwlog.frontend.icp import ICPParams
+from fmcwlog.frontend.keyframe_map import LocalMapParams
 from fmcwlog.frontend.occupancy import OccupancyGrid, OccupancyParams
 from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
+from fmcwlog.frontend.recovery import RecoveryParams
 from fmcwlog.frontend.segmentation import SegmentationParams
 from fmcwlog.sim.config import RobotConfig, RunConfig, SensorConfig, SimConfig
 
-USER_PARAMETERS = (FrontEndParams, SegmentationParams, ICPParams, GMMSCParams, SensorConfig, RobotConfig, RunConfig)
+USER_PARAMETERS = (FrontEndParams, SegmentationParams, ICPParams, GMMSCParams, LocalMapParams, RecoveryParams,
+                   CorrelativeParams, BackendParams, LineICPParams, SensorConfig, RobotConfig, RunConfig)
 
 
 def _leaves(cls: type, prefix: str = ""):
@@ -96,6 +102,9 @@ def test_every_numeric_parameter_refuses_nan_inf_and_values_past_its_ends(comman
     (["process", "--set", "icp.max_iterations=0"], "icp.max_iterations = 0 is out of range: [1, 1000]"),
     (["process", "--set", "icp.gmmsc.n_components=2.5"], "icp.gmmsc.n_components must be a whole number, got 2.5"),
     (["process", "--set", "frontend.prior_sigma_yaw=0"], "frontend.prior_sigma_yaw = 0 is out of range: (0, 3.14159] rad"),
+    (["process", "--set", "backend.search.levels=9"], "backend.search.levels = 9 is out of range: [1, 4]"),
+    (["process", "--set", "local_map.window_distance=0"],
+     "local_map.window_distance = 0 is out of range: (0, 1000] m"),
     (["record", "--set", "sensor.scan_rate=1e6"], "sensor.scan_rate = 1000000 is out of range: [0.1, 100] Hz"),
     (["record", "--duration", "inf"], "run.duration = inf is out of range: (0, 86400] s"),
     (["record", "--duration", "nan"], "run.duration = nan is out of range: (0, 86400] s"),
@@ -139,7 +148,9 @@ def _frontend_as_tables(p: FrontEndParams) -> dict:
 
 PROCESS_SETS = ("icp.huber_delta=0.04", "icp.gmmsc.w_th=0.6", "segmentation.v_th=0.25",
                 "frontend.map_resolution=0.1", "frontend.seed=4294967295", "frontend.deskew=false",
-                "icp.gmmsc.min_spread=3e-7", "frontend.prior_sigma_yaw=0.1")
+                "icp.gmmsc.min_spread=3e-7", "frontend.prior_sigma_yaw=0.1", "local_map.max_keyframes=12",
+                "recovery.enabled=false", "recovery.correlative.levels=3", "backend.closure_radius=4.5",
+                "backend.search.resolution=0.05", "backend.icp.normal_neighbours=8", "backend.cauchy_scale=2.5")
 RECORD_SETS = ("sensor.range_sigma=0.03", "sensor.wavelength=9.05e-7", "robot.ticks_per_revolution=1024",
                "run.compression=", "run.start_time_ns=1234567890123456789", "robot.wheel_radius_error_left=-0.01")
 

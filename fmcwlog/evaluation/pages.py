@@ -98,7 +98,12 @@ def feature_rows(result: dict) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
-RELATIONS_HEADER = ["method", "relations", "translation m (mean ± std)", "rotation deg (mean ± std)"]
+RELATIONS_HEADER = ["method", "relations", "translation m (mean ± std)", "rotation deg (mean ± std)",
+                    "< 20 s: n, translation m", "≥ 20 s: n, translation m", "path length m"]
+
+
+def _span_cell(n: int | None, mean: float | None) -> str:
+    return "—" if not n or mean is None else f"{n}: {mean:.3f}"
 
 
 def relations_rows(result: dict) -> list[list[str]]:
@@ -109,9 +114,13 @@ def relations_rows(result: dict) -> list[list[str]]:
             continue
         rows.append([LABELS.get(m, m), str(rel["n"]),
                      "—" if rel["trans_mean_m"] is None else f"{rel['trans_mean_m']:.3f} ± {rel['trans_std_m']:.3f}",
-                     "—" if rel["rot_mean_deg"] is None else f"{rel['rot_mean_deg']:.2f} ± {rel['rot_std_deg']:.2f}"])
+                     "—" if rel["rot_mean_deg"] is None else f"{rel['rot_mean_deg']:.2f} ± {rel['rot_std_deg']:.2f}",
+                     _span_cell(rel.get("short_n"), rel.get("short_trans_mean_m")),
+                     _span_cell(rel.get("long_n"), rel.get("long_trans_mean_m")),
+                     _fmt(rel.get("path_length_m"), 1)])
     for p in result.get("relations_published") or []:
-        rows.append([f"published: {p['method']}", "all", f"{p['trans_mean_m']:.3f} ± {p['trans_std_m']:.3f}", "—"])
+        rows.append([f"published: {p['method']}", "all", f"{p['trans_mean_m']:.3f} ± {p['trans_std_m']:.3f}", "—",
+                     "—", "—", "—"])
     return rows
 
 
@@ -292,6 +301,7 @@ def render_html(ev: Evaluation) -> str:
     notes = _notes(r)
     maps = "".join(img(f"map_{m}", f"occupancy map built by the {m} method, with its trajectory")
                    for m in ("improved", "baseline"))
+    maps += "".join(img(f"closures_{m}", f"the {m} method's loop closures on its map") for m in ("improved", "baseline"))
     digest = (r.get("header") or {}).get("params_sha256_12")
     speed = speed_rows(ev)
     return f"""<!doctype html>

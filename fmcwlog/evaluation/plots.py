@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import inspect
 import io
+import json
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -279,6 +280,33 @@ def trajectory_over_own_map(out_dir: Path, method: str):
     return fig
 
 
+def loop_closures_over_map(out_dir: Path, method: str):
+    """The back end's loop closures (``<method>_backend.json``) drawn on the method's map: each a
+    segment between its two nodes at their optimised poses, blue where the Cauchy kernel kept it,
+    red where it did not; the front end's own trajectory dashed. None without a back end."""
+    graph = out_dir / f"{method}_backend.json"
+    fig = trajectory_over_own_map(out_dir, method) if graph.is_file() else None
+    if fig is None:
+        return None
+    ax = fig.axes[0]
+    data = json.loads(graph.read_text())
+    xy = np.column_stack([data["nodes"]["x"], data["nodes"]["y"]])
+    at = {int(s): i for i, s in enumerate(data["nodes"]["stamp_ns"])}
+    for kept, colour in ((True, "#1565c0"), (False, "#d32f2f")):
+        segs = [(xy[at[c["candidate_stamp_ns"]]], xy[at[c["query_stamp_ns"]]]) for c in data["closures"]
+                if c["accepted"] is kept]
+        for a, b in segs:
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=colour, lw=0.8, alpha=0.8)
+        ax.plot([], [], color=colour, lw=0.8, label=f"loop closures {'kept' if kept else 'down-weighted'} ({len(segs)})")
+    front = out_dir / f"{method}_frontend.tum"
+    if front.is_file():
+        _, fposes = read_tum(front)
+        ax.plot(fposes[:, 0], fposes[:, 1], color="#777777", lw=0.7, ls="--", label="front end alone")
+    ax.set_title(f"Loop closures of the {label(method)} method's back end, on its map", fontsize=10)
+    ax.legend(loc="upper right", fontsize=7)
+    return fig
+
+
 def aligned_over_reference_map(ev: Evaluation):
     """Every trajectory SE(2)-aligned onto the reference one, over the reference's map (no ground truth)."""
     plt = _pyplot()
@@ -337,6 +365,7 @@ def all_plots(ev: Evaluation) -> dict[str, str]:
         makers += [("sweep_times", partial(sweep_times, ev))]
     makers += [("features", partial(feature_errors, ev.result))]
     makers += [(f"map_{m}", partial(trajectory_over_own_map, ev.out_dir, m)) for m in ("improved", "baseline")]
+    makers += [(f"closures_{m}", partial(loop_closures_over_map, ev.out_dir, m)) for m in ("improved", "baseline")]
     out = {}
     for key, make in makers:
         fig = make()

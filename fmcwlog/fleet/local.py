@@ -135,9 +135,13 @@ class WorkerProcess:
             return f"worker killed by {name}{oom}, {self._at()}"
         last = next((ln.strip() for ln in reversed(stderr.splitlines()) if ln.strip()), "")
         cap = self.limits.memory_limit_mb
-        hint = (f"; the per-log memory cap of {cap} MB may be too small (--memory-limit)"
-                if cap and "memory" in stderr.lower() else "")
-        return f"worker exited with status {rc} without a result{': ' + last if last else ''}{hint}"
+        if cap and "memory" in stderr.lower():
+            # a library that cannot allocate under the cap may exit on its own (OpenBLAS does, once
+            # gtsam's libraries have taken their share of the address space) instead of raising
+            return (f"probably out of memory: worker exited with status {rc} without a result"
+                    f"{': ' + last if last else ''}; the per-log memory cap of {cap} MB may be too small "
+                    "(--memory-limit)")
+        return f"worker exited with status {rc} without a result{': ' + last if last else ''}"
 
 
 def run_one(task: LogTask, limits: Limits) -> LogOutcome:

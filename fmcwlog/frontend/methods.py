@@ -51,15 +51,18 @@ import numpy as np
 from ..geometry import between, compose, transform_points, wrap_angle
 from ..io.calibration import Calibration
 from ..io.inputs import SweepInput
+from .correlative import LikelihoodGrid, correlative_match
 from .deskew import deskew, se2_exp
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
-from .local_map import VoxelMap, voxel_downsample
+from .keyframe_map import KeyframeMap
+from .local_map import voxel_downsample
 from .names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY  # noqa: F401 (re-exported)
 from .occupancy import OccupancyGrid, OccupancyParams
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
+from .recovery import inlier_fraction
 from .robust_icp import register
 from .segmentation import segment_moving
 from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
@@ -168,6 +171,8 @@ class SweepResult:
     moving_mask: np.ndarray
     segmented: bool
     keyframe: bool
+    searched: bool = False  # the ICP's fit was poor, so a correlative search ran (:mod:`.recovery`)
+    recovered: bool = False  # ... and its match replaced the ICP's from the prior
 
 
 class FrontEnd:
@@ -184,9 +189,10 @@ class FrontEnd:
         self.params = params
         self.cal = cal
         self.mount = np.asarray(cal.mount, dtype=float)
-        self.map = VoxelMap(params.voxel_size)
+        self.map = KeyframeMap(params.voxel_size, params.local_map)
         self.grid = OccupancyGrid(OccupancyParams(resolution=params.map_resolution))
         self.pose: np.ndarray | None = None
+        self.path_m = 0.0  # distance travelled by base_link, m
         self.last_stamp = 0.0  # s, of the last sweep; meaningful once ``pose`` is set
         self.last_key: np.ndarray | None = None
         self.last_grid: np.ndarray | None = None
@@ -196,8 +202,10 @@ class FrontEnd:
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         raise NotImplementedError  # pragma: no cover - abstract
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
-        """Match ``source`` (base_link at the sweep's stamp) against the map from ``motion.predicted``."""
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
+                 initial: np.ndarray | None = None) -> ICPResult:
+        """Match ``source`` (base_link at the sweep's stamp) against the map, starting from
+        ``initial`` (default ``motion.predicted``, which stays the prior either way)."""
         raise NotImplementedError  # pragma: no cover - abstract
 
     def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:
@@ -227,12 +235,17 @@ class FrontEnd:
         d = between(last, pose)
         return bool(np.hypot(d[0], d[1]) >= distance or abs(d[2]) >= np.radians(angle_deg))
 
-    def _update_maps(self, pose: np.ndarray, static_map: np.ndarray) -> bool:
-        """A keyframe's points into the voxel map, and into the occupancy grid less often."""
+    def _update_maps(self, pose: np.ndarray, static_map: np.ndarray, skew_rad: float) -> bool:
+        """A keyframe's points into the local map, and into the occupancy grid less often.
+
+        ``skew_rad``: how much the twist changed across the sweep, as an angle (rad): a sweep
+        whose twist changes within it (entering or leaving a turn) is deskewed with the wrong
+        twist, so it waits (:class:`~.keyframe_map.LocalMapParams`)."""
         p = self.params
-        keyframe = self._moved(self.last_key, pose, p.keyframe_distance, p.keyframe_angle_deg)
+        keyframe = self._moved(self.last_key, pose, p.keyframe_distance, p.keyframe_angle_deg) and (
+            skew_rad <= np.radians(p.local_map.max_twist_skew_deg) or self.last_key is None)
         if keyframe:
-            self.map.add(static_map)
+            self.map.add(static_map, self.path_m)
             self.last_key = pose
         if self._moved(self.last_grid, pose, p.grid_distance, p.grid_angle_deg):
             self.grid.integrate(compose(pose, self.mount)[:2], static_map)
@@ -253,16 +266,20 @@ class FrontEnd:
         source = voxel_downsample(pts, p.source_voxel)
 
         pose_cov = None
+        searched = recovered = False
         if self.map.tree is None or len(self.map) < p.icp.min_correspondences:
             pose, iterations, kept = motion.predicted, 0, 0
         else:
-            res = self.register(source, motion, ts)
+            res, searched, recovered = self._register_or_recover(source, motion, ts)
             pose, iterations, kept = res.pose, res.iterations, res.n_correspondences_kept
             pose_cov = registration_covariance(res.hessian, p.residual_sigma)
         pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
+        if self.pose is not None:
+            self.path_m += float(np.hypot(*(pose[:2] - self.pose[:2])))
 
         static_map = transform_points(pose, pts)
-        keyframe = self._update_maps(pose, static_map)
+        skew = abs(omega - self.last_twist[1]) * float(t.max(initial=0.0)) if self.pose is not None else 0.0
+        keyframe = self._update_maps(pose, static_map, skew)
         self.after_step(pose, ts, iterations > 0, prior)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
         moving = motion.moving & ~near
@@ -273,7 +290,25 @@ class FrontEnd:
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
                            iterations, kept, int(motion.moving.sum()), ms, static_map,
                            None if vel is None else vel[use], moving_map, None if vel is None else vel[moving],
-                           motion.moving, motion.segmented, keyframe)
+                           motion.moving, motion.segmented, keyframe, searched, recovered)
+
+    def _register_or_recover(self, source: np.ndarray, motion: MotionEstimate, stamp: float
+                             ) -> tuple[ICPResult, bool, bool]:
+        """The ICP from the prior; if its fit is poor, a correlative search around the prior and
+        the ICP again from its best pose, kept if it fits better (:mod:`.recovery`).
+        Returns the registration, whether the search ran and whether it replaced the first."""
+        res = self.register(source, motion, stamp)
+        rp = self.params.recovery
+        if not rp.enabled or self.map.tree is None:
+            return res, False, False
+        fit = inlier_fraction(source, res.pose, self.map.tree, rp.inlier_distance)
+        if res.converged and fit >= rp.min_inlier_fraction:
+            return res, False, False
+        grid: LikelihoodGrid = self.map.likelihood_grid(rp.correlative)
+        found = correlative_match(grid, source, motion.predicted, rp.correlative)
+        again = self.register(source, motion, stamp, initial=found.pose)
+        fit_again = inlier_fraction(source, again.pose, self.map.tree, rp.inlier_distance)
+        return (again, True, True) if fit_again > fit else (res, True, False)
 
 
 def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.ndarray | None:
@@ -403,14 +438,17 @@ class ImprovedFrontEnd(FrontEnd):
             predicted = compose(self.pose, se2_exp(v_mid, 0.0, w_mid, np.array(ts - self.last_stamp)))
         return MotionEstimate(twist, predicted, moving, doppler, segmented, fused.covariance, fused)
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
+                 initial: np.ndarray | None = None) -> ICPResult:
         prior_info = None
         f = motion.fused
         if f is not None and self.params.doppler_prior:
             prior_info = doppler_prior_information(motion.predicted[2], f.covariance[0, 0], f.covariance[1, 1],
                                                    stamp - self.last_stamp, self.params)
-            self.sources.prior_sweeps += 1
-        res = register(source, self.map.tree, self.map.points, motion.predicted, self.params.icp,
+            if initial is None:  # a recovery's second ICP is the same sweep
+                self.sources.prior_sweeps += 1
+        start = motion.predicted if initial is None else initial
+        res = register(source, self.map.tree, self.map.points, start, self.params.icp,
                        mixture=self.mixture, prior_pose=motion.predicted if prior_info is not None else None,
                        prior_information=prior_info)
         self.mixture = res.mixture
@@ -491,8 +529,10 @@ class BaselineFrontEnd(FrontEnd):
         twist = self.prior_twist(prior)
         return MotionEstimate(twist, self.predict(sweep.stamp_ns * 1e-9, prior, twist), np.zeros(len(sweep.xy), bool))
 
-    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float) -> ICPResult:
-        return register_point_to_point(source, self.map.tree, self.map.points, motion.predicted, self.params.icp)
+    def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
+                 initial: np.ndarray | None = None) -> ICPResult:
+        start = motion.predicted if initial is None else initial
+        return register_point_to_point(source, self.map.tree, self.map.points, start, self.params.icp)
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}

@@ -17,9 +17,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..backend.params import BackendParams
 from ..config import Checked, apply_to_dataclass, param, toml_table
 from ..errors import ConfigError
 from .icp import ICPParams
+from .keyframe_map import LocalMapParams
+from .recovery import RecoveryParams
 from .segmentation import SegmentationParams
 from .self_calibration import SelfCalibrationParams
 from .sensor_checks import CheckParams
@@ -102,6 +105,11 @@ class FrontEndParams(Checked):
     deskew: bool = True
     doppler_twist: bool = True
     doppler_prior: bool = True
+    # the map scans are matched against, and the recovery from a poor prior (not in the paper)
+    local_map: LocalMapParams = field(default_factory=LocalMapParams)
+    recovery: RecoveryParams = field(default_factory=RecoveryParams)
+    # the pose-graph back end both methods share (fmcwlog.backend)
+    backend: BackendParams = field(default_factory=BackendParams)
 
 
 def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:

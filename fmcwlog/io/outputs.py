@@ -16,6 +16,11 @@ in ``map`` (the ground truth's frame) the robot started, so no estimate claims `
   ``publish_period`` seconds of log and at the end), ``/M/points/static|moving`` (in
   ``M/odom``, with their ``velocity``), ``/M/moving_labels`` (index for index with the
   input sweep);
+- ``<M>_frontend.tum`` (with a back end): the front end's own trajectory, before the back end
+  corrected it; ``<M>.tum``, the parquet's ``x, y, yaw`` and ``processed.mcap``'s final path and
+  map are then the optimised ones (:meth:`ProcessOutputs.correct`), the parquet keeping the front
+  end's beside them (``x_frontend, y_frontend, yaw_frontend``);
+- ``<M>_backend.json`` (with a back end): its nodes and loop closures;
 - ``run.json`` (written by :mod:`fmcwlog.api`): parameters, version, inputs, counts.
 """
 
@@ -75,6 +80,10 @@ PARQUET_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
     "moving_points": (pa.int64(), "points judged moving and left out (null for wheel_odometry)"),
     "keyframe": (pa.bool_(), "the sweep's points entered the method's map (null for wheel_odometry)"),
     "ms": (pa.float64(), "ms of processing time for this sweep (null for wheel_odometry)"),
+    "x_frontend": (pa.float64(), "m: the front end's own estimate of x, before the back end corrected it "
+                                 "(equal to x without a back end; null for wheel_odometry)"),
+    "y_frontend": (pa.float64(), "m: the front end's own y (null for wheel_odometry)"),
+    "yaw_frontend": (pa.float64(), "rad: the front end's own yaw (null for wheel_odometry)"),
 }
 TRAJECTORY_COLUMNS = tuple(PARQUET_COLUMNS)
 
@@ -215,6 +224,7 @@ class ProcessOutputs:
         self.publish_period_ns = int(publish_period * 1e9)
         self._next_publish: int | None = None
         self._transforms: list[dict] = []
+        self.frontend: dict[str, tuple[list, list]] = {}  # the front end's trajectories a back end corrected
 
     def _row(self, **values) -> None:
         for k in self.rows:
@@ -239,7 +249,8 @@ class ProcessOutputs:
                 r.stamp_ns)
         self._row(method=r.method, stamp_ns=r.stamp_ns, x=r.pose[0], y=r.pose[1], yaw=r.pose[2], v=r.twist[0],
                   omega=r.twist[1], icp_iterations=r.iterations, correspondences=r.correspondences,
-                  moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms)
+                  moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms, x_frontend=r.pose[0],
+                  y_frontend=r.pose[1], yaw_frontend=r.pose[2])
         self._track(r.method, r.stamp_ns, r.pose)
         w, frame = self.writer, odom_frame(r.method)
         twist_cov = None
@@ -290,6 +301,20 @@ class ProcessOutputs:
                     stamp_ns, odom_frame(name), grid.resolution, grid.width, grid.height, grid.origin,
                     grid.to_ros_int8()), stamp_ns)
 
+    def correct(self, name: str, poses: np.ndarray) -> None:
+        """Replace trajectory ``name``'s poses (S, 3), sweep for sweep, by a back end's; the front
+        end's stay in ``self.frontend`` (written as ``<name>_frontend.tum``) and in the parquet's
+        ``*_frontend`` columns."""
+        stamps, before = self.trajectories[name]
+        poses = np.asarray(poses, float)
+        if len(poses) != len(before):
+            raise ValueError(f"{name}: {len(poses)} corrected poses for {len(before)} sweeps")
+        self.frontend[name] = (list(stamps), list(before))
+        self.trajectories[name] = (stamps, list(poses))
+        rows = [i for i, m in enumerate(self.rows["method"]) if m == name]
+        for i, pose in zip(rows, poses):
+            self.rows["x"][i], self.rows["y"][i], self.rows["yaw"][i] = (float(v) for v in pose)
+
     def ms_median(self) -> dict[str, float]:
         method = np.asarray(self.rows["method"])
         ms = np.asarray([np.nan if x is None else x for x in self.rows["ms"]], dtype=float)
@@ -306,6 +331,9 @@ class ProcessOutputs:
         for name, (stamps, poses) in self.trajectories.items():
             if stamps:
                 write_tum(self.folder / f"{name}.tum", np.asarray(stamps), np.asarray(poses))
+        for name, (stamps, poses) in self.frontend.items():
+            if stamps:
+                write_tum(self.folder / f"{name}_frontend.tum", np.asarray(stamps), np.asarray(poses))
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:

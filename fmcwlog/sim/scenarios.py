@@ -1,4 +1,4 @@
-"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``dense-crowd``, ``long-corridor``.
+"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``dense-crowd``, ``long-corridor``, ``ring``.
 
 ``corridor`` stands in for the paper's Figure 3: a floor of 26.681 m by
 25.534 m, a ring corridor 3 m wide around a hall, with the nine labelled
@@ -159,5 +159,37 @@ def long_corridor() -> World:
     return World("long-corridor", np.array(walls, dtype=float), route, features, movers)
 
 
-SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "dense-crowd": dense_crowd, "long-corridor": long_corridor}
+def ring() -> World:
+    """A ring of corridors 2.5 m wide around a solid block, 30 m by 20 m outside, with door recesses
+    at irregular spacing: from inside, nothing is seen across the block, so the drift of a lap
+    (about 90 m, 95 s) is what a loop closure removes."""
+    w, h, c = 30.0, 20.0, 2.5
+    walls = _box(0.0, 0.0, w, h) + _box(c, c, w - c, h - c)  # outer walls, the inner block
+    for x0 in (4.0, 11.5, 21.0):  # door recesses in the south and north outer walls, 1 m wide, 0.3 m deep
+        walls += _polyline((x0, 0.0), (x0, -0.3), (x0 + 1.0, -0.3), (x0 + 1.0, 0.0))
+    for x0 in (7.0, 16.5, 24.5):
+        walls += _polyline((x0, h), (x0, h + 0.3), (x0 + 1.0, h + 0.3), (x0 + 1.0, h))
+    for y0 in (5.0, 12.5):  # and in the east and west ones
+        walls += _polyline((w, y0), (w + 0.3, y0), (w + 0.3, y0 + 1.0), (w, y0 + 1.0))
+    walls += _polyline((0.0, 9.0), (-0.3, 9.0), (-0.3, 10.0), (0.0, 10.0))
+    for x0 in (9.0, 19.0):  # pilasters on the block's south and north faces
+        walls += _polyline((x0, c), (x0, c + 0.2), (x0 + 0.4, c + 0.2), (x0 + 0.4, c))
+        walls += _polyline((x0 + 3.0, h - c), (x0 + 3.0, h - c - 0.2), (x0 + 3.4, h - c - 0.2), (x0 + 3.4, h - c))
+    features = [
+        Feature(1, "outer south wall", (0.0, 0.0), (w, 0.0)),
+        Feature(2, "outer west wall", (0.0, 0.0), (0.0, h)),
+        Feature(3, "block south face", (c, c), (w - c, c)),
+        Feature(4, "block west face", (c, c), (c, h - c)),
+    ]
+    route = RouteSpec(np.array([[c / 2, c / 2], [w - c / 2, c / 2], [w - c / 2, h - c / 2], [c / 2, h - c / 2]]), True, 0.9)
+    movers = [
+        Mover("person", [[3.0, 1.6], [27.0, 1.6]], 1.1, phase=15.0),
+        Mover("person", [[w - 0.8, 3.0], [w - 0.8, 17.0]], 1.0, phase=5.0),
+        Mover("person", [[26.0, h - 1.7], [4.0, h - 1.7]], 1.2, phase=30.0),
+    ]
+    return World("ring", np.array(walls, dtype=float), route, features, movers)
+
+
+SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "dense-crowd": dense_crowd,
+             "long-corridor": long_corridor, "ring": ring}
 DEFAULT_SCENARIO = "corridor"

@@ -1,0 +1,66 @@
+"""The back end's nodes: front-end keyframes, one every ``node_distance`` m or ``node_angle_deg``,
+and the odometry edge between two consecutive ones.
+
+A node keeps what the front end made of its sweep: the pose in ``<method>/odom`` at the sweep's
+stamp, the deskewed static points in base_link (full density: the final map is rebuilt from
+them), and the registration's covariance (``σ² H⁻¹`` of the scan-to-map ICP, in the map frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import between, rot2
+from .params import BackendParams
+
+
+@dataclass
+class Node:
+    """index: position in the graph; stamp_ns: the sweep's stamp; frontend_pose: (3,) the front
+    end's pose (m, m, rad); points: (N, 2) float32 static points in base_link (m); covariance:
+    (3, 3) the registration's, in the map frame (m², rad²), None where none ran; path_m: distance
+    travelled by then (m)."""
+
+    index: int
+    stamp_ns: int
+    frontend_pose: np.ndarray
+    points: np.ndarray
+    covariance: np.ndarray | None
+    path_m: float
+
+
+def is_new_node(last: Node | None, pose: np.ndarray, p: BackendParams) -> bool:
+    """Whether a keyframe at ``pose`` has moved far enough from the last node to become one."""
+    if last is None:
+        return True
+    d = between(last.frontend_pose, pose)
+    return bool(np.hypot(d[0], d[1]) >= p.node_distance or abs(d[2]) >= np.radians(p.node_angle_deg))
+
+
+def to_local(covariance: np.ndarray, yaw: float) -> np.ndarray:
+    """A covariance over (x, y of a parent frame, yaw) as one over (x, y of a frame turned by
+    ``yaw``, yaw): gtsam's Pose2 tangent space of a relative pose whose rotation is ``yaw``."""
+    a = np.eye(3)
+    a[:2, :2] = rot2(yaw).T
+    return a @ covariance @ a.T
+
+
+def odometry_covariance(a: Node, b: Node, p: BackendParams) -> np.ndarray:
+    """Covariance (3, 3) of the front end's motion from node ``a`` to ``b``, in ``a``'s frame.
+
+    The front end drifts with the path: ``σ_xy = floor + k·d``, ``σ_yaw = floor + k·d + k'·|Δyaw|``
+    (the ``odom_sigma_*`` parameters); the two registrations' covariances (``σ² H⁻¹``, which
+    show the directions a scene leaves free, such as a corridor's axis) are added, turned into
+    ``a``'s frame.
+    """
+    rel = between(a.frontend_pose, b.frontend_pose)
+    d = float(np.hypot(rel[0], rel[1]))
+    s_xy = p.odom_sigma_xy_floor + p.odom_sigma_xy_per_m * d
+    s_yaw = p.odom_sigma_yaw_floor + p.odom_sigma_yaw_per_m * d + p.odom_sigma_yaw_per_rad * abs(float(rel[2]))
+    cov = np.diag([s_xy**2, s_xy**2, s_yaw**2])
+    for node in (a, b):
+        if node.covariance is not None:
+            cov = cov + to_local(node.covariance, float(a.frontend_pose[2]))
+    return cov

@@ -1,0 +1,113 @@
+"""The back end's parameters: nodes, odometry edges, loop-closure candidates, verification, kernel.
+
+Nested in :class:`fmcwlog.frontend.params.FrontEndParams` as ``backend`` (``--set
+backend.closure_radius=4``, a ``[backend]`` table in a config file), so ``run.json`` records
+them with the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..config import Checked, param
+from ..frontend.correlative import CorrelativeParams
+from .registration import LineICPParams
+
+
+def _closure_search() -> CorrelativeParams:
+    # Drift between a closure's two ends is larger than between two sweeps: a wider window, a
+    # 10 cm grid (a closure only needs the ICP's basin; the ICP refines) with a 40 cm coarse step.
+    return CorrelativeParams(linear_window=1.5, angular_window_deg=15.0, resolution=0.1, coarse_factor=4,
+                             sigma=0.1, max_points=250, max_rotations=91, peak_separation=0.4,
+                             peak_separation_deg=5.0)
+
+
+@dataclass(frozen=True)
+class BackendParams(Checked):
+    """Parameters of the pose-graph back end (:mod:`fmcwlog.backend`).
+
+    Nodes and odometry edges:
+    node_distance, node_angle_deg: a front-end keyframe becomes a node after this much motion
+        since the last node (m, deg; > 0).
+    odom_sigma_xy_per_m, odom_sigma_yaw_per_m: standard deviation of the front end's relative
+        motion between two nodes per metre travelled (m/m, rad/m; > 0).
+    odom_sigma_yaw_per_rad: the same per radian turned (rad/rad, > 0).
+    odom_sigma_xy_floor, odom_sigma_yaw_floor: their floors (m, rad; > 0).
+
+    Loop-closure candidates (:mod:`.candidates`):
+    closure_radius: a node within this distance (m) of the query node in the current estimate...
+    closure_min_path: ...and at least this much path (m) before it is a candidate (≥ 0; the
+        front end's local map already covers the recent path).
+    closure_every: a node queries for closures after this much path (m) since the last query.
+    max_candidates: at most this many candidates per query (≥ 1), nearest first, spread apart by
+        ``candidate_spacing`` m of path.
+    submap_nodes: the candidate's submap holds the nodes within this many of it (each side).
+
+    Drift: the estimate between the two ends of a loop is only as good as the path since the last
+    closure, so the candidates' radius and the search's window grow with it:
+    drift_per_m, drift_deg_per_m: the front end's assumed drift per metre of path since the
+        query's last closure (m/m, deg/m; ≥ 0): once it exceeds the search's linear or angular
+        window, the window is widened to it and ``closure_radius`` by as much...
+    max_window, max_window_deg: ...up to these (m, deg).
+    wide_every: a widened search runs at most every this many metres of path (m): it costs ten
+        times a narrow one.
+
+    Verification (:mod:`.verification`):
+    search: the correlative search around the estimated relative pose (before widening).
+    icp: the point-to-line ICP after it.
+    min_score: the search's best mean likelihood must reach this (0-1).
+    inlier_distance, min_inlier_fraction: after the ICP, this fraction of the query's points must
+        lie within ``inlier_distance`` m of the submap's (0-1).
+    max_ambiguity: a separate peak scoring above this fraction of the best one, in a direction the
+        scene determines, rejects the closure (0-1); along a direction it leaves free (a corridor's
+        axis) it does not: the closure's covariance then leaves that direction free.
+    free_direction_chi2: a peak this cheap (Mahalanobis², 3 dof) under the match's information is
+        in a free direction.
+    residual_sigma: standard deviation of a point-to-line residual (m) that scales the ICP's
+        information into the closure's.
+    effective_pairs: a match weighs as this many independent pairs at most (≥ 1).
+    closure_sigma_xy_floor, closure_sigma_yaw_floor: floors added to a closure's covariance
+        (m, rad): errors the residuals do not show (a sparse submap's own error).
+    min_pairs: fewer point-to-line pairs reject the closure.
+
+    Optimisation (:mod:`.graph`):
+    cauchy_scale: scale of the Cauchy kernel on closures, in standard deviations; a closure whose
+        whitened error ends above it weighs less than half and is counted as not accepted.
+    optimize_every: re-optimise after this many new nodes once a closure has been added (≥ 1).
+    """
+
+    node_distance: float = param(0.5, "m", gt=0.0, le=100.0)
+    node_angle_deg: float = param(15.0, "deg", gt=0.0, le=180.0)
+    # standard deviations: 0 would be an infinitely certain edge (a division by zero)
+    odom_sigma_xy_per_m: float = param(0.01, "m/m", gt=0.0, le=10.0)
+    odom_sigma_yaw_per_m: float = param(0.003, "rad/m", gt=0.0, le=10.0)
+    odom_sigma_yaw_per_rad: float = param(0.01, "rad/rad", gt=0.0, le=10.0)
+    odom_sigma_xy_floor: float = param(0.002, "m", gt=0.0, le=10.0)
+    odom_sigma_yaw_floor: float = param(0.0005, "rad", gt=0.0, le=math.pi)
+    closure_radius: float = param(3.0, "m", gt=0.0, le=100.0)
+    closure_min_path: float = param(15.0, "m", ge=0.0, le=10_000.0)
+    closure_every: float = param(1.0, "m", gt=0.0, le=1000.0)
+    max_candidates: int = param(2, "", ge=1, le=100)
+    candidate_spacing: float = param(3.0, "m", ge=0.0, le=1000.0)
+    submap_nodes: int = param(4, "nodes", ge=0, le=100)
+    drift_per_m: float = param(0.01, "m/m", ge=0.0, le=1.0)
+    drift_deg_per_m: float = param(0.05, "deg/m", ge=0.0, le=10.0)
+    # the widened search replaces search.linear_window / angular_window_deg: the same upper ends
+    max_window: float = param(5.0, "m", gt=0.0, le=20.0)
+    max_window_deg: float = param(30.0, "deg", gt=0.0, le=180.0)
+    wide_every: float = param(5.0, "m", ge=0.0, le=1000.0)
+    search: CorrelativeParams = field(default_factory=_closure_search)
+    icp: LineICPParams = field(default_factory=LineICPParams)
+    min_score: float = param(0.5, "", ge=0.0, le=1.0)
+    inlier_distance: float = param(0.1, "m", gt=0.0, le=10.0)
+    min_inlier_fraction: float = param(0.6, "", ge=0.0, le=1.0)
+    max_ambiguity: float = param(0.9, "", ge=0.0, le=1.0)
+    free_direction_chi2: float = param(9.0, "", gt=0.0, le=1000.0)
+    residual_sigma: float = param(0.03, "m", gt=0.0, le=10.0)
+    effective_pairs: float = param(25.0, "pairs", ge=1.0, le=1e6)
+    closure_sigma_xy_floor: float = param(0.01, "m", gt=0.0, le=10.0)
+    closure_sigma_yaw_floor: float = param(0.002, "rad", gt=0.0, le=math.pi)
+    min_pairs: int = param(30, "pairs", ge=1, le=100_000)
+    cauchy_scale: float = param(3.0, "sigma", gt=0.0, le=100.0)
+    optimize_every: int = param(10, "nodes", ge=1, le=100_000)

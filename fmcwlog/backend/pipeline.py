@@ -1,0 +1,237 @@
+"""The back end of one method, sweep by sweep: nodes, odometry edges, verified loop closures, the
+optimised trajectory and the map rebuilt from it.
+
+:meth:`PoseGraphBackend.add` takes every :class:`~fmcwlog.frontend.methods.SweepResult` of its
+method. A keyframe that moved ``node_distance`` since the last node becomes a node, joined to
+it by an odometry edge; every ``closure_every`` metres of path a node looks for loop closures
+(:mod:`.candidates`), verifies each candidate against a submap of the candidate's neighbours
+placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
+Cauchy kernel (:mod:`.graph`). Once a closure is in, the graph is re-optimised every
+``optimize_every`` nodes, so that later candidates are searched around corrected estimates.
+:meth:`PoseGraphBackend.finish` optimises once more and returns every sweep's pose corrected
+through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
+the front end's poses), the closures, and an occupancy grid rebuilt from the nodes' points at
+their optimised poses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..frontend.correlative import MAX_LEVELS, CorrelativeParams
+from ..frontend.local_map import voxel_downsample
+from ..frontend.occupancy import OccupancyGrid, OccupancyParams
+from ..geometry import between, compose, inverse, transform_points
+from .candidates import closure_candidates
+from .graph import Edge, PoseGraph
+from .keyframes import Node, is_new_node, odometry_covariance
+from .params import BackendParams
+from .verification import verify
+
+if TYPE_CHECKING:
+    from ..frontend.methods import SweepResult
+
+QUERY_VOXEL = 0.1  # m: the query node's points are thinned to this for verification
+SUBMAP_VOXEL = 0.05  # m: and the submap's
+
+
+@dataclass
+class ClosureRecord:
+    """A verified closure: ``query`` and ``candidate`` node indices, their stamps (ns), the query's
+    pose in the candidate's frame as matched (``relative``, m, m, rad), the verification's
+    figures, and ``accepted`` (set by :meth:`PoseGraphBackend.finish`: the
+    closure's whitened error at the optimum is within the Cauchy scale, i.e. it weighs at
+    least half)."""
+
+    query: int
+    candidate: int
+    query_stamp_ns: int
+    candidate_stamp_ns: int
+    relative: np.ndarray
+    score: float
+    second_score: float
+    inlier_fraction: float
+    free_directions: int
+    whitened_error: float = 0.0
+    accepted: bool = False
+
+
+@dataclass
+class BackendResult:
+    """poses: (S, 3) every sweep's optimised pose, in the order the sweeps were added;
+    frontend_poses: (S, 3) the front end's; node_stamps_ns, node_poses: the nodes; closures;
+    grid: the occupancy map rebuilt from the nodes; counts and the back end's time (s)."""
+
+    poses: np.ndarray
+    frontend_poses: np.ndarray
+    node_stamps_ns: np.ndarray
+    node_poses: np.ndarray
+    closures: list[ClosureRecord]
+    grid: OccupancyGrid
+    proposed: int
+    verified: int
+    accepted: int
+    rejections: dict[str, int]
+    seconds: float
+
+    def summary(self) -> dict:
+        return {"nodes": int(len(self.node_stamps_ns)), "closures_proposed": self.proposed,
+                "closures_verified": self.verified, "closures_accepted": self.accepted,
+                "rejections": dict(sorted(self.rejections.items())), "seconds": round(self.seconds, 3)}
+
+
+@dataclass
+class _Sweeps:
+    stamps_ns: list[int] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+    node: list[int] = field(default_factory=list)  # the node each sweep is corrected through
+
+
+class PoseGraphBackend:
+    """The pose-graph back end of one method (module docstring). ``mount``: the lidar in base_link
+    (x, y, yaw), for the map's ray origins; ``map_resolution``: the rebuilt map's cell (m)."""
+
+    def __init__(self, params: BackendParams, mount: np.ndarray, map_resolution: float = 0.05):
+        self.p = params
+        self.mount = np.asarray(mount, float)
+        self.map_resolution = map_resolution
+        self.graph = PoseGraph(params.cauchy_scale)
+        self.nodes: list[Node] = []
+        self.sweeps = _Sweeps()
+        self.records: list[ClosureRecord] = []
+        self.proposed = 0
+        self.rejections: dict[str, int] = {}
+        self.seconds = 0.0
+        self._path_m = 0.0
+        self._last_pose: np.ndarray | None = None
+        self._last_query_path = -np.inf
+        self._last_wide_path = -np.inf
+        self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
+        self._nodes_since_opt = 0
+        self._dirty = False
+        self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
+
+    # --- sweep by sweep -------------------------------------------------------------------
+    def add(self, r: SweepResult) -> None:
+        t0 = time.perf_counter()
+        if self._last_pose is not None:
+            self._path_m += float(np.hypot(*(r.pose[:2] - self._last_pose[:2])))
+        self._last_pose = r.pose
+        last = self.nodes[-1] if self.nodes else None
+        if (r.keyframe or last is None) and is_new_node(last, r.pose, self.p):
+            self._add_node(r)
+        self.sweeps.stamps_ns.append(r.stamp_ns)
+        self.sweeps.poses.append(np.asarray(r.pose, float))
+        self.sweeps.node.append(len(self.nodes) - 1)
+        self.seconds += time.perf_counter() - t0
+
+    def _add_node(self, r: SweepResult) -> None:
+        points = transform_points(inverse(r.pose), r.static_map_xy).astype(np.float32)
+        node = Node(len(self.nodes), r.stamp_ns, np.asarray(r.pose, float), points, r.pose_covariance, self._path_m)
+        if not self.nodes:
+            self.graph.add_node(node.frontend_pose)
+            self._estimates = node.frontend_pose[None, :].copy()
+        else:
+            prev = self.nodes[-1]
+            rel = between(prev.frontend_pose, node.frontend_pose)
+            estimate = compose(self._estimates[-1], rel)
+            self.graph.add_node(estimate)
+            self.graph.add_odometry(Edge(prev.index, node.index, rel, odometry_covariance(prev, node, self.p)))
+            self._estimates = np.vstack([self._estimates, estimate])
+        self.nodes.append(node)
+        self._nodes_since_opt += 1
+        if self._path_m - self._last_query_path >= self.p.closure_every:
+            self._last_query_path = self._path_m
+            self._close_loops(node.index)
+        if self._dirty and self._nodes_since_opt >= self.p.optimize_every:
+            self._optimize()
+
+    def _search_window(self, query: int) -> tuple[float, CorrelativeParams] | None:
+        """The candidates' radius and the search for ``query``, widened with the path since the
+        last closure; None when a widened search is due but ran less than ``wide_every`` ago."""
+        p = self.p
+        since = self.nodes[query].path_m - self._last_closure_path
+        window = min(max(p.search.linear_window, p.drift_per_m * since), p.max_window)
+        if window <= p.search.linear_window:
+            return p.closure_radius, p.search
+        if self.nodes[query].path_m - self._last_wide_path < p.wide_every:
+            return None
+        self._last_wide_path = self.nodes[query].path_m
+        angle = min(max(p.search.angular_window_deg, p.drift_deg_per_m * since), p.max_window_deg)
+        levels = min(p.search.levels + (window > 2 * p.search.linear_window), MAX_LEVELS)
+        search = dataclasses.replace(p.search, linear_window=window, angular_window_deg=angle, levels=levels)
+        return p.closure_radius + window - p.search.linear_window, search
+
+    def _close_loops(self, query: int) -> None:
+        path = np.array([n.path_m for n in self.nodes])
+        window = self._search_window(query)
+        if window is None:
+            return
+        radius, search = window
+        for cand in closure_candidates(query, self._estimates[:, :2], path, self.p, radius):
+            self.proposed += 1
+            prior = between(self._estimates[cand], self._estimates[query])
+            q = voxel_downsample(self.nodes[query].points.astype(float), QUERY_VOXEL)
+            verdict = verify(q, self._submap(cand), prior, self.p, search)
+            if not verdict.accepted:
+                self.rejections[verdict.test] = self.rejections.get(verdict.test, 0) + 1
+                continue
+            assert verdict.relative is not None and verdict.covariance is not None
+            self.graph.add_closure(Edge(cand, query, verdict.relative, verdict.covariance))
+            self.records.append(ClosureRecord(query, cand, self.nodes[query].stamp_ns, self.nodes[cand].stamp_ns,
+                                              verdict.relative, verdict.score, verdict.second_score, verdict.inlier_fraction,
+                                              verdict.free_directions))
+            self._dirty = True
+            self._last_closure_path = self.nodes[query].path_m
+
+    def _submap(self, cand: int) -> np.ndarray:
+        """The points of the nodes within ``submap_nodes`` of ``cand``, in its frame, placed by the
+        current estimate."""
+        lo, hi = max(cand - self.p.submap_nodes, 0), min(cand + self.p.submap_nodes + 1, len(self.nodes))
+        ref = self._estimates[cand]
+        parts = [transform_points(between(ref, self._estimates[i]), self.nodes[i].points.astype(float))
+                 for i in range(lo, hi)]
+        return voxel_downsample(np.concatenate(parts), SUBMAP_VOXEL)
+
+    def _optimize(self) -> None:
+        self.graph.optimize()
+        self._estimates = self.graph.estimates()
+        self._nodes_since_opt = 0
+        self._dirty = False
+
+    # --- the end ----------------------------------------------------------------------------
+    def finish(self) -> BackendResult:
+        t0 = time.perf_counter()
+        if self.records:
+            self._optimize()
+            for rec, err in zip(self.records, self.graph.closure_errors()):
+                rec.whitened_error = float(err)
+                rec.accepted = bool(err <= self.p.cauchy_scale)
+        poses = self._corrected_sweeps()
+        grid = self._rebuild_map()
+        self.seconds += time.perf_counter() - t0
+        return BackendResult(poses, np.array(self.sweeps.poses).reshape(-1, 3),
+                             np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
+                             self.records, grid, self.proposed, len(self.records),
+                             sum(r.accepted for r in self.records), self.rejections, self.seconds)
+
+    def _corrected_sweeps(self) -> np.ndarray:
+        """Every sweep through its node: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)``."""
+        f = np.array(self.sweeps.poses).reshape(-1, 3)
+        if not self.nodes:
+            return f
+        idx = np.maximum(np.array(self.sweeps.node), 0)
+        f_node = np.array([n.frontend_pose for n in self.nodes])[idx]
+        return compose(self._estimates[idx], between(f_node, f))
+
+    def _rebuild_map(self) -> OccupancyGrid:
+        grid = OccupancyGrid(OccupancyParams(resolution=self.map_resolution))
+        for node, pose in zip(self.nodes, self._estimates):
+            if len(node.points):
+                grid.integrate(compose(pose, self.mount)[:2], transform_points(pose, node.points.astype(float)))
+        return grid

@@ -1,0 +1,138 @@
+"""Verification of a loop-closure candidate: scan-to-submap matching and three tests.
+
+1. A correlative search (:mod:`fmcwlog.frontend.correlative`) of the query node's points on a
+   likelihood grid of the candidate's submap, around the relative pose the current estimate
+   gives; its best mean likelihood must reach ``min_score``.
+2. Point-to-line ICP from the search's best pose (:mod:`.registration`); at least
+   ``min_inlier_fraction`` of the query's points must then lie within ``inlier_distance`` of
+   the submap (overlap, not only a good score on a few points).
+3. Uniqueness: the search's best *separate* peak must score below ``max_ambiguity`` of the
+   best, unless it lies in a direction the scene leaves free. Free directions come from the
+   ICP's information (lengths and angles made commensurable with a lever of ``LEVER`` m): an
+   eigenvalue below ``DEGENERACY_RATIO`` of the largest is a direction no normal of the scene
+   constrains, such as a corridor's axis. There a near-equal second peak is expected, and the
+   closure is kept with a covariance that leaves that direction free (its information
+   dropped), rather than rejected. A near-equal peak in a determined direction (two look-alike
+   corridors side by side, a row of identical doors) rejects it: the scene cannot tell which.
+
+The closure's covariance is ``(H_det·n/(K σ²) + Λ₀)⁻¹`` plus floors, ``H_det`` the ICP's
+information without its free directions, ``K`` its pairs, ``n`` = ``effective_pairs`` (the
+residuals of one match are not independent: the same few corners fix every pair's along-wall
+position), ``σ`` = ``residual_sigma``, ``Λ₀`` a weak regulariser (100 m, 1 rad standard
+deviations) that keeps it invertible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..frontend.correlative import CorrelativeParams, correlative_match, grid_for
+from ..geometry import transform_points, wrap_angle
+from .keyframes import to_local
+from .params import BackendParams
+from .registration import build_submap, register_point_to_line
+
+LEVER = 5.0  # m: a yaw error of 1 rad is weighed as 5 m of translation when finding free directions
+DEGENERACY_RATIO = 0.02
+_REGULARISER = np.diag([1e-4, 1e-4, 1.0])  # information of 100 m, 100 m, 1 rad
+
+
+@dataclass
+class Verdict:
+    """The outcome for one candidate. ``accepted``: passed the three tests; ``test``: the test that
+    rejected it (``points``, ``score``, ``pairs``, ``inliers``, ``ambiguity``); ``reason``: why, in words;
+    ``relative``: the query node's pose in the candidate's frame (3,); ``covariance``: (3, 3) in
+    gtsam's tangent space at ``relative``; ``free_directions``: how many the scene left free;
+    the tests' figures: ``score``, ``second_score``, ``inlier_fraction``."""
+
+    accepted: bool
+    test: str
+    reason: str
+    relative: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    free_directions: int = 0
+    score: float = 0.0
+    second_score: float = 0.0
+    inlier_fraction: float = 0.0
+
+
+def split_information(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The information ``h`` (3, 3) over (x, y, yaw) without its free directions, and those
+    directions as columns (3, F) in lever-scaled coordinates (module docstring)."""
+    s = np.diag([1.0, 1.0, 1.0 / LEVER])  # to (m, m, m of arc at the lever)
+    hs = s @ h @ s
+    w, v = np.linalg.eigh(0.5 * (hs + hs.T))
+    free = w < DEGENERACY_RATIO * max(float(w[-1]), 1e-300)
+    kept = (v[:, ~free] * w[~free]) @ v[:, ~free].T
+    si = np.linalg.inv(s)
+    return si @ kept @ si, v[:, free]
+
+
+def _in_free_directions(delta: np.ndarray, free: np.ndarray) -> bool:
+    """Whether a pose difference (3,) lies (to 90 %) in the span of the free directions."""
+    if free.shape[1] == 0:
+        return False
+    d = np.array([delta[0], delta[1], delta[2] * LEVER])
+    n = float(np.linalg.norm(d))
+    return n == 0.0 or float(np.linalg.norm(free.T @ d)) >= 0.9 * n
+
+
+def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: BackendParams,
+           search: CorrelativeParams | None = None) -> Verdict:
+    """Verify that ``query_xy`` (N, 2, query node's base_link) matches ``submap_xy`` (M, 2, the
+    candidate's base_link frame) near ``prior`` (3,, the query's pose in that frame); ``search``:
+    the correlative search's window (default ``p.search``; the pipeline widens it with the drift)."""
+    search = search or p.search
+    if len(query_xy) < p.min_pairs or len(submap_xy) < p.min_pairs:
+        return Verdict(False, "points", f"{len(query_xy)} query and {len(submap_xy)} submap points")
+    found = correlative_match(grid_for(submap_xy, search), query_xy, prior, search)
+    base = Verdict(False, "", "", score=found.score, second_score=found.second_score)
+    if found.score < p.min_score:
+        return _reject(base, "score", f"search score {found.score:.2f} < {p.min_score}")
+    sub = build_submap(submap_xy, p.icp)
+    icp = register_point_to_line(query_xy, sub, found.pose, p.icp)
+    if icp.pairs < p.min_pairs:
+        return _reject(base, "pairs", f"{icp.pairs} point-to-line pairs < {p.min_pairs}")
+    d, _ = cKDTree(submap_xy).query(transform_points(icp.pose, query_xy), k=1, distance_upper_bound=p.inlier_distance)
+    base.inlier_fraction = float(np.isfinite(d).mean())
+    if base.inlier_fraction < p.min_inlier_fraction:
+        return _reject(base, "inliers", f"inlier fraction {base.inlier_fraction:.2f} < {p.min_inlier_fraction}")
+    determined, free = split_information(icp.hessian)
+    if free.shape[1]:
+        # the scene leaves a direction free, so the search put the pose anywhere along it; measure
+        # the other directions where the estimate puts that one (far structures seen from a pose
+        # slid along a corridor would otherwise tilt the yaw)
+        icp = register_point_to_line(query_xy, sub, icp.pose, p.icp, (prior, _hold(free, icp.hessian)))
+        determined, free = split_information(icp.hessian)
+    if found.second_pose is not None and found.second_score >= p.max_ambiguity * found.score:
+        delta = found.second_pose - found.pose
+        delta[2] = wrap_angle(delta[2])
+        if not _in_free_directions(delta, free):
+            return _reject(base, "ambiguity", f"a separate peak scores {found.second_score / found.score:.2f} of the best")
+    # the residuals of one match are not independent (the same few corners and door jambs fix
+    # the along-wall position of every pair): weigh the match as ``effective_pairs`` pairs
+    scale = min(1.0, p.effective_pairs / max(icp.pairs, 1))
+    cov = np.linalg.inv(determined * scale / p.residual_sigma**2 + _REGULARISER)
+    cov = cov + np.diag([p.closure_sigma_xy_floor**2] * 2 + [p.closure_sigma_yaw_floor**2])
+    base.accepted, base.test, base.reason = True, "", "accepted"
+    base.relative, base.covariance = icp.pose, to_local(cov, float(icp.pose[2]))
+    base.free_directions = int(free.shape[1])
+    return base
+
+
+def _hold(free: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """An information (3, 3) that holds the free directions (lever-scaled columns) as firmly as the
+    scene holds its best-determined one."""
+    s = np.diag([1.0, 1.0, 1.0 / LEVER])
+    scaled = s @ h @ s
+    strength = float(np.linalg.eigvalsh(0.5 * (scaled + scaled.T))[-1])
+    si = np.linalg.inv(s)
+    return si @ (strength * free @ free.T) @ si
+
+
+def _reject(v: Verdict, test: str, reason: str) -> Verdict:
+    v.test, v.reason = test, reason
+    return v

@@ -1,0 +1,272 @@
+"""Correlative scan matching (Olson 2009, "Real-time correlative scan matching"): an exhaustive
+search of poses around a prior, scored on a likelihood grid of the target points, coarse to fine.
+
+Not in the paper. ICP converges to the nearest local minimum of its cost, so a prior that is
+off by more than about half the spacing of the structures it sees (real odometry 5-10° off
+after a turn; a loop-closure candidate after metres of drift) ends in a wrong match. The
+correlative search scores every pose on a lattice around the prior instead, then ICP refines
+the best one.
+
+Frames and units: ``target_xy`` (M, 2) in the target frame (the local map's ``map`` frame, or
+a submap's); ``source_xy`` (N, 2) in the source frame (base_link at the sweep's stamp); poses
+``(x, y, θ)`` map source into target (m, rad), as in :mod:`fmcwlog.frontend.icp`.
+
+The likelihood of a point is ``exp(-d²/2σ²)`` with ``d`` the distance from its cell to the
+nearest target point (a Euclidean distance transform); the score of a pose is the mean
+likelihood over the source points, in [0, 1]. The search is branch and bound at two levels,
+exact for translations (as Cartographer's): a coarse grid holds, per cell, the maximum of the
+fine likelihood over the ``coarse_factor`` × ``coarse_factor`` fine translations a coarse
+candidate stands for, so a coarse score bounds every fine score under it; coarse candidates
+are refined best first until the next bound is below the best fine score found. Rotations are
+searched at the fine angular step everywhere (``resolution`` / the source's 90th-percentile
+range: no point moves more than about a cell between two rotations).
+
+Besides the best pose the result carries the best score of a *separate* peak (one whose pose
+differs from the best by more than ``peak_separation`` m or ``peak_separation_deg``): a
+near-equal second peak means the scene does not fix the pose (a corridor along its axis, or
+two look-alike places), which the loop-closure verification uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..config import Checked, param
+from ..geometry import wrap_angle
+
+# the grids carry a frame of zeros coarse_factor^(levels-1) cells wide: 8^3 cells at most
+MAX_LEVELS = 4
+MAX_COARSE_FACTOR = 8
+
+
+@dataclass(frozen=True)
+class CorrelativeParams(Checked):
+    """Search window and grids of :func:`correlative_match`.
+
+    linear_window: half-width of the search in x and y around the prior (m, > 0).
+    angular_window_deg: half-width of the search in yaw (deg, > 0).
+    resolution: fine grid cell and finest translation step (m, > 0).
+    coarse_factor: each level's translation step is this many of the next's (≥ 2; 4 × 5 cm = 20 cm).
+    levels: levels of the branch and bound (1 to :data:`MAX_LEVELS`): the coarsest step is ``coarse_factor^(levels-1)``
+        fine cells (use 3 for windows of metres).
+    sigma: width of the likelihood around a target point (m, > 0).
+    max_points: source points scored (evenly subsampled; ≥ 10): the cost is linear in it.
+    max_rotations: cap on the yaw samples (≥ 3); the step grows to respect it.
+    peak_separation, peak_separation_deg: a pose this far from the best one (m or deg) belongs
+        to another peak (see the module docstring).
+    """
+
+    linear_window: float = param(0.5, "m", gt=0.0, le=20.0)
+    angular_window_deg: float = param(10.0, "deg", gt=0.0, le=180.0)
+    # below 1 cm a window of metres is a grid of 10⁷ cells and more
+    resolution: float = param(0.05, "m", ge=0.01, le=1.0)
+    coarse_factor: int = param(4, "", ge=2, le=MAX_COARSE_FACTOR)
+    levels: int = param(2, "", ge=1, le=MAX_LEVELS)
+    sigma: float = param(0.075, "m", gt=0.0, le=1.0)
+    max_points: int = param(300, "points", ge=10, le=100_000)
+    max_rotations: int = param(121, "", ge=3, le=3601)
+    peak_separation: float = param(0.3, "m", gt=0.0, le=20.0)
+    peak_separation_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
+
+
+class LikelihoodGrid:
+    """``exp(-d²/2σ²)`` of the distance from each cell centre to the nearest target point, on a
+    lattice of ``resolution`` covering the targets plus ``margin`` (m).
+
+    Around it a frame of zeros ``2·reach + 1`` cells wide, ``reach`` (cells) being the largest
+    lookup offset the search will add: a point off the grid is clipped ``reach`` cells into the
+    frame, where every offset still reads 0, so a lookup is one flat ``take`` with no bounds test.
+    ``coarse(k)`` is the grid max-filtered over the ``k × k`` cells ``[i, i+k)``: the bound a
+    coarse candidate needs (module docstring)."""
+
+    def __init__(self, target_xy: np.ndarray, resolution: float, sigma: float, margin: float, reach: int = 16):
+        self.resolution = resolution
+        self.reach = int(reach)
+        frame = (2 * self.reach + 1) * resolution
+        lo = target_xy.min(axis=0) - margin - frame
+        hi = target_xy.max(axis=0) + margin + frame
+        self.origin = np.floor(lo / resolution) * resolution
+        shape = (np.ceil((hi - self.origin) / resolution).astype(int) + 1)[::-1]  # rows = y
+        occupied = np.zeros(shape, bool)
+        ij = self.cell(target_xy)
+        occupied[ij[:, 1], ij[:, 0]] = True
+        dist = ndimage.distance_transform_edt(~occupied) * resolution
+        self.fine = self._framed(np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32))
+        self._coarse: dict[int, np.ndarray] = {}
+
+    def _framed(self, grid: np.ndarray) -> np.ndarray:
+        f = 2 * self.reach + 1
+        grid[:f], grid[-f:], grid[:, :f], grid[:, -f:] = 0, 0, 0, 0
+        return grid
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.fine.shape[0]), int(self.fine.shape[1]))
+
+    def cell(self, xy: np.ndarray) -> np.ndarray:
+        """Integer (ix, iy) of the cells holding points (N, 2)."""
+        return np.floor((xy - self.origin) / self.resolution).astype(np.int64)
+
+    def coarse(self, k: int) -> np.ndarray:
+        if k not in self._coarse:
+            grid = ndimage.maximum_filter(self.fine, size=k, origin=-(k // 2), mode="constant")
+            self._coarse[k] = self._framed(grid)
+        return self._coarse[k]
+
+    def flat_cells(self, xy: np.ndarray) -> np.ndarray:
+        """Flat indices of the cells of points (..., 2), clipped ``reach`` cells into the frame."""
+        h, w = self.fine.shape
+        ij = np.floor((xy - self.origin) / self.resolution).astype(np.int64)
+        ix = np.clip(ij[..., 0], self.reach, w - 1 - self.reach)
+        iy = np.clip(ij[..., 1], self.reach, h - 1 - self.reach)
+        return iy * w + ix
+
+    def flat_offsets(self, offsets: np.ndarray) -> np.ndarray:
+        """Flat index steps of integer cell offsets (T, 2), each within ``reach``."""
+        assert np.abs(offsets).max(initial=0) <= self.reach, "offset beyond the grid's frame"
+        return offsets[:, 1] * self.fine.shape[1] + offsets[:, 0]
+
+
+def grid_for(target_xy: np.ndarray, p: CorrelativeParams) -> LikelihoodGrid:
+    """The likelihood grid a search with ``p`` needs over ``target_xy``: its cell, its σ, a margin
+    of the window plus 3σ, and a frame for the largest offset (the window plus the coarsest step)."""
+    reach = int(np.ceil(p.linear_window / p.resolution)) + p.coarse_factor ** max(p.levels - 1, 0) + 1
+    return LikelihoodGrid(target_xy, p.resolution, p.sigma, p.linear_window + 3 * p.sigma, reach)
+
+
+@dataclass
+class CorrelativeResult:
+    """pose: the best pose (3,) on the search lattice; score: its mean likelihood in [0, 1];
+    second_score: the best score of a separate peak (0 when none was found); second_pose: where.
+    evaluated: poses scored (fine + coarse), for the record."""
+
+    pose: np.ndarray
+    score: float
+    second_score: float
+    second_pose: np.ndarray | None
+    evaluated: int
+
+
+def subsample(xy: np.ndarray, n: int) -> np.ndarray:
+    """At most ``n`` points, evenly spread over the array's order (a sweep's order is its bearing)."""
+    if len(xy) <= n:
+        return xy
+    return xy[np.linspace(0, len(xy) - 1, n).astype(int)]
+
+
+def _rotations(prior_yaw: float, source: np.ndarray, p: CorrelativeParams) -> np.ndarray:
+    reach = max(float(np.percentile(np.hypot(source[:, 0], source[:, 1]), 90)), p.resolution)
+    window = np.radians(p.angular_window_deg)
+    step = max(p.resolution / reach, 2 * window / (p.max_rotations - 1))
+    k = int(np.ceil(window / step))
+    return prior_yaw + step * np.arange(-k, k + 1)
+
+
+def _scores(table: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Mean likelihood per (rotation, offset): ``cells`` (R, N) flat cells of the rotated points,
+    ``offsets`` (T,) flat offsets; returns (R, T)."""
+    return table.ravel().take(cells[:, :, None] + offsets[None, None, :]).mean(axis=1)
+
+
+@dataclass
+class _Search:
+    """What every level of one search shares: the grid, the rotated points' flat cells (R, N),
+    the yaw samples, the prior, the window (fine cells each side) and the steps per level."""
+
+    grid: LikelihoodGrid
+    cells: np.ndarray
+    thetas: np.ndarray
+    prior: np.ndarray
+    n_fine: int
+    steps: list[int]
+    p: CorrelativeParams
+    evaluated: int = 0
+
+    def table(self, level: int) -> np.ndarray:
+        step = self.steps[level]
+        return self.grid.fine if step == 1 else self.grid.coarse(step)
+
+    def scores(self, level: int, r: int, offsets: np.ndarray) -> np.ndarray:
+        self.evaluated += len(offsets)
+        return _scores(self.table(level), self.cells[r:r + 1], self.grid.flat_offsets(offsets))[0]
+
+    def children(self, offset: np.ndarray, level: int) -> np.ndarray:
+        """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window."""
+        n, child = self.steps[level] // self.steps[level + 1], self.steps[level + 1]
+        grid = np.array([(i, j) for j in range(n) for i in range(n)]) * child + offset
+        return grid[(grid <= self.n_fine).all(axis=1)]
+
+    def pose(self, r: int, offset: np.ndarray) -> np.ndarray:
+        return _pose(self.prior, self.thetas, r, offset, self.grid.resolution)
+
+
+def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, best: float, best_at: tuple | None,
+             exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, pruning by the bound;
+    at the finest level a pose not separate from ``exclude`` is skipped (the second-peak search)."""
+    sc = s.scores(level, r, offsets)
+    for i in np.argsort(sc)[::-1]:
+        if sc[i] <= best:
+            break
+        if level == len(s.steps) - 1:
+            if exclude is not None and not _separate(s.pose(r, offsets[i]), exclude, s.p):
+                continue
+            best, best_at = float(sc[i]), (r, offsets[i])
+        else:
+            best, best_at = _descend(s, level + 1, r, s.children(offsets[i], level), best, best_at, exclude)
+    return best, best_at
+
+
+def _search_from_top(s: _Search, upper: np.ndarray, top: np.ndarray, floor: float,
+                     exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    best, best_at = floor, None
+    for flat in np.argsort(upper, axis=None)[::-1]:
+        r, t = np.unravel_index(flat, upper.shape)
+        if upper[r, t] <= best:
+            break
+        if len(s.steps) == 1:
+            if exclude is None or _separate(s.pose(int(r), top[t]), exclude, s.p):
+                best, best_at = float(upper[r, t]), (int(r), top[t])
+            continue
+        best, best_at = _descend(s, 1, int(r), s.children(top[t], 0), best, best_at, exclude)
+    return best, best_at
+
+
+def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.ndarray,
+                      p: CorrelativeParams = CorrelativeParams()) -> CorrelativeResult:
+    """The pose within the window around ``prior`` that best fits ``source_xy`` to the grid's targets.
+
+    Branch and bound over translations, ``levels`` levels of ``coarse_factor`` (module docstring);
+    every yaw sample at every level. Then the same search for the best pose separate from it.
+    """
+    src = subsample(np.asarray(source_xy, float), p.max_points)
+    prior = np.asarray(prior, float)
+    thetas = _rotations(float(prior[2]), src, p)
+    res, k = grid.resolution, max(int(p.coarse_factor), 1)
+    c, sn = np.cos(thetas)[:, None], np.sin(thetas)[:, None]
+    placed = np.stack([c * src[:, 0] - sn * src[:, 1] + prior[0], sn * src[:, 0] + c * src[:, 1] + prior[1]], -1)
+    n_fine = int(np.ceil(p.linear_window / res))
+    steps = [k**e for e in range(max(p.levels, 1) - 1, -1, -1)]
+    s = _Search(grid, grid.flat_cells(placed), thetas, prior, n_fine, steps, p)
+    n_top = int(np.ceil((2 * n_fine + 1) / steps[0]))
+    top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
+    upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
+    s.evaluated += upper.size
+    best, best_at = _search_from_top(s, upper, top, -1.0, None)
+    assert best_at is not None
+    pose = s.pose(*best_at)
+    second, second_at = _search_from_top(s, upper, top, 0.0, pose)
+    return CorrelativeResult(pose, best, second, None if second_at is None else s.pose(*second_at), s.evaluated)
+
+
+def _pose(prior: np.ndarray, thetas: np.ndarray, r: int, offset: np.ndarray, res: float) -> np.ndarray:
+    return np.array([prior[0] + offset[0] * res, prior[1] + offset[1] * res, float(wrap_angle(thetas[r]))])
+
+
+def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:
+    """Whether poses (..., 3) lie on another peak than pose ``b`` (3,)."""
+    dyaw = np.abs((a[..., 2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
+    return (np.hypot(a[..., 0] - b[0], a[..., 1] - b[1]) > p.peak_separation) | (dyaw > np.radians(p.peak_separation_deg))

@@ -152,3 +152,33 @@ def test_arrow_columns_built_from_buffers_equal_pyarrows_own():
         built = _arrow_column(values, kind)
         built.validate(full=True)
         assert built.equals(pa.array(values, kind)), (kind, built)
+
+
+def test_maps_are_published_less_often_once_they_outgrow_the_budget(tmp_path):
+    """A fixed period repeats the whole map every 5 s: quadratic in a long log. Maps whose size over
+    the period exceeds the budget come at size / budget instead; small ones every period still."""
+    from types import SimpleNamespace
+
+    from mcap.reader import make_reader
+
+    from fmcwlog.io.outputs import ProcessOutputs
+
+    def map_stamps(cells_side: int) -> np.ndarray:
+        grid = SimpleNamespace(width=cells_side, height=cells_side, resolution=0.05, origin=(0.0, 0.0),
+                               to_ros_int8=lambda: np.zeros(cells_side * cells_side, np.int8))
+        (tmp_path / str(cells_side)).mkdir()
+        out = ProcessOutputs(tmp_path / str(cells_side), ("odometry",), np.zeros(3), publish_period=5.0,
+                             publish_bytes_per_s=10_000.0)
+        for k in range(1200):  # 120 s of sweeps at 10 Hz
+            stamp = 10**9 + k * 10**8
+            out.add_pose("odometry", stamp, np.array([0.01 * k, 0.0, 0.0]), None)
+            out.end_sweep(stamp, {"m": grid})
+        out.writer.close()
+        with open(tmp_path / str(cells_side) / "processed.mcap", "rb") as fh:
+            return np.array([m.log_time for _, c, m in make_reader(fh).iter_messages(topics=["/m/map"])]) * 1e-9
+
+    small = map_stamps(100)  # 10,000 cells: 1 s of budget, under the 5 s period
+    assert len(small) == 23 and np.allclose(np.diff(small), 5.0)
+    big = map_stamps(300)  # 90,000 cells (+ the path): 9 s of budget or more
+    gaps = np.diff(big)
+    assert len(big) <= 120 / 9 and np.all(gaps >= 9.0), gaps

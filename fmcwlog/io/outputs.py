@@ -13,7 +13,8 @@ in ``map`` (the ground truth's frame) the robot started, so no estimate claims `
 - ``processed.mcap`` (Foxglove, rosbags): ``/tf_static`` (each ``M/base_link -> M/lidar``),
   ``/tf`` (each ``M/odom -> M/base_link``, every sweep), ``/M/odom`` (Odometry with the
   twist and the registration's covariance), ``/M/path`` and ``/M/map`` (every
-  ``publish_period`` seconds of log and at the end), ``/M/points/static|moving`` (in
+  ``publish_period`` seconds of log, less often once they outgrow :data:`PUBLISH_BYTES_PER_S`,
+  and at the end), ``/M/points/static|moving`` (in
   ``M/odom``, with their ``velocity``), ``/M/moving_labels`` (index for index with the
   input sweep);
 - ``<M>_frontend.tum`` (with a back end): the front end's own trajectory, before the back end
@@ -204,6 +205,9 @@ def _cloud(stamp_ns: int, frame: str, xy: np.ndarray, velocity: np.ndarray | Non
     return pointcloud_message(stamp_ns, frame, cols)
 
 
+PUBLISH_BYTES_PER_S = 1e6  # paths and maps put into processed.mcap, at most, per second of log (before compression)
+
+
 class ProcessOutputs:
     """Everything ``fmcwlog process`` writes into its (temporary) output folder, fed sweep by sweep.
 
@@ -214,7 +218,7 @@ class ProcessOutputs:
     """
 
     def __init__(self, folder: Path, trajectories: tuple[str, ...], mount: np.ndarray,
-                 publish_period: float = 5.0):
+                 publish_period: float = 5.0, publish_bytes_per_s: float = PUBLISH_BYTES_PER_S):
         self.folder = folder
         self.writer = LogWriter(folder / "processed.mcap")
         self.rows: dict[str, list] = {k: [] for k in TRAJECTORY_COLUMNS if k != "t"}
@@ -222,6 +226,7 @@ class ProcessOutputs:
         self._path: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}  # decimated
         self.mount = np.asarray(mount, dtype=float)
         self.publish_period_ns = int(publish_period * 1e9)
+        self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
         self._transforms: list[dict] = []
         self.frontend: dict[str, tuple[list, list]] = {}  # the front end's trajectories a back end corrected
@@ -285,21 +290,33 @@ class ProcessOutputs:
         if self._transforms:
             self.writer.write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(self._transforms), stamp_ns)
             self._transforms = []
-        if self._next_publish is not None and stamp_ns >= self._next_publish:
-            self._publish(stamp_ns, grids)
+        if self._next_publish is None:  # no method's result yet (only the motion prior's poses)
             self._next_publish = stamp_ns + self.publish_period_ns
+        if stamp_ns >= self._next_publish:
+            size = self._publish(stamp_ns, grids)
+            # every publish_period, unless the maps and paths have grown so large that this would write
+            # more than publish_bytes_per_s per second of log: each publish repeats them whole, so a
+            # fixed period is quadratic in a long log's length (MIT Killian, 2.1 h: 1,535 maps of 25
+            # million cells each, a 1.08 GB processed.mcap and 33 of its 35 minutes of processing)
+            wait_ns = max(self.publish_period_ns, int(size / self.publish_bytes_per_s * 1e9))
+            self._next_publish = stamp_ns + wait_ns
 
-    def _publish(self, stamp_ns: int, grids: dict[str, OccupancyGrid], final: bool = False) -> None:
-        """Each path so far (decimated; whole when ``final``) and each map."""
+    def _publish(self, stamp_ns: int, grids: dict[str, OccupancyGrid], final: bool = False) -> int:
+        """Each path so far (decimated; whole when ``final``) and each map; returns their size (bytes,
+        before compression: 56 a pose, 1 a cell)."""
+        size = 0
         for name, (stamps, poses) in (self.trajectories if final else self._path).items():
             if stamps:
                 self.writer.write(f"/{name}/path", "nav_msgs/msg/Path",
                                   path_message(stamp_ns, odom_frame(name), stamps, poses), stamp_ns)
+                size += 56 * len(stamps)
         for name, grid in grids.items():
             if grid.width:
+                size += grid.width * grid.height
                 self.writer.write(f"/{name}/map", "nav_msgs/msg/OccupancyGrid", occupancy_grid_message(
                     stamp_ns, odom_frame(name), grid.resolution, grid.width, grid.height, grid.origin,
                     grid.to_ros_int8()), stamp_ns)
+        return size
 
     def correct(self, name: str, poses: np.ndarray) -> None:
         """Replace trajectory ``name``'s poses (S, 3), sweep for sweep, by a back end's; the front

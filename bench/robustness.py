@@ -42,6 +42,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from results_io import kiss_icp_available, write_results  # noqa: E402
+
 from fmcwlog import api  # noqa: E402
 from fmcwlog.evaluation.evaluate import evaluate  # noqa: E402
 from fmcwlog.io.mcap_log import LogReader  # noqa: E402
@@ -184,13 +186,7 @@ def main() -> None:
     args = ap.parse_args()
     cases = [c for c in CASES if args.cases is None or c[0].startswith(tuple(args.cases))]
     duration = args.duration or (30.0 if args.quick else 120.0)
-    with_kiss = not args.no_kiss
-    if with_kiss:
-        try:
-            import kiss_icp  # noqa: F401
-        except ImportError:
-            print("kiss-icp is not installed (pip install -e '.[bench]'): the peer is skipped", file=sys.stderr)
-            with_kiss = False
+    with_kiss = kiss_icp_available(not args.no_kiss)
     started = time.perf_counter()
     table, per_seed = [], []
     with tempfile.TemporaryDirectory() as tmp_name:
@@ -211,15 +207,9 @@ def main() -> None:
     meta = {"seeds": args.seeds, "duration_s": duration, "kiss_icp": with_kiss,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
             "wall_s": time.perf_counter() - started}
-    args.out.mkdir(parents=True, exist_ok=True)
     name = ("robustness_quick" if args.quick else "robustness") + ("" if args.cases is None else "_" + "_".join(
         c.replace(" ", "-") for c in args.cases))
-    md = markdown(table, meta)
-    (args.out / f"{name}.md").write_text(md)
-    (args.out / f"{name}.json").write_text(json.dumps({"meta": meta, "table": table, "per_seed": per_seed}, indent=2))
-    print()
-    print(md)
-    print(f"wrote {args.out / (name + '.md')} and .json")
+    write_results(args.out, name, markdown(table, meta), {"meta": meta, "table": table, "per_seed": per_seed})
 
 
 if __name__ == "__main__":

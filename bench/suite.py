@@ -31,6 +31,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from results_io import kiss_icp_available, write_results  # noqa: E402
+
 from fmcwlog.evaluation.evaluate import evaluate  # noqa: E402
 from fmcwlog.sim import scenarios  # noqa: E402
 from fmcwlog.sim.config import SimConfig, apply_overrides  # noqa: E402
@@ -157,13 +159,7 @@ def main() -> None:
     seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
     duration = args.duration or (20.0 if args.quick else 120.0)
     scale_minutes = args.scaling if args.scaling is not None else ([0.25, 0.5, 1.0] if args.quick else [1.0, 5.0, 20.0])
-    with_kiss = not args.no_kiss
-    if with_kiss:
-        try:
-            import kiss_icp  # noqa: F401
-        except ImportError:
-            print("kiss-icp is not installed (pip install -e '.[bench]'): the peer is skipped", file=sys.stderr)
-            with_kiss = False
+    with_kiss = kiss_icp_available(not args.no_kiss)
     started = time.perf_counter()
     per_run: dict[tuple[str, str], list[dict]] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
@@ -186,14 +182,8 @@ def main() -> None:
     meta = {"scenarios": ", ".join(args.scenarios), "seeds": seeds, "duration_s": duration,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
             "wall_s": time.perf_counter() - started, "kiss_icp": with_kiss}
-    args.out.mkdir(parents=True, exist_ok=True)
     name = "suite_quick" if args.quick else "suite"
-    md = markdown(table, scale_rows, meta)
-    (args.out / f"{name}.md").write_text(md)
-    (args.out / f"{name}.json").write_text(json.dumps({"meta": meta, "table": table, "scaling": scale_rows}, indent=2))
-    print()
-    print(md)
-    print(f"wrote {args.out / (name + '.md')} and .json")
+    write_results(args.out, name, markdown(table, scale_rows, meta), {"meta": meta, "table": table, "scaling": scale_rows})
 
 
 if __name__ == "__main__":

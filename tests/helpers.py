@@ -141,3 +141,16 @@ def assert_one_line_error(code: int, stderr: str, *words: str) -> str:
     for w in words:
         assert w in lines[0], (w, lines[0])
     return lines[0]
+
+
+def param_leaves(cls: type, prefix: str = ""):
+    """(dotted name as --set takes it, field, type) of every scalar parameter of ``cls``, nested ones included."""
+    import dataclasses
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            yield from param_leaves(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}", f, hints[f.name]

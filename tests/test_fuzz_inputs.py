@@ -11,16 +11,14 @@ run, about 30 s in all on one core.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import tempfile
 import tomllib
-import typing
 from pathlib import Path
 
 import yaml
-from helpers import run_cli_here
+from helpers import param_leaves, run_cli_here
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -34,20 +32,10 @@ FUZZ = settings.get_profile("fmcwlog-fuzz")
 
 
 
-def _leaves(cls: type, prefix: str = ""):
-    """(dotted name, type, range) of every scalar parameter of ``cls``, nested ones included."""
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if dataclasses.is_dataclass(hints[f.name]):
-            yield from _leaves(hints[f.name], f"{prefix}{f.name}.")
-        else:
-            yield f"{prefix}{f.name}", hints[f.name], range_of(f)
-
-
 # every real parameter, as --set names it: the front end's own keys in [frontend]
-LEAVES = {"process": [(n if "." in n else f"frontend.{n}", k, r) for n, k, r in _leaves(FrontEndParams)],
+LEAVES = {"process": [(n if "." in n else f"frontend.{n}", k, range_of(f)) for n, f, k in param_leaves(FrontEndParams)],
           "record": [(f"{s}.{n}", k, r) for s, c in (("sensor", SensorConfig), ("robot", RobotConfig), ("run", RunConfig))
-                     for n, k, r in _leaves(c)]}
+                     for n, f, k in param_leaves(c) for r in (range_of(f),)]}
 PARAM_NAMES = sorted({n.rsplit(".", 1)[-1] for leaves in LEAVES.values() for n, _, _ in leaves})
 SECTIONS = ["frontend", "segmentation", "icp", "sensor", "robot", "run"]
 

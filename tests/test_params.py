@@ -11,13 +11,12 @@ import dataclasses
 import json
 import math
 import tomllib
-import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import SAMPLE_LOGS
-from helpers import assert_one_line_error, copy_log, run_cli_here
+from helpers import assert_one_line_error, copy_log, param_leaves, run_cli_here
 
 from fmcwlog.backend.params import BackendParams
 from fmcwlog.backend.registration import LineICPParams
@@ -37,20 +36,10 @@ USER_PARAMETERS = (FrontEndParams, SegmentationParams, ICPParams, GMMSCParams, L
                    CorrelativeParams, BackendParams, LineICPParams, SensorConfig, RobotConfig, RunConfig)
 
 
-def _leaves(cls: type, prefix: str = ""):
-    """(dotted name as --set takes it, field, type) of every scalar parameter of ``cls``, nested ones included."""
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if dataclasses.is_dataclass(hints[f.name]):
-            yield from _leaves(hints[f.name], f"{prefix}{f.name}.")
-        else:
-            yield f"{prefix}{f.name}", f, hints[f.name]
-
-
 @pytest.mark.parametrize("cls", USER_PARAMETERS, ids=lambda c: c.__name__)
 def test_every_numeric_parameter_has_a_bounded_range_holding_its_default(cls):
     obj = cls()
-    for name, f, kind in _leaves(cls):
+    for name, f, kind in param_leaves(cls):
         spec = range_of(f)
         if kind is bool:
             continue
@@ -66,11 +55,11 @@ def test_every_numeric_parameter_has_a_bounded_range_holding_its_default(cls):
 def _numeric():
     """(command, name as --set takes it, type, range) of every numeric parameter of process and record."""
     out = []
-    for name, f, kind in _leaves(FrontEndParams):
+    for name, f, kind in param_leaves(FrontEndParams):
         if kind in (int, float):  # the front end's own keys live in [frontend]
             out.append(("process", name if "." in name else f"frontend.{name}", kind, range_of(f)))
     for section, cls in (("sensor", SensorConfig), ("robot", RobotConfig), ("run", RunConfig)):
-        out += [("record", f"{section}.{name}", kind, range_of(f)) for name, f, kind in _leaves(cls) if kind in (int, float)]
+        out += [("record", f"{section}.{name}", kind, range_of(f)) for name, f, kind in param_leaves(cls) if kind in (int, float)]
     return out
 
 

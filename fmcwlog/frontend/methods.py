@@ -43,6 +43,7 @@ share (deskew, map, occupancy grid, keyframes); :data:`METHODS` names them.
 from __future__ import annotations
 
 import time
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -175,7 +176,7 @@ class SweepResult:
     recovered: bool = False  # ... and its match replaced the ICP's from the prior
 
 
-class FrontEnd:
+class FrontEnd(ABC):
     """One method's state: its pose, its voxel map, its occupancy grid; :meth:`step` per sweep.
 
     Subclasses say how a sweep's motion is estimated before matching
@@ -199,16 +200,17 @@ class FrontEnd:
         self.last_twist = (0.0, 0.0)
 
     # --- what the methods do differently -------------------------------------------------
+    @abstractmethod
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
-        raise NotImplementedError  # pragma: no cover - abstract
+        """The sweep's twist, predicted pose and moving mask, before matching."""
 
+    @abstractmethod
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:
         """Match ``source`` (base_link at the sweep's stamp) against the map, starting from
         ``initial`` (default ``motion.predicted``, which stays the prior either way)."""
-        raise NotImplementedError  # pragma: no cover - abstract
 
-    def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:
+    def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:  # noqa: B027 - an optional hook, not abstract
         """Called with the sweep's final pose before it replaces ``self.pose`` (nothing by default)."""
 
     def diagnostics(self, prior_name: str) -> tuple[dict, list[str]]:

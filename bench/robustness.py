@@ -12,7 +12,8 @@ For each case it records a log, runs ``fmcwlog process`` (both methods) and the 
   forward, given as a ``--calibration`` file), then ``fmcwlog calibrate`` on the same log and
   the log processed again with the file it wrote.
 
-Columns: ATE RMSE (SE(2)-aligned) of each method; the improved method's moving-point precision
+Columns: ATE RMSE (SE(2)-aligned) of each method, with the back end and (the same run's
+``<method>_frontend`` trajectory) without it; the improved method's moving-point precision
 and recall against the simulator's labels; what the calibration check said (run.json's
 ``calibration_check``: the values that disagree, with the estimate).
 
@@ -68,6 +69,7 @@ CASES: list[tuple[str, str, dict, str | None]] = [
     ("the same after `fmcwlog calibrate`", "corridor", {}, "calibrated"),
 ]
 METHODS = ("improved", "baseline", "wheel_odometry", "kiss_icp")
+FRONT_ENDS = ("improved_frontend", "baseline_frontend")  # the same run's trajectories before the back end
 
 CHILD_KISS = r"""
 import sys
@@ -131,7 +133,7 @@ def run_case(name: str, scenario: str, sensor: dict, calibration: str | None, se
     run = json.loads((out / "run.json").read_text())
     result = evaluate(out, log).result
     row = {"case": name, "seed": seed}
-    for m in METHODS[:3]:
+    for m in (*METHODS[:3], *FRONT_ENDS):
         row[m] = (result["methods"].get(m) or {}).get("ate_rmse_m")
     row["kiss_icp"] = _kiss(log, out.with_name(out.name + "-kiss")) if with_kiss and calibration is None else None
     seg = result["methods"]["improved"].get("segmentation") or {}
@@ -149,7 +151,7 @@ def _fmt(x: float | None, digits: int, scale: float = 1.0) -> str:
 
 def _mean_row(rows: list[dict]) -> dict:
     out = dict(rows[0])
-    for k in (*METHODS, "precision", "recall", "false_moving"):
+    for k in (*METHODS, *FRONT_ENDS, "precision", "recall", "false_moving"):
         v = [r[k] for r in rows if r[k] is not None]
         out[k] = float(np.mean(v)) if v else None
         out[f"{k}_max"] = float(np.max(v)) if v else None
@@ -160,14 +162,16 @@ def _mean_row(rows: list[dict]) -> dict:
 def markdown(table: list[dict], meta: dict) -> str:
     lines = [f"{meta['duration_s']:g} s logs, seeds {meta['seeds']} (mean; worst in brackets when several), "
              f"{meta['machine']}; {meta['wall_s']:.0f} s in all. ATE RMSE in cm after SE(2) alignment.", "",
-             "| case | improved | baseline | wheel odometry | KISS-ICP | moving precision | moving recall | static points judged moving | calibration check |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| case | improved | baseline | improved, front end alone | baseline, front end alone | wheel odometry | "
+             "KISS-ICP | moving precision | moving recall | static points judged moving | calibration check |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     several = len(meta["seeds"]) > 1
     for r in table:
         def cell(k: str, digits: int = 2, scale: float = 100.0, r: dict = r) -> str:
             s = _fmt(r[k], digits, scale)
             return f"{s} ({_fmt(r[k + '_max'], digits, scale)})" if several and r[k] is not None else s
-        lines.append(f"| {r['case']} | {cell('improved')} | {cell('baseline', 1)} | {cell('wheel_odometry', 0)} | "
+        lines.append(f"| {r['case']} | {cell('improved')} | {cell('baseline', 1)} | {cell('improved_frontend')} | "
+                     f"{cell('baseline_frontend', 1)} | {cell('wheel_odometry', 0)} | "
                      f"{cell('kiss_icp', 1)} | {_fmt(r['precision'] if r['recall'] is not None else None, 4)} | "
                      f"{_fmt(r['recall'], 4)} | {_fmt(r['false_moving'], 0)} | "
                      f"{r['calibration_check']} |")

@@ -47,21 +47,32 @@ def _sweeps(walls, movers, seconds=5.0, seed=0):
         yield 0.1 * k, np.column_stack([sweep.x, sweep.y]), sweep.velocity, sweep.t, sweep.moving.astype(bool)
 
 
+def _static_scans(walls, yaw=0.0, count=3):
+    """The static room as ``count`` sweeps' static points, placed in ``map`` by a pose of ``yaw`` (rad)."""
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    scans = [xy[~truth] @ rot.T for _, xy, _, _, truth in _sweeps(walls, [], seconds=0.1 * count)]
+    assert len(scans) == count
+    return scans
+
+
 def _static_grid(walls):
-    """The occupancy grid a method would have built of the static room (3 sweeps' static points)."""
+    """The occupancy grid a method would have built of the static room."""
     grid = OccupancyGrid()
-    for i, (_, xy, _, _, truth) in enumerate(_sweeps(walls, [], seconds=0.3)):
-        grid.integrate(np.zeros(2), xy[~truth])
-        assert i < 3
+    for scan in _static_scans(walls):
+        grid.integrate(np.zeros(2), scan)
     return grid
 
 
-def _track(walls, movers, grid=None, params=TrackingParams()):
-    """Per sweep: (truth, tracker verdict, Doppler-only verdict, ε)."""
+def _track(walls, movers, grid=None, params=TrackingParams(), yaw=0.0, scans=()):
+    """Per sweep: (truth, tracker verdict, Doppler-only verdict, ε). ``scans``: (path m, static points
+    in ``map``) handed to the tracker first; the sensor's pose in ``map`` is ``(0, 0, yaw)``."""
     tracker = MoverTracker(params)
+    for path, scan in scans:
+        tracker.add_scan(np.zeros(2), scan, path)
     out = []
+    pose = np.array([0.0, 0.0, yaw])
     for stamp, xy, eps, t, truth in _sweeps(walls, movers):
-        labelled = tracker.segment(xy, t, eps, stamp, np.zeros(3), (0.0, 0.0), np.zeros(3), grid, SegmentationParams())
+        labelled = tracker.segment(xy, t, eps, stamp, pose, (0.0, 0.0), np.zeros(3), grid, SegmentationParams())
         out.append((truth, labelled, segment_moving(xy, eps), eps))
     return out
 
@@ -72,7 +83,8 @@ def _track(walls, movers, grid=None, params=TrackingParams()):
     (Mover("person", [[6.0, -3.0], [6.0, 3.0]], 1.0), True, 20),
 ])
 def test_walker_crossing_the_beam_keeps_its_label(walker, with_map, blind_sweeps):
-    sweeps = _track(ROOM, [walker], grid=_static_grid(ROOM) if with_map else None)
+    scans = [(0.5 * i, scan) for i, scan in enumerate(_static_scans(ROOM))] if with_map else []
+    sweeps = _track(ROOM, [walker], grid=_static_grid(ROOM) if with_map else None, scans=scans)
     blind = [k for k, (truth, _, _, eps) in enumerate(sweeps) if truth.any() and np.all(np.abs(eps[truth]) < V_TH)]
     assert len(blind) >= blind_sweeps  # the crossing really is blind to Doppler
     doppler_only = np.mean([sweeps[k][2][sweeps[k][0]].mean() for k in blind])
@@ -86,7 +98,7 @@ def test_static_pillar_beside_the_crossing_is_never_labelled():
     # the walker passes 0.2 m in front of a pillar, within DBSCAN's reach while both show ε ≈ 0;
     # the map (an occupancy grid of the room, as the method has built) keeps the pillar static
     walls = ROOM + _box(4.45, 0.9, 4.85, 1.3)
-    sweeps = _track(walls, [CROSSING], grid=_static_grid(walls))
+    sweeps = _track(walls, [CROSSING], grid=_static_grid(walls), scans=[(0.0, s) for s in _static_scans(walls)])
     assert sum(int(labelled[~truth].sum()) for truth, labelled, _, _ in sweeps) == 0
     kept = [labelled[truth].mean() for truth, labelled, _, _ in sweeps[3:] if truth.any()]
     assert min(kept) >= 0.9
@@ -107,9 +119,39 @@ def test_static_room_with_a_moving_robot_gets_no_track():
         eps = sweep.velocity + xy[:, 0] / np.hypot(*xy.T)  # ε = v_r + uᵀv_s, v_s = (1, 0) m/s
         pose = np.array([0.1 * k - 2.0, 0.0, 0.0])
         labelled = tracker.segment(xy, sweep.t, eps, 0.1 * k, pose, (1.0, 0.0), np.zeros(3), grid, SegmentationParams())
-        grid.integrate(pose[:2], pose[:2] + xy + np.column_stack([sweep.t, 0.0 * sweep.t]))  # seen at its time
+        seen = pose[:2] + xy + np.column_stack([sweep.t, 0.0 * sweep.t])  # each point seen at its time
+        grid.integrate(pose[:2], seen)
+        tracker.add_scan(pose[:2], seen, 0.1 * k)
         assert not labelled.any(), k
     assert len(tracker) == 0
+
+
+DRIFT = 0.02  # rad: the yaw a front end matching recent keyframes only gained in a lap of the corridor
+
+
+@pytest.mark.parametrize("movers", [[], [Mover("person", [[6.0, -3.0], [6.0, 3.0]], 1.0)]])
+def test_pose_drifted_since_an_old_map_puts_no_wall_in_free_space(movers):
+    # The room was mapped many times 100 m of path ago at the true pose (free space at the clamp);
+    # since then the pose has gained a yaw error of DRIFT and the room has been seen once again,
+    # from the drifted pose: one hit on a wall cell does not undo ten traversals.
+    # Placed by the drifted pose, the walls 5-9 m away lie 0.1-0.2 m (2-4 cells) off where the old
+    # scans saw them, inside what those saw free: the old map must not make them movers, and the
+    # recent scans must still carry a walker crossing broadside (no Doppler) through free space.
+    old = [(0.5 * i, scan) for i, scan in enumerate(_static_scans(ROOM, count=10))]
+    recent = [(100.0, _static_scans(ROOM, yaw=DRIFT, count=1)[0])]
+    # the premise, from geometry alone: the old map has the drifted walls in cells it saw free
+    old_grid = OccupancyGrid()
+    for _, scan in old:
+        old_grid.integrate(np.zeros(2), scan)
+    drifted = recent[0][1]
+    in_old_free = old_grid.log_odds[tuple(old_grid.cell_of(drifted).T)] <= TrackingParams().free_log_odds
+    assert in_old_free.mean() > 0.2  # 0.29 of them
+    sweeps = _track(ROOM, movers, grid=old_grid, yaw=DRIFT, scans=old + recent)
+    assert sum(int(labelled[~truth].sum()) for truth, labelled, _, _ in sweeps) == 0
+    if movers:
+        blind = [k for k, (truth, _, _, eps) in enumerate(sweeps) if truth.any() and np.all(np.abs(eps[truth]) < V_TH)]
+        assert len(blind) >= 10
+        assert min(sweeps[k][1][sweeps[k][0]].mean() for k in blind if k >= 3) >= 0.9
 
 
 @pytest.fixture(scope="module")

@@ -346,7 +346,16 @@ class ImprovedFrontEnd(FrontEnd):
         self._drop_wheels = False  # for this sweep: the scans sided with Doppler against the wheels
         self._raw_fit: EgoMotion | None = None  # this sweep's Doppler fit free of the wheels' gate
         self._registered_last = False
-        self.tracker = MoverTracker(params.tracking)  # movers followed over this log's sweeps
+        self.tracker = MoverTracker(params.tracking, params.map_resolution)  # movers followed over this log's sweeps
+
+    def _update_maps(self, pose: np.ndarray, static_map: np.ndarray, skew_rad: float) -> bool:
+        """The maps, and each scan that enters the grid also into the tracker's free space, which
+        holds the last stretch of path only (:mod:`.recent_grid`)."""
+        before = self.last_grid
+        keyframe = super()._update_maps(pose, static_map, skew_rad)
+        if self.last_grid is not before and self.params.tracking.enabled:
+            self.tracker.add_scan(compose(pose, self.mount)[:2], static_map, self.path_m)
+        return keyframe
 
     def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
         """The wheels' twist, else the last scan-matched one (constant velocity)."""

@@ -6,8 +6,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from fmcwlog.frontend.icp import ICPParams, find_correspondences, gauss_newton_step
+from fmcwlog.frontend.icp import ICPParams, NearestPairs, find_correspondences, gauss_newton_step
 from fmcwlog.frontend.point_to_point_icp import closed_form_pose, register_point_to_point
+from fmcwlog.frontend.recovery import inlier_fraction
 from fmcwlog.frontend.robust_icp import huber_weights, register
 from fmcwlog.geometry import inverse, transform_points, wrap_angle
 
@@ -218,3 +219,26 @@ def test_prior_strength_moves_the_registration_between_prior_and_truth():
     strong = register(src, TREE, TARGET, prior, prior_pose=prior, prior_information=1e9 * np.eye(3))
     assert _err(weak.pose, truth)[0] < 0.0015 and _err(weak.pose, truth)[1] < 0.03
     assert _err(strong.pose, prior)[0] < 1e-4 and _err(strong.pose, prior)[1] < 1e-3
+
+
+@given(st.integers(0, 2**32 - 1))
+@settings(max_examples=25, deadline=None)
+def test_cached_pairs_are_a_fresh_query_at_every_pose(seed):
+    """NearestPairs asks the tree only where the nearest point may have changed; its answer at
+    every pose of a walk (steps of 0.1 mm to 20 cm, as ICP iterations and restarts make) must be
+    what a fresh KD-tree query gives: the same pairs, targets and distances."""
+    rng = np.random.default_rng(seed)
+    target = np.concatenate([_map_points(0.05), rng.uniform(-1, 11, (50, 2))])  # regular walls + clutter
+    tree = cKDTree(target)
+    source = transform_points(inverse(np.array([4.0, 3.0, 0.3])), _raycast(np.array([4.0, 3.0, 0.3]), rng, 300))
+    search = NearestPairs(source, tree, target, 0.5)
+    pose = np.array([4.0, 3.0, 0.3]) + rng.normal(0, 0.05, 3)
+    for scale in rng.choice([1e-4, 1e-3, 1e-2, 0.2], 12):
+        pose = pose + rng.normal(0, scale, 3) * np.array([1, 1, 0.2])
+        got = search.pairs(pose)
+        want = find_correspondences(source, pose, tree, target, 0.5)
+        np.testing.assert_array_equal(got.source_idx, want.source_idx)
+        np.testing.assert_array_equal(got.target, want.target)
+        np.testing.assert_allclose(got.distances, want.distances, rtol=0, atol=1e-12)
+        for within in (0.05, 0.1, 0.3):
+            assert inlier_fraction(source, pose, tree, within, search) == inlier_fraction(source, pose, tree, within)

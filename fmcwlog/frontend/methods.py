@@ -303,13 +303,13 @@ class FrontEnd(ABC):
         rp = self.params.recovery
         if not rp.enabled or self.map.tree is None:
             return res, False, False
-        fit = inlier_fraction(source, res.pose, self.map.tree, rp.inlier_distance)
+        fit = inlier_fraction(source, res.pose, self.map.tree, rp.inlier_distance, res.search)
         if res.converged and fit >= rp.min_inlier_fraction:
             return res, False, False
         grid: LikelihoodGrid = self.map.likelihood_grid(rp.correlative)
         found = correlative_match(grid, source, motion.predicted, rp.correlative)
         again = self.register(source, motion, stamp, initial=found.pose)
-        fit_again = inlier_fraction(source, again.pose, self.map.tree, rp.inlier_distance)
+        fit_again = inlier_fraction(source, again.pose, self.map.tree, rp.inlier_distance, again.search)
         return (again, True, True) if fit_again > fit else (res, True, False)
 
 

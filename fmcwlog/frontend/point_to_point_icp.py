@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import transform_points, wrap_angle
-from .icp import ICPParams, ICPResult, find_correspondences, gauss_newton_step, step_is_small
+from .icp import ICPParams, ICPResult, NearestPairs, gauss_newton_step, step_is_small
 
 
 def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarray:
@@ -47,12 +47,10 @@ def register_point_to_point(
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
     last_distances = None  # of the last pairs used: the RMS is taken once, after the loop
+    search = NearestPairs(source_xy, target_tree, target_xy, params.max_correspondence_distance, params.workers)
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
-        c = find_correspondences(
-            source_xy, pose, target_tree, target_xy,
-            params.max_correspondence_distance, params.workers,
-        )
+        c = search.pairs(pose)
         if c.distances.size < params.min_correspondences:
             break
         src = source_xy[c.source_idx]
@@ -68,4 +66,4 @@ def register_point_to_point(
         rmse = float(np.sqrt(np.mean(last_distances**2)))
     if n_kept:  # information matrix of the last pairs at the final pose (unit weights)
         _, h = gauss_newton_step(transform_points(pose, src), c.target, pose, np.ones(n_kept))
-    return ICPResult(pose, iterations, n_kept, converged, rmse, h, 0)
+    return ICPResult(pose, iterations, n_kept, converged, rmse, h, 0, None, search)

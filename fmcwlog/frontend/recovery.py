@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 from ..config import Checked, param
 from ..geometry import transform_points
 from .correlative import CorrelativeParams
+from .icp import NearestPairs
 
 
 @dataclass(frozen=True)
@@ -37,10 +38,17 @@ class RecoveryParams(Checked):
     correlative: CorrelativeParams = field(default_factory=CorrelativeParams)
 
 
-def inlier_fraction(source_xy: np.ndarray, pose: np.ndarray, tree: cKDTree, distance: float) -> float:
+def inlier_fraction(source_xy: np.ndarray, pose: np.ndarray, tree: cKDTree, distance: float,
+                    search: NearestPairs | None = None) -> float:
     """Fraction of ``source_xy`` (base_link) that lands within ``distance`` (m) of the map's
-    points under ``pose``: one KD-tree query."""
+    points under ``pose``. ``search``: the registration's correspondence search over the same
+    source and tree (:attr:`~.icp.ICPResult.search`), which answers exactly and asks the tree
+    again only about the points that moved since (the ICP's last steps are sub-millimetre);
+    without it (or for a ``distance`` beyond its reach), one KD-tree query."""
     if len(source_xy) == 0:
         return 0.0
+    if search is not None and search.source is source_xy and search.tree is tree and distance <= search.bound:
+        d = search.nearest(pose)[2]
+        return float(np.count_nonzero(d < distance) / len(d))
     d, _ = tree.query(transform_points(pose, source_xy), k=1, distance_upper_bound=distance)
     return float(np.isfinite(d).mean())

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import wrap_angle
 from .gmmsc import DistanceMixture, gmmsc_weights
-from .icp import ICPParams, ICPResult, find_correspondences, gauss_newton_step, step_is_small
+from .icp import ICPParams, ICPResult, NearestPairs, gauss_newton_step, step_is_small
 
 
 def huber_weights(r: np.ndarray, delta: float) -> np.ndarray:
@@ -92,12 +92,10 @@ def register(
     n_kept, rmse, converged = 0, float("nan"), False
     last_distances = None  # of the last pairs used: the RMS is taken once, after the loop
     prev_delta: np.ndarray | None = None
+    search = NearestPairs(source_xy, target_tree, target_xy, params.max_correspondence_distance, params.workers)
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
-        c = find_correspondences(
-            source_xy, pose, target_tree, target_xy,
-            params.max_correspondence_distance, params.workers,
-        )
+        c = search.pairs(pose)
         if c.distances.size < params.min_correspondences:
             break
         w = np.ones(c.distances.size)
@@ -140,4 +138,4 @@ def register(
             break
     if last_distances is not None:
         rmse = float(np.sqrt(np.mean(last_distances * last_distances)))
-    return ICPResult(pose, iterations, n_kept, converged, rmse, h, n_fits, mixture)
+    return ICPResult(pose, iterations, n_kept, converged, rmse, h, n_fits, mixture, search)

@@ -35,6 +35,13 @@ class BackendParams(Checked):
     odom_sigma_yaw_per_rad: the same per radian turned (rad/rad, > 0).
     odom_sigma_xy_floor, odom_sigma_yaw_floor: their floors (m, rad; > 0).
 
+    Local edges (:mod:`.local_edges`): each new node matched, point to line, against the nodes
+    just before it, beside the front end's edge:
+    local_links: against each of the last this many nodes (0: none).
+    local_gate, local_gate_deg: a match that moved farther than this from the front end's
+        relative pose gives no edge (m, deg).
+    local_sigma_xy_floor, local_sigma_yaw_floor: floors added to a local edge's covariance (m, rad).
+
     Loop-closure candidates (:mod:`.candidates`):
     closure_radius: a node within this distance (m) of the query node in the current estimate...
     closure_min_path: ...and at least this much path (m) before it is a candidate (≥ 0; the
@@ -85,6 +92,11 @@ class BackendParams(Checked):
     odom_sigma_yaw_per_rad: float = param(0.01, "rad/rad", gt=0.0, le=10.0)
     odom_sigma_xy_floor: float = param(0.002, "m", gt=0.0, le=10.0)
     odom_sigma_yaw_floor: float = param(0.0005, "rad", gt=0.0, le=math.pi)
+    local_links: int = param(4, "nodes", ge=0, le=100)
+    local_gate: float = param(0.1, "m", gt=0.0, le=10.0)
+    local_gate_deg: float = param(2.0, "deg", gt=0.0, le=180.0)
+    local_sigma_xy_floor: float = param(0.002, "m", gt=0.0, le=10.0)
+    local_sigma_yaw_floor: float = param(0.0005, "rad", gt=0.0, le=math.pi)
     closure_radius: float = param(3.0, "m", gt=0.0, le=100.0)
     closure_min_path: float = param(15.0, "m", ge=0.0, le=10_000.0)
     closure_every: float = param(1.0, "m", gt=0.0, le=1000.0)

@@ -3,7 +3,8 @@ optimised trajectory and the map rebuilt from it.
 
 :meth:`PoseGraphBackend.add` takes every :class:`~fmcwlog.frontend.methods.SweepResult` of its
 method. A keyframe that moved ``node_distance`` since the last node becomes a node, joined to
-it by an odometry edge; every ``closure_every`` metres of path a node looks for loop closures
+it by an odometry edge (the front end's relative pose) and by local edges (the node matched
+against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path a node looks for loop closures
 (:mod:`.candidates`), verifies each candidate against a submap of the candidate's neighbours
 placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
 Cauchy kernel (:mod:`.graph`). Once a closure is in, the graph is re-optimised every
@@ -30,6 +31,7 @@ from ..geometry import between, compose, inverse, transform_points
 from .candidates import closure_candidates
 from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
+from .local_edges import LocalMatcher
 from .params import BackendParams
 from .verification import verify
 
@@ -78,9 +80,12 @@ class BackendResult:
     accepted: int
     rejections: dict[str, int]
     seconds: float
+    local_edges: int = 0
+    local_rejections: dict[str, int] = field(default_factory=dict)
 
     def summary(self) -> dict:
-        return {"nodes": int(len(self.node_stamps_ns)), "closures_proposed": self.proposed,
+        return {"nodes": int(len(self.node_stamps_ns)), "local_edges": self.local_edges,
+                "local_rejections": dict(sorted(self.local_rejections.items())), "closures_proposed": self.proposed,
                 "closures_verified": self.verified, "closures_accepted": self.accepted,
                 "rejections": dict(sorted(self.rejections.items())), "seconds": round(self.seconds, 3)}
 
@@ -101,6 +106,8 @@ class PoseGraphBackend:
         self.mount = np.asarray(mount, float)
         self.map_resolution = map_resolution
         self.graph = PoseGraph(params.cauchy_scale)
+        self.local = LocalMatcher(params)
+        self.local_edges = 0
         self.nodes: list[Node] = []
         self.sweeps = _Sweeps()
         self.records: list[ClosureRecord] = []
@@ -144,6 +151,10 @@ class PoseGraphBackend:
             self.graph.add_odometry(Edge(prev.index, node.index, rel, odometry_covariance(prev, node, self.p)))
             self._estimates = np.vstack([self._estimates, estimate])
         self.nodes.append(node)
+        if len(self.nodes) > 1 and self.p.local_links:
+            for edge in self.local.edges(self.nodes):
+                self.graph.add_odometry(edge)
+                self.local_edges += 1
         self._nodes_since_opt += 1
         if self._path_m - self._last_query_path >= self.p.closure_every:
             self._last_query_path = self._path_m
@@ -218,7 +229,8 @@ class PoseGraphBackend:
         return BackendResult(poses, np.array(self.sweeps.poses).reshape(-1, 3),
                              np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
                              self.records, grid, self.proposed, len(self.records),
-                             sum(r.accepted for r in self.records), self.rejections, self.seconds)
+                             sum(r.accepted for r in self.records), self.rejections, self.seconds,
+                             self.local_edges, dict(self.local.rejected))
 
     def _corrected_sweeps(self) -> np.ndarray:
         """Every sweep through its node: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)``."""

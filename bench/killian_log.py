@@ -22,7 +22,10 @@ file) with the perturbed pose, stamped with the original ``ipc_timestamp`` so th
 
 This is a regression check whose numbers must be explained, not a claim against the published
 table: the poses the relations were made from are those the scans sit at here, and the odometry is
-synthetic.
+synthetic. Measured with the three commands above at commit f4523a6 (658 relations, 587 under 20 s):
+the improved method with the back end 0.034 ± 0.029 m (0.033 m under 20 s, 0.048 m over), its front
+end alone 0.341 ± 1.070 m (0.033 / 2.890 m), the perturbed odometry 7.925 m; 439 closures kept of
+447 verified (957 proposed).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from fmcwlog.backend.graph import Edge, PoseGraph
 from fmcwlog.backend.keyframes import Node
 from fmcwlog.backend.local_edges import LocalMatcher
 from fmcwlog.backend.params import BackendParams
-from fmcwlog.backend.verification import verify
+from fmcwlog.backend.verification import leave_free, verify
 from fmcwlog.frontend.correlative import CorrelativeParams, correlative_match, grid_for
 from fmcwlog.frontend.keyframe_map import KeyframeMap, LocalMapParams
 from fmcwlog.geometry import between, compose, inverse, transform_points, wrap_angle
@@ -90,6 +90,34 @@ def test_a_bare_corridor_is_closed_across_and_left_free_along_its_axis():
     assert abs(wrap_angle(v.relative[2] - truth[2])) < np.radians(0.3)
     # along: what the scene cannot tell is left to the graph, not asserted by the closure
     assert v.covariance[0, 0] > 100 * v.covariance[1, 1]
+
+
+def _line_information(points: np.ndarray, normal: tuple[float, float]) -> np.ndarray:
+    """``JᵀJ`` over (x, y, yaw about the origin) of point-to-line residuals ``nᵀ(R p + t - q)`` at
+    ``points`` (N, 2) on lines of unit ``normal``: written out here, not taken from the code."""
+    n = np.broadcast_to(np.asarray(normal, float), points.shape)
+    j = np.column_stack([n[:, 0], n[:, 1], -n[:, 0] * points[:, 1] + n[:, 1] * points[:, 0]])
+    return j.T @ j
+
+
+def test_a_corridor_closure_leaves_a_pure_slide_free_and_a_door_jamb_tells_no_yaw_along_it():
+    # two walls along x (3 m apart, 30 m seen) and one door jamb 6 m ahead, off to the left: the
+    # jamb alone gives a little information along the axis, coupled with the yaw by its lever
+    x = np.linspace(-15.0, 15.0, 600)
+    walls = _line_information(np.column_stack([np.r_[x, x], np.r_[np.full_like(x, -1.5), np.full_like(x, 1.5)]]), (0.0, 1.0))
+    jamb_y = np.linspace(1.5, 2.1, 12)
+    jamb = _line_information(np.column_stack([np.full_like(jamb_y, 6.0), jamb_y]), (1.0, 0.0))
+    kept, free = leave_free(walls + jamb)
+    assert free.shape[1] == 1
+    # sliding along the corridor turns nothing: what is left free is a pure translation along x
+    assert abs(abs(free[0, 0]) - 1.0) < 1e-9 and abs(free[2, 0]) < 1e-9
+    assert np.allclose(kept @ np.array([1.0, 0.0, 0.0]), 0.0, atol=1e-6)
+    # with the position along the axis unknown, the jamb tells the yaw only through the spread of
+    # its own points along its length; the walls tell the rest, and nothing is lost across
+    spread = float(np.sum((jamb_y - jamb_y.mean()) ** 2))
+    assert kept[1, 1] == pytest.approx(walls[1, 1], rel=1e-9)
+    assert kept[2, 2] == pytest.approx(walls[2, 2] + spread, rel=1e-9)
+    assert abs(kept[1, 2]) < 1e-6 * kept[2, 2]
 
 
 def test_a_periodic_row_of_pillars_is_rejected_as_ambiguous():

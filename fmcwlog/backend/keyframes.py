@@ -47,6 +47,25 @@ def to_local(covariance: np.ndarray, yaw: float) -> np.ndarray:
     return a @ covariance @ a.T
 
 
+_REGULARISER = np.diag([1e-4, 1e-4, 1.0])  # information of 100 m, 100 m, 1 rad: keeps a free axis invertible
+
+
+def match_covariance(information: np.ndarray, pairs: int, relative: np.ndarray, p: BackendParams,
+                     sigma_xy_floor: float, sigma_yaw_floor: float) -> np.ndarray:
+    """Covariance (3, 3) of a scan match in gtsam's tangent space at its ``relative`` pose (3,),
+    from the match's information ``information`` (3, 3; Σ JᵀJ over its ``pairs`` pairs).
+
+    The residuals of one match are not independent (the same few corners and door jambs fix the
+    along-wall position of every pair), so it is weighed as ``effective_pairs`` pairs of
+    ``residual_sigma``; a weak regulariser keeps a free direction invertible, and the floors
+    (m, rad) are added to the standard deviations' squares.
+    """
+    scale = min(1.0, p.effective_pairs / max(pairs, 1))
+    cov = np.linalg.inv(information * scale / p.residual_sigma**2 + _REGULARISER)
+    cov = cov + np.diag([sigma_xy_floor**2] * 2 + [sigma_yaw_floor**2])
+    return to_local(cov, float(relative[2]))
+
+
 def odometry_covariance(a: Node, b: Node, p: BackendParams) -> np.ndarray:
     """Covariance (3, 3) of the front end's motion from node ``a`` to ``b``, in ``a``'s frame.
 

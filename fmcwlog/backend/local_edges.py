@@ -38,13 +38,12 @@ import numpy as np
 from ..frontend.local_map import voxel_downsample
 from ..geometry import between, wrap_angle
 from .graph import Edge
-from .keyframes import Node, to_local
+from .keyframes import Node, match_covariance
 from .params import BackendParams
 from .registration import Submap, build_submap, register_point_to_line
 
 SUBMAP_VOXEL = 0.05  # m: a node's points are thinned to this as a submap...
 QUERY_VOXEL = 0.05  # m: ...and as the query
-_REGULARISER = np.diag([1e-4, 1e-4, 1.0])  # information of 100 m, 100 m, 1 rad: keeps a free axis invertible
 
 
 @dataclass
@@ -89,7 +88,5 @@ class LocalMatcher:
         if failed is not None:
             self.rejected[failed] = self.rejected.get(failed, 0) + 1
             return None
-        scale = min(1.0, p.effective_pairs / icp.pairs)
-        cov = np.linalg.inv(icp.hessian * scale / p.residual_sigma**2 + _REGULARISER)
-        cov = cov + np.diag([p.local_sigma_xy_floor**2] * 2 + [p.local_sigma_yaw_floor**2])
-        return Edge(j, nodes[-1].index, icp.pose, to_local(cov, float(icp.pose[2])))
+        cov = match_covariance(icp.hessian, icp.pairs, icp.pose, p, p.local_sigma_xy_floor, p.local_sigma_yaw_floor)
+        return Edge(j, nodes[-1].index, icp.pose, cov)

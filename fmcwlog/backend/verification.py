@@ -52,13 +52,12 @@ from scipy.spatial import cKDTree
 
 from ..frontend.correlative import CorrelativeParams, correlative_match, grid_for
 from ..geometry import transform_points, wrap_angle
-from .keyframes import to_local
+from .keyframes import match_covariance
 from .params import BackendParams
 from .registration import build_submap, register_point_to_line
 
 LEVER = 5.0  # m: a yaw error of 1 rad is weighed as 5 m of translation when finding free directions
 DEGENERACY_RATIO = 0.02
-_REGULARISER = np.diag([1e-4, 1e-4, 1.0])  # information of 100 m, 100 m, 1 rad
 
 
 @dataclass
@@ -151,13 +150,10 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
         delta[2] = wrap_angle(delta[2])
         if not _in_free_directions(delta, free):
             return _reject(base, "ambiguity", f"a separate peak scores {found.second_score / found.score:.2f} of the best")
-    # the residuals of one match are not independent (the same few corners and door jambs fix
-    # the along-wall position of every pair): weigh the match as ``effective_pairs`` pairs
-    scale = min(1.0, p.effective_pairs / max(icp.pairs, 1))
-    cov = np.linalg.inv(determined * scale / p.residual_sigma**2 + _REGULARISER)
-    cov = cov + np.diag([p.closure_sigma_xy_floor**2] * 2 + [p.closure_sigma_yaw_floor**2])
     base.accepted, base.test, base.reason = True, "", "accepted"
-    base.relative, base.covariance = icp.pose, to_local(cov, float(icp.pose[2]))
+    base.relative = icp.pose
+    base.covariance = match_covariance(determined, icp.pairs, icp.pose, p, p.closure_sigma_xy_floor,
+                                       p.closure_sigma_yaw_floor)
     base.free_directions = int(free.shape[1])
     return base
 

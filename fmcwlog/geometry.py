@@ -2,15 +2,42 @@
 
 Poses are ``(x, y, yaw)`` in metres and radians; yaw is counter-clockwise
 positive (REP-103). Arrays of poses have shape ``(N, 3)``.
+
+One pose (a float64 array of shape (3,)) takes a scalar path: the same float operations in the
+same order on Python floats, with :mod:`math`'s sin and cos, which are the C library's, as numpy's
+float64 ``sin``/``cos`` are on a machine without AVX-512 (numpy uses SVML there; this one, like
+most, has AVX2 only: no difference over 3.2 million angles, ``tests/test_geometry.py``). Python's
+float ``%`` and numpy's ``remainder`` are the same ``fmod``-and-adjust, so the scalar ``wrap_angle``
+is numpy's too. The results are bit-for-bit the array path's; a pose spends ~1 µs instead of
+~5 µs, and the front end composes, inverts and wraps single poses tens of times a sweep (on the
+120 s corridor log, 23 000 compositions and 68 000 wraps: 1.4 s of a 28 s run's profile).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+_F64 = np.dtype(np.float64)
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+def _is_pose(a: object) -> bool:
+    """Whether ``a`` is one pose, a float64 array of shape (3,): the scalar path's input."""
+    return type(a) is np.ndarray and a.shape == (3,) and a.dtype is _F64
+
+
+def _wrap(a: float) -> float:
+    """:func:`wrap_angle` of a Python float: the same operations (float ``%`` is numpy's remainder)."""
+    return (a + _PI) % _TWO_PI - _PI
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
     """Wrap angles to [-pi, pi)."""
+    if type(a) is float or type(a) is np.float64:
+        return np.float64(_wrap(float(a)))  # what numpy gives for a scalar: an np.float64
     return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
@@ -36,6 +63,12 @@ def quaternion_to_yaw(qx, qy, qz, qw) -> np.ndarray:
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose composition ``a ⊕ b`` (b expressed in a's frame); broadcasts over (..., 3)."""
+    if _is_pose(a) and _is_pose(b):
+        ax, ay, ath = a.tolist()
+        if math.isfinite(ath):  # math.cos raises on ±inf where numpy gives NaN
+            bx, by, bth = b.tolist()
+            c, s = math.cos(ath), math.sin(ath)
+            return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap(ath + bth)])
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -49,6 +82,11 @@ def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def inverse(a: np.ndarray) -> np.ndarray:
     """Inverse pose ``⊖a``; broadcasts over (..., 3)."""
+    if _is_pose(a):
+        ax, ay, ath = a.tolist()
+        if math.isfinite(ath):
+            c, s = math.cos(ath), math.sin(ath)
+            return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap(-ath)])
     a = np.asarray(a, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     out = np.empty(a.shape)
@@ -60,6 +98,14 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Relative pose ``⊖a ⊕ b``: b expressed in a's frame."""
+    if _is_pose(a) and _is_pose(b):
+        ax, ay, ath = a.tolist()
+        if math.isfinite(ath):  # inverse(a) as floats, then composed with b: the same operations
+            c, s = math.cos(ath), math.sin(ath)
+            ix, iy, ith = -c * ax - s * ay, s * ax - c * ay, _wrap(-ath)
+            bx, by, bth = b.tolist()
+            c, s = math.cos(ith), math.sin(ith)
+            return np.array([ix + c * bx - s * by, iy + s * bx + c * by, _wrap(ith + bth)])
     return compose(inverse(a), b)
 
 
@@ -68,9 +114,17 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
     ``pose`` may also be (N, 3), one pose per point.
     """
+    out = np.empty((len(points), 2))
+    if _is_pose(pose) and type(points) is np.ndarray and points.dtype is _F64:  # (a Python float is weak: float32
+        # points would be multiplied in float32, where numpy's float64 scalar cos makes it float64)
+        x, y, yaw = pose.tolist()
+        if math.isfinite(yaw):
+            c, s = math.cos(yaw), math.sin(yaw)
+            out[:, 0] = c * points[:, 0] - s * points[:, 1] + x
+            out[:, 1] = s * points[:, 0] + c * points[:, 1] + y
+            return out
     pose = np.asarray(pose, dtype=float)
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    out = np.empty((len(points), 2))
     out[:, 0] = c * points[:, 0] - s * points[:, 1] + pose[..., 0]
     out[:, 1] = s * points[:, 0] + c * points[:, 1] + pose[..., 1]
     return out

@@ -2,8 +2,12 @@
 
 import numpy as np
 import pytest
+from helpers import same_bits
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from fmcwlog.frontend.deskew import deskew, se2_exp
+from fmcwlog.frontend.deskew import deskew, lidar_motion, se2_exp
+from fmcwlog.geometry import compose, inverse, transform_points
 
 
 def _base_pose_on_circle(t, v, omega, start):
@@ -83,3 +87,49 @@ def test_se2_exp_quarter_circle():
     # tiny ω is continuous with the straight line: y ≈ v ω dt² / 2
     got = se2_exp(1.0, 0.0, 1e-12, np.array([2.0]))[0]
     np.testing.assert_allclose(got, [2.0, 2e-12, 2e-12], rtol=1e-9, atol=0)
+
+
+# --- the fast paths against the formulas as written (bit for bit: the outputs of a run may not change)
+def _se2_exp_formula(vx, vy, omega, dt):
+    """The docstring's formula with ``np.sinc``, as the module computed it before its fast paths."""
+    th = omega * dt
+    a = np.sinc(th / np.pi)
+    b = 0.5 * th * np.sinc(th / (2.0 * np.pi)) ** 2
+    return np.stack(np.broadcast_arrays((a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th), -1)
+
+
+_twist = st.one_of(st.floats(-5.0, 5.0), st.sampled_from([0.0, -0.0, 1e-12, -1e-300]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(_twist, _twist, st.one_of(_twist, st.floats(-50.0, 50.0)), st.floats(-1.0, 1.0))
+def test_se2_exp_fast_paths_are_the_formula(vx, vy, omega, dt):
+    """One ``dt`` (Python floats; numpy squares a 0-d result with ``pow``) and many (in place,
+    ``x * x``), each against ``np.sinc`` on the same shapes."""
+    assert same_bits(se2_exp(vx, vy, omega, np.array(dt)), _se2_exp_formula(vx, vy, omega, np.array(dt)))
+    dts = np.array([dt, 0.0, -0.0, 0.5 * dt, 0.075])
+    assert se2_exp(vx, vy, omega, dts).tobytes() == _se2_exp_formula(vx, vy, omega, dts).tobytes()
+
+
+def test_se2_exp_scalar_over_many_twists():
+    """20 000 random twists and intervals of the front end's sizes, one at a time."""
+    rng = np.random.default_rng(5)
+    for vx, w, dt in zip(rng.uniform(-2, 2, 20_000), rng.uniform(-2, 2, 20_000), rng.uniform(0, 0.2, 20_000)):
+        assert same_bits(se2_exp(float(vx), 0.0, float(w), np.array(dt)),
+                         _se2_exp_formula(float(vx), 0.0, float(w), np.array(dt)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(-1.0, 1.0),
+       st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-4.0, 4.0)), st.integers(0, 2**32 - 1))
+def test_deskew_column_path_is_the_pose_chain(v, omega, v_y, mount, seed):
+    """:func:`deskew` (column by column) against ``transform_points(L⁻¹ ⊕ exp ⊕ L, xy)`` through
+    (N, 3) pose arrays, and :func:`lidar_motion` against the same chain."""
+    rng = np.random.default_rng(seed)
+    n = 300
+    xy = rng.uniform(-30, 30, (n, 2))
+    t = np.sort(rng.uniform(0, 0.1, n))
+    m = np.array(mount)
+    chain = compose(compose(inverse(m), _se2_exp_formula(v, v_y, omega, t - 0.03)), m)  # as the module did
+    assert lidar_motion(t, v, omega, m, 0.03, v_y).tobytes() == chain.tobytes()
+    assert deskew(xy, t, v, omega, m, 0.03, v_y).tobytes() == transform_points(chain, xy).tobytes()

@@ -136,9 +136,22 @@ def interpolate_poses(t_query: np.ndarray, t: np.ndarray, poses: np.ndarray) -> 
     Yaw is unwrapped before interpolating so a pass through ±pi is handled;
     queries outside ``[t[0], t[-1]]`` are clamped to the ends.
     """
-    yaw = np.unwrap(poses[:, 2])
+    yaw = _unwrap(poses[:, 2])
     out = np.empty((*np.shape(t_query), 3))
     out[..., 0] = np.interp(t_query, t, poses[:, 0])
     out[..., 1] = np.interp(t_query, t, poses[:, 1])
     out[..., 2] = wrap_angle(np.interp(t_query, t, yaw))
+    return out
+
+
+def _unwrap(yaw: np.ndarray) -> np.ndarray:
+    """``np.unwrap(yaw)`` of a 1-D float64 array. Where no step reaches π (the motion prior's few
+    seconds of 50 Hz poses, nearly always) every correction is 0 and np.unwrap returns
+    ``yaw[1:] + cumsum(zeros)``: that, without its dozen other array operations (the runner reads
+    the prior three times a sweep)."""
+    step = yaw[1:] - yaw[:-1]  # np.diff
+    if yaw.dtype is not _F64 or yaw.ndim != 1 or not bool((np.abs(step) < np.pi).all()):
+        return np.unwrap(yaw)
+    out = yaw.copy()
+    out[1:] += 0.0  # the zero corrections' sum, as np.unwrap adds it (-0.0 becomes 0.0)
     return out

@@ -6,9 +6,13 @@ Ticks go through the motion prior exactly as ``fmcwlog process`` feeds them
 
 import numpy as np
 import pytest
+from helpers import same_bits
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fmcwlog.frontend.motion_prior import PoseTrack
-from fmcwlog.geometry import compose, wrap_angle
+from fmcwlog.frontend.odometry import body_increments, integrate_arc, integrate_arcs
+from fmcwlog.geometry import compose, interpolate_poses, wrap_angle
 from fmcwlog.io.calibration import WheelCalibration
 
 
@@ -132,3 +136,45 @@ def test_stamps_going_back_are_refused_and_repeats_skipped():
     assert not track.add_ticks(1.0, 20, 20, cal) and track.repeated_stamps == 1  # same stamp: skipped
     with pytest.raises(ValueError, match="backwards"):
         track.add_ticks(0.5, 30, 30, cal)
+
+
+# --- the one-reading-at-a-time paths against the array formulas, bit for bit
+_ticks = st.integers(-(2**40), 2**40)
+_cal = st.builds(WheelCalibration, st.floats(0.005, 2.0), st.floats(0.005, 2.0), st.floats(0.02, 10.0),
+                 st.integers(1, 10**8))
+
+
+@settings(max_examples=300, deadline=None)
+@given(_ticks, _ticks, _ticks, _ticks, _cal)
+def test_one_interval_is_the_array_formula(l0, l1, r0, r1, cal):
+    """Two int64 readings (the motion prior's case, on floats) against lists of them (the arrays)."""
+    fast = body_increments(np.array([l0, l1]), np.array([r0, r1]), cal)
+    slow = body_increments([l0, l1], [r0, r1], cal)
+    assert all(a.dtype == b.dtype and a.tobytes() == b.tobytes() for a, b in zip(fast, slow))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-5.0, 5.0), st.one_of(st.floats(-3.0, 3.0), st.sampled_from([0.0, -0.0, 1e-300])),
+       st.tuples(st.floats(-100.0, 100.0), st.floats(-100.0, 100.0), st.floats(-10.0, 10.0)))
+def test_one_arc_is_the_array_formula(ds, dtheta, pose):
+    """:func:`integrate_arc` on floats against :func:`integrate_arcs` over one arc."""
+    got = integrate_arc(np.float64(ds), np.float64(dtheta), np.array(pose))
+    assert same_bits(got, integrate_arcs(np.array([ds]), np.array([dtheta]), pose)[1])
+
+
+def test_interpolate_poses_is_the_np_unwrap_formula():
+    """The runner's reads of the prior (yaw unwrapped without a jump, the short path) and tracks
+    that cross ±π (np.unwrap itself) against the formula with ``np.unwrap``."""
+    rng = np.random.default_rng(11)
+    for crossing in (False, True):
+        for _ in range(200):
+            n = int(rng.integers(2, 300))
+            t = np.cumsum(rng.uniform(0.001, 0.05, n))
+            yaw = np.cumsum(rng.normal(0, 0.02 if not crossing else 0.5, n)) + rng.uniform(-3, 3)
+            poses = np.column_stack([rng.normal(0, 5, (n, 2)), wrap_angle(yaw)])
+            poses[rng.integers(0, n), 2] = -0.0
+            q = rng.uniform(t[0] - 0.1, t[-1] + 0.1, 3)
+            want = np.empty((3, 3))
+            want[:, 0], want[:, 1] = np.interp(q, t, poses[:, 0]), np.interp(q, t, poses[:, 1])
+            want[:, 2] = wrap_angle(np.interp(q, t, np.unwrap(poses[:, 2])))
+            assert interpolate_poses(q, t, poses).tobytes() == want.tobytes()

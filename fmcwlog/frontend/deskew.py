@@ -22,6 +22,7 @@ log, CPU time, best of 7 alternating runs), and one ``dt`` 28.7 -> 2.1 µs.
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 
@@ -45,7 +46,7 @@ def _sinc(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sinc_scalar(x: float) -> float:
+def sinc_of_float(x: float) -> float:
     """``np.sinc`` of one float: the same operations on Python floats (``math.sin`` is numpy's
     float64 ``sin`` here: :mod:`fmcwlog.geometry`)."""
     y = math.pi * x
@@ -71,7 +72,7 @@ def se2_exp(
         return np.stack(np.broadcast_arrays((a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th), -1)
     if dt.ndim == 0:
         return np.array(_se2_exp_scalar(float(vx), float(vy), float(omega), float(dt)))
-    x, y, th = _se2_exp_columns(vx, vy, omega, dt)
+    x, y, th = _se2_exp_columns(float(vx), float(vy), float(omega), dt)  # (the same values)
     out = np.empty((*np.broadcast_shapes(np.shape(x), np.shape(y), np.shape(th)), 3))
     out[..., 0], out[..., 1], out[..., 2] = x, y, th
     return out
@@ -82,8 +83,8 @@ def _se2_exp_scalar(vx: float, vy: float, omega: float, dt: float) -> tuple[floa
     float64 *scalar* with ``pow`` (an array with ``x * x``, which differs in the last bit for
     ~0.1 % of values), so this squares with ``**`` as numpy does for the 0-d ``dt`` it replaces."""
     th = omega * dt
-    a = _sinc_scalar(th / np.pi)
-    b = 0.5 * th * _sinc_scalar(th / (2.0 * np.pi)) ** 2
+    a = sinc_of_float(th / np.pi)
+    b = 0.5 * th * sinc_of_float(th / (2.0 * np.pi)) ** 2
     return (a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th
 
 
@@ -132,7 +133,7 @@ def _lidar_motion_columns(dt: np.ndarray, v, omega, mount: np.ndarray, v_y
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """x, y, yaw (N,) of :func:`lidar_motion` over ``dt`` (N,) for one ``mount`` (3,): the
     operations of ``compose(compose(inverse(mount), se2_exp(...)), mount)``, column by column."""
-    bx, by, bth = _se2_exp_columns(v, v_y, omega, dt)
+    bx, by, bth = _se2_exp_columns(float(v), float(v_y), float(omega), dt)
     ix, iy, ith = inverse(mount).tolist()
     mx, my, myaw = mount.tolist()
     c, s = np.cos(ith), np.sin(ith)  # numpy's, as compose's array path: bit for bit even with SVML
@@ -140,7 +141,7 @@ def _lidar_motion_columns(dt: np.ndarray, v, omega, mount: np.ndarray, v_y
     px -= s * by
     py = iy + s * bx
     py += c * by
-    pth = wrap_angle(ith + bth)
+    pth = cast(np.ndarray, wrap_angle(ith + bth))
     c2, s2 = np.cos(pth), np.sin(pth)  # compose(that, mount)
     qx = c2 * mx
     qx += px  # (a + b is b + a, bit for bit)
@@ -149,7 +150,7 @@ def _lidar_motion_columns(dt: np.ndarray, v, omega, mount: np.ndarray, v_y
     qy += py
     qy += c2 * my
     pth += myaw
-    return qx, qy, wrap_angle(pth)
+    return qx, qy, cast(np.ndarray, wrap_angle(pth))
 
 
 def deskew(

@@ -182,3 +182,60 @@ def test_maps_are_published_less_often_once_they_outgrow_the_budget(tmp_path):
     big = map_stamps(300)  # 90,000 cells (+ the path): 9 s of budget or more
     gaps = np.diff(big)
     assert len(big) <= 120 / 9 and np.all(gaps >= 9.0), gaps
+
+
+def test_processed_messages_are_encoded_as_mcap_ros2_encodes_them():
+    """``process`` encodes its Odometry, PointCloud2, TFMessage and Path from numbers, skipping the
+    message dicts; mcap_ros2's generic encoder of those dicts is the reference, for frame names of every
+    length modulo 8, poses in every quadrant, covariances given or not, clouds with and without Doppler."""
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    from fmcwlog.io import outputs
+    from fmcwlog.io.mcap_log import odometry_cdr, path_cdr, stamp_pair, tf_cdr
+    from fmcwlog.io.messages import (
+        odometry_message,
+        path_message,
+        planar_covariance,
+        pointcloud_message,
+        pose7,
+        tf_message,
+        transform_dict,
+    )
+    from fmcwlog.io.schemas import message_definition
+
+    def reference(datatype):
+        return serialize_dynamic(datatype, message_definition(datatype))[datatype]
+
+    odom, cloud = reference("nav_msgs/msg/Odometry"), reference("sensor_msgs/msg/PointCloud2")
+    tf, path = reference("tf2_msgs/msg/TFMessage"), reference("nav_msgs/msg/Path")
+    rng = np.random.default_rng(8)
+    for n in range(17):
+        ns = int(rng.integers(0, 2**31)) * 10**9 + int(rng.integers(0, 10**9))
+        frame, child = "ä/odom"[: n % 7] + "o" * (n // 3), "b" * (n % 9)
+        pose = np.array([*rng.normal(size=2) * 100, rng.uniform(-np.pi, np.pi)])
+        v, w = rng.normal(size=2)
+        cov = rng.normal(size=(3, 3)) if n % 2 else None
+        tcov = np.diag(rng.uniform(size=3)) if n % 3 else None
+        assert odometry_cdr(stamp_pair(ns), frame, child, pose7(pose), planar_covariance(cov),
+                            outputs._planar_twist(v, w), planar_covariance(tcov)) == \
+            odom(odometry_message(ns, frame, child, pose, np.array([v, 0.0, w]), cov, tcov))
+        xy = rng.normal(size=(n * 3, 2)) * 20
+        vel = rng.normal(size=n * 3) if n % 2 else None
+        cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy)), **({"velocity": vel} if vel is not None else {})}
+        assert outputs._cloud(stamp_pair(ns), frame, xy, vel) == cloud(pointcloud_message(ns, frame, cols))
+        poses = list(rng.normal(size=(n, 3)) * 10)
+        stamps = [ns + k * 10**8 for k in range(n)]
+        assert tf_cdr([(stamp_pair(s), frame, child * k, pose7(p)) for k, (s, p) in enumerate(zip(stamps, poses))]) == \
+            tf(tf_message([transform_dict(s, frame, child * k, p) for k, (s, p) in enumerate(zip(stamps, poses))]))
+        assert path_cdr(stamp_pair(ns), frame, [(stamp_pair(s), frame, pose7(p)) for s, p in zip(stamps, poses)]) == \
+            path(path_message(ns, frame, stamps, poses))
+
+
+def test_planar_covariance_places_x_y_yaw_in_the_6x6():
+    from fmcwlog.io.messages import planar_covariance
+
+    cov3 = np.arange(1.0, 10.0).reshape(3, 3)
+    full = np.array(planar_covariance(cov3)).reshape(6, 6)
+    assert np.array_equal(full[np.ix_([0, 1, 5], [0, 1, 5])], cov3)
+    full[np.ix_([0, 1, 5], [0, 1, 5])] = 0.0
+    assert not full.any() and planar_covariance(None) == [0.0] * 36

@@ -17,8 +17,9 @@ from __future__ import annotations
 import os
 import struct
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import IO, Any
 
@@ -45,6 +46,9 @@ _RAW_TAIL = {"nav_msgs/msg/OccupancyGrid": "data"}
 _CDR_LE = b"\x00\x01\x00\x00"  # the encapsulation header: CDR, little endian
 _U32, _STAMP, _TICKS, _POSE7 = struct.Struct("<I"), struct.Struct("<iI"), struct.Struct("<qq"), struct.Struct("<7d")
 _ODOMETRY = struct.Struct("<85d")
+_POINT_FIELD = struct.Struct("<IBxxxI")  # offset uint32, datatype uint8, padding, count uint32
+_CLOUD_TAIL = struct.Struct("<III")  # point_step, row_step, the data's length
+_BOOL = struct.Struct("<?")
 
 
 def _pad(out: bytearray, size: int) -> None:
@@ -73,54 +77,104 @@ def _octets(out: bytearray, data: bytes) -> None:
     out += data
 
 
-def _pose(out: bytearray, position: dict, orientation: dict) -> None:
-    """A ``geometry_msgs/Pose`` (or a Transform's translation and rotation): 7 float64, aligned to 8."""
-    _pad(out, 8)
-    out += _POSE7.pack(position["x"], position["y"], position["z"],
-                       orientation["x"], orientation["y"], orientation["z"], orientation["w"])
+# Messages as ``process`` writes them, from numbers rather than dicts: a stamp is ``(sec, nanosec)``,
+# a pose the 7 float64 of a Pose (:func:`pose7`). The dict encoders below go through the same code.
+Stamp = tuple[int, int]
+Pose7 = tuple[float, float, float, float, float, float, float]
+
+
+def stamp_pair(ns: int) -> Stamp:
+    """``(sec, nanosec)`` of integer nanoseconds, as :func:`fmcwlog.io.messages.stamp`."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return sec, nanosec
+
+
+@lru_cache(maxsize=256)
+def _after_stamp(names: tuple[str, ...], align: int) -> bytes:
+    """What follows a message's leading stamp: each name a CDR string, then padding to ``align``. At
+    a message's start the offsets are fixed, so these bytes are the same for every message."""
+    out = bytearray(_CDR_LE + bytes(8))
+    for name in names:
+        _string(out, name)
+    _pad(out, align)
+    return bytes(out[12:])
+
+
+def odometry_cdr(stamp: Stamp, frame_id: str, child_frame_id: str, pose: Pose7, pose_covariance: Sequence[float],
+                 twist: Sequence[float], twist_covariance: Sequence[float]) -> bytes:
+    """``nav_msgs/Odometry``: the stamp, the two frame names, then 85 float64 (pose, its 36
+    covariances, twist (linear, angular: 6), its 36) in one block aligned to 8 bytes."""
+    return b"".join((_CDR_LE, _STAMP.pack(*stamp), _after_stamp((frame_id, child_frame_id), 8),
+                     _ODOMETRY.pack(*pose, *pose_covariance, *twist, *twist_covariance)))
 
 
 def _odometry_cdr(m: dict) -> bytes:
-    """``nav_msgs/Odometry``: the stamp, the two frame names, then 85 float64 (pose, its 36
-    covariances, twist, its 36) in one block aligned to 8 bytes."""
     pose, twist = m["pose"], m["twist"]
-    out = bytearray(_CDR_LE)
-    _header(out, m["header"])
-    _string(out, m["child_frame_id"])
-    _pad(out, 8)
     p, q = pose["pose"]["position"], pose["pose"]["orientation"]
     lin, ang = twist["twist"]["linear"], twist["twist"]["angular"]
-    out += _ODOMETRY.pack(p["x"], p["y"], p["z"], q["x"], q["y"], q["z"], q["w"], *pose["covariance"],
-                          lin["x"], lin["y"], lin["z"], ang["x"], ang["y"], ang["z"], *twist["covariance"])
+    h = m["header"]
+    return odometry_cdr((h["stamp"]["sec"], h["stamp"]["nanosec"]), h["frame_id"], m["child_frame_id"],
+                        (p["x"], p["y"], p["z"], q["x"], q["y"], q["z"], q["w"]), pose["covariance"],
+                        (lin["x"], lin["y"], lin["z"], ang["x"], ang["y"], ang["z"]), twist["covariance"])
+
+
+def tf_cdr(transforms: Sequence[tuple[Stamp, str, str, Pose7]]) -> bytes:
+    """``tf2_msgs/TFMessage`` of ``(stamp, parent, child, pose)``: the count, then per transform its
+    header, child frame and 7 float64."""
+    out = bytearray(_CDR_LE)
+    out += _U32.pack(len(transforms))
+    for stamp, parent, child, pose in transforms:
+        _pad(out, 4)
+        out += _STAMP.pack(*stamp)
+        _string(out, parent)
+        _string(out, child)
+        _pad(out, 8)
+        out += _POSE7.pack(*pose)
     return bytes(out)
 
 
+def _dict_pose7(position: dict, orientation: dict) -> Pose7:
+    return (position["x"], position["y"], position["z"], orientation["x"], orientation["y"], orientation["z"],
+            orientation["w"])
+
+
+def _dict_stamp(header: dict) -> Stamp:
+    return header["stamp"]["sec"], header["stamp"]["nanosec"]
+
+
 def _tf_cdr(m: dict) -> bytes:
-    """``tf2_msgs/TFMessage``: the count, then per transform its header, child frame and 7 float64."""
+    return tf_cdr([(_dict_stamp(tr["header"]), tr["header"]["frame_id"], tr["child_frame_id"],
+                    _dict_pose7(tr["transform"]["translation"], tr["transform"]["rotation"])) for tr in m["transforms"]])
+
+
+def path_cdr(stamp: Stamp, frame_id: str, poses: Sequence[tuple[Stamp, str, Pose7]]) -> bytes:
+    """``nav_msgs/Path``: its header, the count, then per pose its header and 7 float64. ``process``
+    publishes each method's whole path every few seconds of log; through mcap_ros2's generic encoder
+    that was 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose
+    path: 26.3 ms there, 4.2 ms from dicts, 1.5 ms from numbers here."""
     out = bytearray(_CDR_LE)
-    out += _U32.pack(len(m["transforms"]))
-    for tr in m["transforms"]:
+    out += _STAMP.pack(*stamp)
+    _string(out, frame_id)
+    _pad(out, 4)
+    out += _U32.pack(len(poses))
+    names: dict[str, bytes] = {}
+    for pose_stamp, frame, pose in poses:
+        name = names.get(frame)
+        if name is None:
+            raw = frame.encode()
+            name = names[frame] = _U32.pack(len(raw) + 1) + raw + b"\0"
         _pad(out, 4)
-        _header(out, tr["header"])
-        _string(out, tr["child_frame_id"])
-        _pose(out, tr["transform"]["translation"], tr["transform"]["rotation"])
+        out += _STAMP.pack(*pose_stamp)
+        out += name  # a string at a 4-byte boundary (after the stamp): no padding before it
+        _pad(out, 8)
+        out += _POSE7.pack(*pose)
     return bytes(out)
 
 
 def _path_cdr(m: dict) -> bytes:
-    """``nav_msgs/Path``: its header, the count, then per pose its header and 7 float64. ``process``
-    publishes each method's whole path every few seconds of log; through mcap_ros2's generic
-    encoder that was 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile).
-    A 2,000-pose path: 26.3 ms there, 4.2 ms here (CPU, best of 5), the same bytes."""
-    out = bytearray(_CDR_LE)
-    _header(out, m["header"])
-    _pad(out, 4)
-    out += _U32.pack(len(m["poses"]))
-    for pose in m["poses"]:
-        _pad(out, 4)
-        _header(out, pose["header"])
-        _pose(out, pose["pose"]["position"], pose["pose"]["orientation"])
-    return bytes(out)
+    return path_cdr(_dict_stamp(m["header"]), m["header"]["frame_id"], [
+        (_dict_stamp(p["header"]), p["header"]["frame_id"], _dict_pose7(p["pose"]["position"], p["pose"]["orientation"]))
+        for p in m["poses"]])
 
 
 def _wheel_ticks_cdr(m: dict) -> bytes:
@@ -138,21 +192,34 @@ def _point_labels_cdr(m: dict) -> bytes:
     return bytes(out)
 
 
-def _pointcloud2_cdr(m: dict) -> bytes:
+PointField = tuple[str, int, int, int]  # name, offset, datatype, count
+
+
+@lru_cache(maxsize=256)
+def _fields_block(fields: tuple[PointField, ...]) -> bytes:
+    """A PointCloud2's ``fields`` (their count first), from a 4-byte boundary: nothing in them aligns
+    to more, so the bytes are the same wherever they start."""
     out = bytearray(_CDR_LE)
-    _header(out, m["header"])
-    _pad(out, 4)
-    out += struct.pack("<III", m["height"], m["width"], len(m["fields"]))
-    for f in m["fields"]:
-        _string(out, f["name"])
+    out += _U32.pack(len(fields))
+    for name, offset, datatype, count in fields:
+        _string(out, name)
         _pad(out, 4)
-        out += struct.pack("<IBxxxI", f["offset"], f["datatype"], f["count"])  # uint32, uint8, pad, uint32
-    out += struct.pack("<?", m["is_bigendian"])
-    _pad(out, 4)
-    out += struct.pack("<II", m["point_step"], m["row_step"])
-    _octets(out, m["data"])
-    out += struct.pack("<?", m["is_dense"])
-    return bytes(out)
+        out += _POINT_FIELD.pack(offset, datatype, count)
+    return bytes(out[4:])
+
+
+def pointcloud2_cdr(stamp: Stamp, frame_id: str, height: int, width: int, fields: tuple[PointField, ...],
+                    is_bigendian: bool, point_step: int, row_step: int, data: bytes, is_dense: bool) -> bytes:
+    """``sensor_msgs/PointCloud2``; nothing in it aligns to more than 4 bytes."""
+    return b"".join((_CDR_LE, _STAMP.pack(*stamp), _after_stamp((frame_id,), 4), _U32.pack(height),
+                     _U32.pack(width), _fields_block(fields), _BOOL.pack(is_bigendian), b"\0\0\0",
+                     _CLOUD_TAIL.pack(point_step, row_step, len(data)), data, _BOOL.pack(is_dense)))
+
+
+def _pointcloud2_cdr(m: dict) -> bytes:
+    return pointcloud2_cdr(_dict_stamp(m["header"]), m["header"]["frame_id"], m["height"], m["width"],
+                           tuple((f["name"], f["offset"], f["datatype"], f["count"]) for f in m["fields"]),
+                           m["is_bigendian"], m["point_step"], m["row_step"], m["data"], m["is_dense"])
 
 
 # Types encoded here in full (the layout is fixed by the .msg; the bytes are mcap_ros2's, which
@@ -210,7 +277,10 @@ class LogWriter:
 
     def write(self, topic: str, datatype: str, message: dict, log_time_ns: int) -> None:
         """Write one message; ``log_time`` is the message's ``header.stamp`` (LOG_FORMAT.md)."""
-        data = self.encode(datatype, message)
+        self.write_cdr(topic, datatype, self.encode(datatype, message), log_time_ns)
+
+    def write_cdr(self, topic: str, datatype: str, data: bytes, log_time_ns: int) -> None:
+        """Write one message already CDR-encoded (by :func:`odometry_cdr` and its like)."""
         channel = self._channels.get(topic)
         if channel is None:
             channel = self._writer.register_channel(topic, "cdr", self._schema(datatype)[0])

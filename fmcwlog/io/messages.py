@@ -83,22 +83,30 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
     return out
 
 
+_PLANAR = np.array([0, 1, 5, 6, 7, 11, 30, 31, 35])  # (x, y, yaw) x (x, y, yaw) in a row-major 6x6
+
+
 def planar_covariance(cov3: np.ndarray | None) -> list[float]:
     """A 6x6 row-major ROS covariance (x, y, z, roll, pitch, yaw) from a planar 3x3 one over
     (x, y, yaw); z, roll and pitch are fixed by the plane (0). All zeros when ``cov3`` is None
     (unknown), as ROS messages leave it."""
-    out = np.zeros((6, 6))
-    if cov3 is not None:
-        idx = np.array([0, 1, 5])
-        out[np.ix_(idx, idx)] = np.asarray(cov3, dtype=float)
-    return out.reshape(-1).tolist()
+    if cov3 is None:
+        return [0.0] * 36
+    out = np.zeros(36)
+    out[_PLANAR] = np.asarray(cov3, dtype=float).reshape(9)
+    return out.tolist()
+
+
+def pose7(pose: np.ndarray) -> tuple[float, float, float, float, float, float, float]:
+    """The 7 numbers of a ``geometry_msgs/Pose`` (position, orientation) of a planar pose ``(x, y, yaw)``."""
+    q = yaw_to_quaternion(pose[2])
+    return float(pose[0]), float(pose[1]), 0.0, float(q[0]), float(q[1]), float(q[2]), float(q[3])
 
 
 def pose_dict(pose: np.ndarray) -> dict:
     """``geometry_msgs/Pose`` of a planar pose ``(x, y, yaw)``."""
-    q = yaw_to_quaternion(pose[2])
-    return {"position": {"x": float(pose[0]), "y": float(pose[1]), "z": 0.0},
-            "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}}
+    x, y, z, qx, qy, qz, qw = pose7(pose)
+    return {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
 
 
 def odometry_message(

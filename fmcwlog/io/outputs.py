@@ -37,12 +37,12 @@ import pyarrow.parquet as pq
 
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
-from .mcap_log import LogWriter
+from .mcap_log import LogWriter, Pose7, Stamp, odometry_cdr, path_cdr, pointcloud2_cdr, stamp_pair, tf_cdr
 from .messages import (
+    FLOAT32,
     occupancy_grid_message,
-    odometry_message,
-    path_message,
-    pointcloud_message,
+    planar_covariance,
+    pose7,
     stamp,
     tf_message,
     transform_dict,
@@ -198,13 +198,27 @@ def pgm_pixels(data: bytes) -> np.ndarray:
     return np.frombuffer(data, np.uint8, count=w * h, offset=pos + 1).reshape(h, w)
 
 
-def _cloud(stamp_ns: int, frame: str, xy: np.ndarray, velocity: np.ndarray | None) -> dict:
-    cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy))}
+_CLOUD_FIELDS = {k: tuple((name, 4 * i, FLOAT32, 1) for i, name in enumerate(("x", "y", "z", "velocity")[:k]))
+                 for k in (3, 4)}
+
+
+def _cloud(stamp: Stamp, frame: str, xy: np.ndarray, velocity: np.ndarray | None) -> bytes:
+    """A PointCloud2 of float32 ``x, y, z`` (0) and ``velocity`` if given, packed point by point."""
+    k = 3 if velocity is None else 4
+    packed = np.zeros((len(xy), k), dtype="<f4")
+    packed[:, :2] = xy
     if velocity is not None:
-        cols["velocity"] = velocity
-    return pointcloud_message(stamp_ns, frame, cols)
+        packed[:, 3] = velocity
+    return pointcloud2_cdr(stamp, frame, 1, len(xy), _CLOUD_FIELDS[k], False, 4 * k, 4 * k * len(xy),
+                           packed.tobytes(), True)
 
 
+def _planar_twist(v: float, omega: float) -> tuple[float, ...]:
+    """A Twist's linear and angular parts (vx, vy, vz, wx, wy, wz) of a forward speed and a yaw rate."""
+    return float(v), 0.0, 0.0, 0.0, 0.0, float(omega)
+
+
+ODOMETRY, POINTCLOUD2 = "nav_msgs/msg/Odometry", "sensor_msgs/msg/PointCloud2"
 PUBLISH_BYTES_PER_S = 1e6  # paths and maps put into processed.mcap, at most, per second of log (before compression)
 
 
@@ -224,26 +238,34 @@ class ProcessOutputs:
         self.rows: dict[str, list] = {k: [] for k in TRAJECTORY_COLUMNS if k != "t"}
         self.trajectories: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
         self._path: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}  # decimated
+        # each trajectory's poses as a Path holds them, (stamp, frame, pose7): whole, and decimated
+        self._path_poses: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
         self.mount = np.asarray(mount, dtype=float)
         self.publish_period_ns = int(publish_period * 1e9)
         self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
-        self._transforms: list[dict] = []
+        self._transforms: list[tuple[Stamp, str, str, Pose7]] = []  # this sweep's, for /tf
         self.frontend: dict[str, tuple[list, list]] = {}  # the front end's trajectories a back end corrected
 
     def _row(self, **values) -> None:
         for k in self.rows:
             self.rows[k].append(values.get(k))
 
-    def _track(self, name: str, stamp_ns: int, pose: np.ndarray) -> None:
-        """Keep the pose; the published paths keep one pose per 0.25 m or 10 deg of motion."""
+    def _track(self, name: str, stamp_ns: int, pose: np.ndarray) -> tuple[Stamp, Pose7]:
+        """Keep the pose; the published paths keep one pose per 0.25 m or 10 deg of motion. Returns
+        the stamp and the pose as messages carry them."""
+        entry = (stamp_pair(stamp_ns), odom_frame(name), pose7(pose))
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
+        whole, decimated = self._path_poses[name]
+        whole.append(entry)
         stamps, poses = self._path[name]
         if not poses or np.hypot(*(pose[:2] - poses[-1][:2])) >= 0.25 or \
                 abs((pose[2] - poses[-1][2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
             stamps.append(stamp_ns)
             poses.append(pose)
+            decimated.append(entry)
+        return entry[0], entry[2]
 
     def add(self, r: SweepResult) -> None:
         """One method's result for one sweep."""
@@ -256,20 +278,20 @@ class ProcessOutputs:
                   omega=r.twist[1], icp_iterations=r.iterations, correspondences=r.correspondences,
                   moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms, x_frontend=r.pose[0],
                   y_frontend=r.pose[1], yaw_frontend=r.pose[2])
-        self._track(r.method, r.stamp_ns, r.pose)
-        w, frame = self.writer, odom_frame(r.method)
+        at, pose = self._track(r.method, r.stamp_ns, r.pose)
+        w, frame, base = self.writer, odom_frame(r.method), base_frame(r.method)
         twist_cov = None
         if r.twist_covariance is not None:  # (v, ω) -> (vx, vy, wz); vy is 0 by the rear axle's constraint
             twist_cov = np.zeros((3, 3))
             twist_cov[np.ix_([0, 2], [0, 2])] = r.twist_covariance
-        w.write(f"/{r.method}/odom", "nav_msgs/msg/Odometry",
-                odometry_message(r.stamp_ns, frame, base_frame(r.method), r.pose, np.array([r.twist[0], 0.0, r.twist[1]]),
-                                 r.pose_covariance, twist_cov), r.stamp_ns)
-        self._transforms.append(transform_dict(r.stamp_ns, frame, base_frame(r.method), r.pose))
-        w.write(f"/{r.method}/points/static", "sensor_msgs/msg/PointCloud2",
-                _cloud(r.stamp_ns, frame, r.static_map_xy, r.static_velocity), r.stamp_ns)
-        w.write(f"/{r.method}/points/moving", "sensor_msgs/msg/PointCloud2",
-                _cloud(r.stamp_ns, frame, r.moving_map_xy, r.moving_velocity), r.stamp_ns)
+        w.write_cdr(f"/{r.method}/odom", ODOMETRY, odometry_cdr(
+            at, frame, base, pose, planar_covariance(r.pose_covariance), _planar_twist(r.twist[0], r.twist[1]),
+            planar_covariance(twist_cov)), r.stamp_ns)
+        self._transforms.append((at, frame, base, pose))
+        w.write_cdr(f"/{r.method}/points/static", POINTCLOUD2, _cloud(at, frame, r.static_map_xy, r.static_velocity),
+                    r.stamp_ns)
+        w.write_cdr(f"/{r.method}/points/moving", POINTCLOUD2, _cloud(at, frame, r.moving_map_xy, r.moving_velocity),
+                    r.stamp_ns)
         if r.segmented:  # the method's per-point verdict, index for index with the input sweep (1 = moving)
             w.write(f"/{r.method}/moving_labels", "fmcwlog_msgs/msg/PointLabels",
                     {"header": {"stamp": stamp(r.stamp_ns), "frame_id": "lidar"},
@@ -279,16 +301,16 @@ class ProcessOutputs:
         """A pose of a trajectory that is not a method's (the motion prior's), and its twist if known."""
         v, omega = twist if twist is not None else (None, None)
         self._row(method=name, stamp_ns=stamp_ns, x=pose[0], y=pose[1], yaw=pose[2], v=v, omega=omega)
-        self._track(name, stamp_ns, pose)
-        self.writer.write(f"/{name}/odom", "nav_msgs/msg/Odometry",
-                          odometry_message(stamp_ns, odom_frame(name), base_frame(name), pose,
-                                           np.array([v or 0.0, 0.0, omega or 0.0])), stamp_ns)
-        self._transforms.append(transform_dict(stamp_ns, odom_frame(name), base_frame(name), pose))
+        at, p = self._track(name, stamp_ns, pose)
+        zeros = planar_covariance(None)
+        self.writer.write_cdr(f"/{name}/odom", ODOMETRY, odometry_cdr(
+            at, odom_frame(name), base_frame(name), p, zeros, _planar_twist(v or 0.0, omega or 0.0), zeros), stamp_ns)
+        self._transforms.append((at, odom_frame(name), base_frame(name), p))
 
     def end_sweep(self, stamp_ns: int, grids: dict[str, OccupancyGrid]) -> None:
         """All trajectories' transforms of this sweep in one ``/tf`` message; paths and maps when due."""
         if self._transforms:
-            self.writer.write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(self._transforms), stamp_ns)
+            self.writer.write_cdr(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_cdr(self._transforms), stamp_ns)
             self._transforms = []
         if self._next_publish is None:  # no method's result yet (only the motion prior's poses)
             self._next_publish = stamp_ns + self.publish_period_ns
@@ -305,11 +327,12 @@ class ProcessOutputs:
         """Each path so far (decimated; whole when ``final``) and each map; returns their size (bytes,
         before compression: 56 a pose, 1 a cell)."""
         size = 0
-        for name, (stamps, poses) in (self.trajectories if final else self._path).items():
-            if stamps:
-                self.writer.write(f"/{name}/path", "nav_msgs/msg/Path",
-                                  path_message(stamp_ns, odom_frame(name), stamps, poses), stamp_ns)
-                size += 56 * len(stamps)
+        for name, (whole, decimated) in self._path_poses.items():
+            poses = whole if final else decimated
+            if poses:
+                self.writer.write_cdr(f"/{name}/path", "nav_msgs/msg/Path",
+                                      path_cdr(stamp_pair(stamp_ns), odom_frame(name), poses), stamp_ns)
+                size += 56 * len(poses)
         for name, grid in grids.items():
             if grid.width:
                 size += grid.width * grid.height
@@ -328,6 +351,7 @@ class ProcessOutputs:
             raise ValueError(f"{name}: {len(poses)} corrected poses for {len(before)} sweeps")
         self.frontend[name] = (list(stamps), list(before))
         self.trajectories[name] = (stamps, list(poses))
+        self._path_poses[name][0][:] = [(stamp_pair(ns), odom_frame(name), pose7(p)) for ns, p in zip(stamps, poses)]
         rows = [i for i, m in enumerate(self.rows["method"]) if m == name]
         for i, pose in zip(rows, poses):
             self.rows["x"][i], self.rows["y"][i], self.rows["yaw"][i] = (float(v) for v in pose)

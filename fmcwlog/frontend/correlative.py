@@ -29,7 +29,7 @@ two look-alike places), which the loop-closure verification uses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -177,7 +177,11 @@ def _scores(table: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.nda
 @dataclass
 class _Search:
     """What every level of one search shares: the grid, the rotated points' flat cells (R, N),
-    the yaw samples, the prior, the window (fine cells each side) and the steps per level."""
+    the yaw samples, the prior, the window (fine cells each side) and the steps per level.
+
+    Exact caches (integer offsets, and values computed once instead of per candidate): each
+    candidate's children, 2-D and flat, are the same at every yaw sample, so they are built once
+    per (level, offset); the wrapped yaw of each sample once per search."""
 
     grid: LikelihoodGrid
     cells: np.ndarray
@@ -187,54 +191,88 @@ class _Search:
     steps: list[int]
     p: CorrelativeParams
     evaluated: int = 0
+    _children: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    _templates: dict[int, np.ndarray] = field(default_factory=dict)
+    _yaws: list[float] = field(default_factory=list)
 
     def table(self, level: int) -> np.ndarray:
         step = self.steps[level]
         return self.grid.fine if step == 1 else self.grid.coarse(step)
 
-    def scores(self, level: int, r: int, offsets: np.ndarray) -> np.ndarray:
-        self.evaluated += len(offsets)
-        return _scores(self.table(level), self.cells[r:r + 1], self.grid.flat_offsets(offsets))[0]
+    def scores(self, level: int, r: int, flat_offsets: np.ndarray) -> np.ndarray:
+        """Scores at yaw sample ``r`` of flat offsets (T,) (:meth:`LikelihoodGrid.flat_offsets`)."""
+        self.evaluated += len(flat_offsets)
+        return _scores(self.table(level), self.cells[r:r + 1], flat_offsets)[0]
 
-    def children(self, offset: np.ndarray, level: int) -> np.ndarray:
-        """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window."""
-        n, child = self.steps[level] // self.steps[level + 1], self.steps[level + 1]
-        grid = np.array([(i, j) for j in range(n) for i in range(n)]) * child + offset
-        return grid[(grid <= self.n_fine).all(axis=1)]
+    def children(self, offset: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
+        """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window:
+        (T, 2) cell offsets and their flat steps (T,)."""
+        key = (level, int(offset[0]), int(offset[1]))
+        found = self._children.get(key)
+        if found is None:
+            if level not in self._templates:
+                n, child = self.steps[level] // self.steps[level + 1], self.steps[level + 1]
+                self._templates[level] = np.array([(i, j) for j in range(n) for i in range(n)]) * child
+            grid = self._templates[level] + offset
+            grid = grid[(grid <= self.n_fine).all(axis=1)]
+            found = self._children[key] = (grid, self.grid.flat_offsets(grid))
+        return found
 
     def pose(self, r: int, offset: np.ndarray) -> np.ndarray:
-        return _pose(self.prior, self.thetas, r, offset, self.grid.resolution)
+        if not self._yaws:
+            self._yaws = np.asarray(wrap_angle(self.thetas)).tolist()  # elementwise: as one at a time
+        res = self.grid.resolution
+        return np.array([self.prior[0] + offset[0] * res, self.prior[1] + offset[1] * res, self._yaws[r]])
+
+    def separate(self, r: int, offsets: np.ndarray, exclude: np.ndarray) -> list[bool]:
+        """Whether the poses of ``offsets`` (T, 2) at yaw sample ``r`` lie on another peak than
+        ``exclude``: :func:`_separate` of each :meth:`pose`, elementwise in one call."""
+        res = self.grid.resolution
+        poses = np.empty((len(offsets), 3))
+        poses[:, 0] = self.prior[0] + offsets[:, 0] * res
+        poses[:, 1] = self.prior[1] + offsets[:, 1] * res
+        poses[:, 2] = self.pose(r, offsets[0])[2] if len(offsets) else 0.0
+        return _separate(poses, exclude, self.p).tolist()
 
 
-def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, best: float, best_at: tuple | None,
-             exclude: np.ndarray | None) -> tuple[float, tuple | None]:
-    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, pruning by the bound;
-    at the finest level a pose not separate from ``exclude`` is skipped (the second-peak search)."""
-    sc = s.scores(level, r, offsets)
-    for i in np.argsort(sc)[::-1]:
-        if sc[i] <= best:
+def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, flat: np.ndarray, best: float,
+             best_at: tuple | None, exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    """Best first through ``offsets`` (flat steps ``flat``) of level ``level`` at yaw sample ``r``,
+    pruning by the bound; at the finest level a pose not separate from ``exclude`` is skipped (the
+    second-peak search). The scores are float32, and so is every bound they are compared with (a
+    score, or the floors -1 and 0), so comparing them as Python floats decides as numpy would."""
+    sc = s.scores(level, r, flat)
+    order = np.argsort(sc)[::-1]
+    finest = level == len(s.steps) - 1
+    separate = s.separate(r, offsets, exclude) if finest and exclude is not None else None
+    for i, score in zip(order.tolist(), sc[order].tolist()):
+        if score <= best:
             break
-        if level == len(s.steps) - 1:
-            if exclude is not None and not _separate(s.pose(r, offsets[i]), exclude, s.p):
+        if finest:
+            if separate is not None and not separate[i]:
                 continue
-            best, best_at = float(sc[i]), (r, offsets[i])
+            best, best_at = score, (r, offsets[i])
         else:
-            best, best_at = _descend(s, level + 1, r, s.children(offsets[i], level), best, best_at, exclude)
+            child, child_flat = s.children(offsets[i], level)
+            best, best_at = _descend(s, level + 1, r, child, child_flat, best, best_at, exclude)
     return best, best_at
 
 
-def _search_from_top(s: _Search, upper: np.ndarray, top: np.ndarray, floor: float,
+def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.ndarray, floor: float,
                      exclude: np.ndarray | None) -> tuple[float, tuple | None]:
+    """``order``: ``upper``'s flat indices, highest first (``argsort`` of the flattened array, reversed)."""
     best, best_at = floor, None
-    for flat in np.argsort(upper, axis=None)[::-1]:
-        r, t = np.unravel_index(flat, upper.shape)
-        if upper[r, t] <= best:
+    n_top = upper.shape[1]
+    for flat, bound in zip(order.tolist(), upper.ravel()[order].tolist()):
+        if bound <= best:
             break
+        r, t = divmod(flat, n_top)
         if len(s.steps) == 1:
-            if exclude is None or _separate(s.pose(int(r), top[t]), exclude, s.p):
-                best, best_at = float(upper[r, t]), (int(r), top[t])
+            if exclude is None or _separate(s.pose(r, top[t]), exclude, s.p):
+                best, best_at = bound, (r, top[t])
             continue
-        best, best_at = _descend(s, 1, int(r), s.children(top[t], 0), best, best_at, exclude)
+        child, child_flat = s.children(top[t], 0)
+        best, best_at = _descend(s, 1, r, child, child_flat, best, best_at, exclude)
     return best, best_at
 
 
@@ -258,15 +296,12 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
     top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
     upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
     s.evaluated += upper.size
-    best, best_at = _search_from_top(s, upper, top, -1.0, None)
+    order = np.argsort(upper, axis=None)[::-1]  # the bounds, highest first: shared by both searches
+    best, best_at = _search_from_top(s, upper, order, top, -1.0, None)
     assert best_at is not None
     pose = s.pose(*best_at)
-    second, second_at = _search_from_top(s, upper, top, 0.0, pose)
+    second, second_at = _search_from_top(s, upper, order, top, 0.0, pose)
     return CorrelativeResult(pose, best, second, None if second_at is None else s.pose(*second_at), s.evaluated)
-
-
-def _pose(prior: np.ndarray, thetas: np.ndarray, r: int, offset: np.ndarray, res: float) -> np.ndarray:
-    return np.array([prior[0] + offset[0] * res, prior[1] + offset[1] * res, float(wrap_angle(thetas[r]))])
 
 
 def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:

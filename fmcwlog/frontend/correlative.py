@@ -194,15 +194,44 @@ class _Search:
     _children: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     _templates: dict[int, np.ndarray] = field(default_factory=dict)
     _yaws: list[float] = field(default_factory=list)
+    _scored: dict[tuple[int, int, int, int], np.ndarray] = field(default_factory=dict)
+    _far: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    _turned: list[bool] = field(default_factory=list)
 
     def table(self, level: int) -> np.ndarray:
         step = self.steps[level]
         return self.grid.fine if step == 1 else self.grid.coarse(step)
 
-    def scores(self, level: int, r: int, flat_offsets: np.ndarray) -> np.ndarray:
-        """Scores at yaw sample ``r`` of flat offsets (T,) (:meth:`LikelihoodGrid.flat_offsets`)."""
-        self.evaluated += len(flat_offsets)
-        return _scores(self.table(level), self.cells[r:r + 1], flat_offsets)[0]
+    def child_scores(self, level: int, r: int, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The children of ``offset`` (a candidate of level ``level``) and their scores (T,) at yaw
+        sample ``r``, each set scored once per search (the second-peak search visits the same)."""
+        child, flat = self.children(offset, level)
+        self.evaluated += len(flat)
+        key = (level, int(offset[0]), int(offset[1]), r)
+        sc = self._scored.get(key)
+        if sc is None:
+            sc = self._scored[key] = _scores(self.table(level + 1), self.cells[r:r + 1], flat)[0]
+        return child, sc
+
+    def prefetch(self, level: int, candidates: list[tuple[int, np.ndarray]]) -> None:
+        """Score the children of ``candidates`` ((yaw sample, offset) of level ``level``) not yet
+        scored, in one gather for all of those with a full set of children. The same numbers as
+        one at a time: each candidate's sums run over the points in the same order (a reduction
+        over the middle axis; a single child, whose sums numpy would pair differently, is left to
+        :meth:`child_scores`)."""
+        full = (self.steps[level] // self.steps[level + 1]) ** 2
+        keys, rows, flats = [], [], []
+        for r, offset in candidates:
+            key = (level, int(offset[0]), int(offset[1]), r)
+            flat = self.children(offset, level)[1]
+            if key not in self._scored and len(flat) == full > 1:
+                keys.append(key)
+                rows.append(r)
+                flats.append(flat)
+        if len(keys) > 1:
+            table = self.table(level + 1).ravel()
+            scored = table.take(self.cells[rows][:, :, None] + np.array(flats)[:, None, :]).mean(axis=1)
+            self._scored.update(zip(keys, scored))
 
     def children(self, offset: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
         """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window:
@@ -218,33 +247,46 @@ class _Search:
             found = self._children[key] = (grid, self.grid.flat_offsets(grid))
         return found
 
-    def pose(self, r: int, offset: np.ndarray) -> np.ndarray:
+    def yaws(self) -> list[float]:
+        """The yaw samples wrapped to [-π, π)."""
         if not self._yaws:
             self._yaws = np.asarray(wrap_angle(self.thetas)).tolist()  # elementwise: as one at a time
+        return self._yaws
+
+    def pose(self, r: int, offset: np.ndarray) -> np.ndarray:
         res = self.grid.resolution
-        return np.array([self.prior[0] + offset[0] * res, self.prior[1] + offset[1] * res, self._yaws[r]])
+        return np.array([self.prior[0] + offset[0] * res, self.prior[1] + offset[1] * res, self.yaws()[r]])
 
-    def separate(self, r: int, offsets: np.ndarray, exclude: np.ndarray) -> list[bool]:
-        """Whether the poses of ``offsets`` (T, 2) at yaw sample ``r`` lie on another peak than
-        ``exclude``: :func:`_separate` of each :meth:`pose`, elementwise in one call."""
-        res = self.grid.resolution
-        poses = np.empty((len(offsets), 3))
-        poses[:, 0] = self.prior[0] + offsets[:, 0] * res
-        poses[:, 1] = self.prior[1] + offsets[:, 1] * res
-        poses[:, 2] = self.pose(r, offsets[0])[2] if len(offsets) else 0.0
-        return _separate(poses, exclude, self.p).tolist()
+    def exclude(self, pose: np.ndarray) -> None:
+        """Prepare the second-peak search around ``pose``: whether each yaw sample, and each fine
+        offset in the window, lies on another peak than ``pose`` (:func:`_separate`'s two tests, the
+        same arithmetic elementwise over the lattice instead of pose by pose)."""
+        res, n = self.grid.resolution, self.n_fine
+        steps = np.arange(-n, n + 1)
+        along = np.hypot((self.prior[0] + steps * res)[None, :] - pose[0], (self.prior[1] + steps * res)[:, None] - pose[1])
+        self._far = along > self.p.peak_separation  # (2n+1, 2n+1): rows y, columns x
+        yaws = np.array(self.yaws())
+        dyaw = np.abs((yaws - pose[2] + np.pi) % (2 * np.pi) - np.pi)
+        self._turned = (dyaw > np.radians(self.p.peak_separation_deg)).tolist()
+
+    def separate(self, r: int, offsets: np.ndarray) -> list[bool] | None:
+        """Whether the poses of ``offsets`` (T, 2) at yaw sample ``r`` lie on another peak than the
+        pose given to :meth:`exclude`; None where all do (the yaw alone separates them)."""
+        if self._turned[r]:
+            return None
+        n = self.n_fine
+        return self._far[offsets[:, 1] + n, offsets[:, 0] + n].tolist()
 
 
-def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, flat: np.ndarray, best: float,
+def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray, best: float,
              best_at: tuple | None, exclude: np.ndarray | None) -> tuple[float, tuple | None]:
-    """Best first through ``offsets`` (flat steps ``flat``) of level ``level`` at yaw sample ``r``,
-    pruning by the bound; at the finest level a pose not separate from ``exclude`` is skipped (the
+    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, scored ``sc``, pruning
+    by the bound; at the finest level a pose not separate from ``exclude`` is skipped (the
     second-peak search). The scores are float32, and so is every bound they are compared with (a
     score, or the floors -1 and 0), so comparing them as Python floats decides as numpy would."""
-    sc = s.scores(level, r, flat)
     order = np.argsort(sc)[::-1]
     finest = level == len(s.steps) - 1
-    separate = s.separate(r, offsets, exclude) if finest and exclude is not None else None
+    separate = s.separate(r, offsets) if finest and exclude is not None else None
     for i, score in zip(order.tolist(), sc[order].tolist()):
         if score <= best:
             break
@@ -253,9 +295,12 @@ def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, flat: np.ndarr
                 continue
             best, best_at = score, (r, offsets[i])
         else:
-            child, child_flat = s.children(offsets[i], level)
-            best, best_at = _descend(s, level + 1, r, child, child_flat, best, best_at, exclude)
+            child, child_sc = s.child_scores(level, r, offsets[i])
+            best, best_at = _descend(s, level + 1, r, child, child_sc, best, best_at, exclude)
     return best, best_at
+
+
+PREFETCH = 32  # top candidates whose children are scored in one gather (some may then be pruned unused)
 
 
 def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.ndarray, floor: float,
@@ -263,7 +308,8 @@ def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.n
     """``order``: ``upper``'s flat indices, highest first (``argsort`` of the flattened array, reversed)."""
     best, best_at = floor, None
     n_top = upper.shape[1]
-    for flat, bound in zip(order.tolist(), upper.ravel()[order].tolist()):
+    flats, bounds = order.tolist(), upper.ravel()[order].tolist()
+    for k, (flat, bound) in enumerate(zip(flats, bounds)):
         if bound <= best:
             break
         r, t = divmod(flat, n_top)
@@ -271,8 +317,11 @@ def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.n
             if exclude is None or _separate(s.pose(r, top[t]), exclude, s.p):
                 best, best_at = bound, (r, top[t])
             continue
-        child, child_flat = s.children(top[t], 0)
-        best, best_at = _descend(s, 1, r, child, child_flat, best, best_at, exclude)
+        if k % PREFETCH == 0:
+            ahead = [divmod(f, n_top) for f, b in zip(flats[k:k + PREFETCH], bounds[k:k + PREFETCH]) if b > best]
+            s.prefetch(0, [(rr, top[tt]) for rr, tt in ahead])
+        child, child_sc = s.child_scores(0, r, top[t])
+        best, best_at = _descend(s, 1, r, child, child_sc, best, best_at, exclude)
     return best, best_at
 
 
@@ -300,6 +349,7 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
     best, best_at = _search_from_top(s, upper, order, top, -1.0, None)
     assert best_at is not None
     pose = s.pose(*best_at)
+    s.exclude(pose)
     second, second_at = _search_from_top(s, upper, order, top, 0.0, pose)
     return CorrelativeResult(pose, best, second, None if second_at is None else s.pose(*second_at), s.evaluated)
 

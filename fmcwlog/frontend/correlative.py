@@ -194,7 +194,7 @@ class _Search:
     _children: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     _templates: dict[int, np.ndarray] = field(default_factory=dict)
     _yaws: list[float] = field(default_factory=list)
-    _scored: dict[tuple[int, int, int, int], np.ndarray] = field(default_factory=dict)
+    _scored: dict[tuple[int, int, int, int], tuple[np.ndarray, float]] = field(default_factory=dict)
     _far: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     _turned: list[bool] = field(default_factory=list)
 
@@ -202,16 +202,18 @@ class _Search:
         step = self.steps[level]
         return self.grid.fine if step == 1 else self.grid.coarse(step)
 
-    def child_scores(self, level: int, r: int, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The children of ``offset`` (a candidate of level ``level``) and their scores (T,) at yaw
-        sample ``r``, each set scored once per search (the second-peak search visits the same)."""
+    def child_scores(self, level: int, r: int, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """The children of ``offset`` (a candidate of level ``level``), their scores (T,) at yaw
+        sample ``r`` and the largest of them, each set scored once per search (the second-peak
+        search visits the same)."""
         child, flat = self.children(offset, level)
         self.evaluated += len(flat)
         key = (level, int(offset[0]), int(offset[1]), r)
-        sc = self._scored.get(key)
-        if sc is None:
-            sc = self._scored[key] = _scores(self.table(level + 1), self.cells[r:r + 1], flat)[0]
-        return child, sc
+        found = self._scored.get(key)
+        if found is None:
+            sc = _scores(self.table(level + 1), self.cells[r:r + 1], flat)[0]
+            found = self._scored[key] = (sc, float(sc.max()))
+        return child, found[0], found[1]
 
     def prefetch(self, level: int, candidates: list[tuple[int, np.ndarray]]) -> None:
         """Score the children of ``candidates`` ((yaw sample, offset) of level ``level``) not yet
@@ -231,7 +233,7 @@ class _Search:
         if len(keys) > 1:
             table = self.table(level + 1).ravel()
             scored = table.take(self.cells[rows][:, :, None] + np.array(flats)[:, None, :]).mean(axis=1)
-            self._scored.update(zip(keys, scored))
+            self._scored.update(zip(keys, zip(scored, scored.max(axis=1).tolist())))
 
     def children(self, offset: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
         """The next level's offsets under ``offset`` (a candidate of level ``level``), in the window:
@@ -278,12 +280,15 @@ class _Search:
         return self._far[offsets[:, 1] + n, offsets[:, 0] + n].tolist()
 
 
-def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray, best: float,
+def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray, highest: float, best: float,
              best_at: tuple | None, exclude: np.ndarray | None) -> tuple[float, tuple | None]:
-    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, scored ``sc``, pruning
-    by the bound; at the finest level a pose not separate from ``exclude`` is skipped (the
-    second-peak search). The scores are float32, and so is every bound they are compared with (a
-    score, or the floors -1 and 0), so comparing them as Python floats decides as numpy would."""
+    """Best first through ``offsets`` of level ``level`` at yaw sample ``r``, scored ``sc`` (the
+    largest ``highest``), pruning by the bound; at the finest level a pose not separate from
+    ``exclude`` is skipped (the second-peak search). The scores are float32, and so is every bound
+    they are compared with (a score, or the floors -1 and 0), so comparing them as Python floats
+    decides as numpy would."""
+    if highest <= best:  # the loop below would stop at its first score
+        return best, best_at
     order = np.argsort(sc)[::-1]
     finest = level == len(s.steps) - 1
     separate = s.separate(r, offsets) if finest and exclude is not None else None
@@ -295,8 +300,8 @@ def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray
                 continue
             best, best_at = score, (r, offsets[i])
         else:
-            child, child_sc = s.child_scores(level, r, offsets[i])
-            best, best_at = _descend(s, level + 1, r, child, child_sc, best, best_at, exclude)
+            child, child_sc, highest = s.child_scores(level, r, offsets[i])
+            best, best_at = _descend(s, level + 1, r, child, child_sc, highest, best, best_at, exclude)
     return best, best_at
 
 
@@ -320,8 +325,8 @@ def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.n
         if k % PREFETCH == 0:
             ahead = [divmod(f, n_top) for f, b in zip(flats[k:k + PREFETCH], bounds[k:k + PREFETCH]) if b > best]
             s.prefetch(0, [(rr, top[tt]) for rr, tt in ahead])
-        child, child_sc = s.child_scores(0, r, top[t])
-        best, best_at = _descend(s, 1, r, child, child_sc, best, best_at, exclude)
+        child, child_sc, highest = s.child_scores(0, r, top[t])
+        best, best_at = _descend(s, 1, r, child, child_sc, highest, best, best_at, exclude)
     return best, best_at
 
 

@@ -70,3 +70,25 @@ def test_branch_and_bound_finds_the_exhaustive_best_and_second_peak(levels, wind
     assert found.second_score == pytest.approx(scores[far].max(initial=0.0), abs=1e-6)
     assert found.second_pose is not None
     assert found.second_score < found.score
+
+
+@pytest.mark.parametrize("margin, reach", [(0.3, 12), (0.0, 3), (1.0, 0)])
+def test_likelihood_grid_is_the_gaussian_of_the_distance_to_the_nearest_target_cell(margin, reach):
+    """Every cell against a KD-tree's distance from its index to the nearest occupied cell's
+    index (an independent nearest-neighbour search), in a frame of zeros ``2·reach + 1`` wide."""
+    from scipy.spatial import cKDTree
+
+    from fmcwlog.frontend.correlative import LikelihoodGrid
+
+    rng = np.random.default_rng(7)
+    targets = np.concatenate([_scene(rng)[::7], rng.uniform(-3, 3, (40, 2))])
+    res, sigma = 0.05, 0.075
+    grid = LikelihoodGrid(targets, res, sigma, margin, reach)
+    h, w = grid.fine.shape
+    occupied = grid.cell(targets)
+    rows, cols = np.mgrid[0:h, 0:w]
+    d, _ = cKDTree(occupied[:, ::-1].astype(float)).query(np.stack([rows.ravel(), cols.ravel()], 1).astype(float))
+    expected = np.exp(-0.5 * (d.reshape(h, w) * res / sigma) ** 2).astype(np.float32)
+    f = 2 * reach + 1
+    expected[:f], expected[-f:], expected[:, :f], expected[:, -f:] = 0, 0, 0, 0
+    np.testing.assert_allclose(grid.fine, expected, rtol=1e-6, atol=1e-7)

@@ -22,7 +22,10 @@ pairing; sharing the front end's gave byte-identical outputs on crowd 20 s and r
 pass also computes the residuals and Jacobian once, without repeated fancy indexing, ``einsum`` or
 ``column_stack``, and calls LAPACK's ``gesv`` directly (the routine ``np.linalg.solve`` calls,
 without about 17 µs of checks in its wrapper); each submap's PCA is summed one neighbour at a time.
-register_point_to_line for these matches: 11.3 → 7.5 s; build_submap: 5.6 → 4.3 s.
+register_point_to_line for these matches: 11.3 → 7.5 s; build_submap: 5.6 → 4.3 s. Later, each pass
+gathers a pair's target point and normal in one ``take`` from an (M, 4) array and selects the pairing
+points by index rather than by mask: 3.66 → 3.15 s for the 1,639 registrations of the 120 s
+corridor's back ends (every result the same).
 """
 
 from __future__ import annotations

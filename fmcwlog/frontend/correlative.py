@@ -25,6 +25,17 @@ Besides the best pose the result carries the best score of a *separate* peak (on
 differs from the best by more than ``peak_separation`` m or ``peak_separation_deg``): a
 near-equal second peak means the scene does not fix the pose (a corridor along its axis, or
 two look-alike places), which the loop-closure verification uses.
+
+Cost (CPU time, the 235 verification searches of the 200 s ``ring`` log's back ends, seed 0, the old
+and new code alternating on a shared 2-core machine; every pose, score, second peak and count the
+same): 5.3 s before the search was tuned, 2.5 s after. What changed visits nothing else and keeps
+every number: a candidate's children (2-D and flat) are built once per (level, offset) rather than
+per yaw sample; the children of the next 32 top candidates are scored in one gather (each score's
+float32 sum runs over the points in the same order as one at a time, checked bit for bit), and each
+set once for both the best and the second-peak search; a set whose largest score cannot beat the
+best is skipped unsorted; the second peak's separation is read from a lattice computed once. The
+likelihood grid's distance transform runs inside its frame only (the frame is zeroed anyway): 1.2 →
+0.5 s for those 235 grids, the same float32 grid.
 """
 
 from __future__ import annotations

@@ -182,3 +182,59 @@ def test_maps_are_published_less_often_once_they_outgrow_the_budget(tmp_path):
     big = map_stamps(300)  # 90,000 cells (+ the path): 9 s of budget or more
     gaps = np.diff(big)
     assert len(big) <= 120 / 9 and np.all(gaps >= 9.0), gaps
+
+
+def test_rows_kept_in_numpy_give_the_columns_pyarrow_builds_from_the_same_values():
+    """The parquet's rows are kept column-wise in numpy, not as Python objects; every column (nulls,
+    int64 stamps beyond float64's exact range, float64s, booleans) comes out as pyarrow's own
+    ``pa.array`` of the values, and a corrected pose replaces only its trajectory's rows."""
+    import pyarrow as pa
+
+    from fmcwlog.io.outputs import PARQUET_COLUMNS, TrajectoryRows
+    from fmcwlog.growing import GrowingArray
+
+    rng = np.random.default_rng(4)
+    rows, given = TrajectoryRows(), []
+    for k in range(3000):  # more than the first capacity: the arrays grow while rows arrive
+        method = ("improved", "baseline", "wheel_odometry")[k % 3]
+        values = {"method": method, "stamp_ns": 1_700_000_000_123_456_789 + 7 * k, "x": float(rng.normal()),
+                  "y": np.float64(rng.normal() * 1e-300), "yaw": -0.0 if k == 5 else rng.normal(), "v": rng.normal()}
+        if method != "wheel_odometry":
+            values.update(omega=rng.normal(), icp_iterations=int(rng.integers(0, 50)), correspondences=2**40 + k,
+                          moving_points=k, keyframe=bool(k % 2), ms=rng.exponential(), x_frontend=values["x"],
+                          y_frontend=values["y"], yaw_frontend=values["yaw"])
+        rows.add(values)
+        given.append(values)
+    for name, (kind, _) in PARQUET_COLUMNS.items():
+        if name == "t":
+            expected = pa.array([v["stamp_ns"] * 1e-9 for v in given], kind)
+        else:
+            expected = pa.array([v.get(name) for v in given], kind)
+        built = rows.arrow(name, kind)
+        built.validate(full=True)
+        assert built.equals(expected), name
+    idx = np.array([i for i, v in enumerate(given) if v["method"] == "baseline"])
+    poses = rng.normal(size=(len(idx), 3))
+    rows.set_pose(idx, poses)
+    x, valid = rows.column("x")
+    assert valid.all() and x[idx].tobytes() == poses[:, 0].copy().tobytes()
+    assert x[idx[0] - 1] == given[idx[0] - 1]["x"]
+    grown = GrowingArray(np.int64)
+    for v in given:
+        grown.append(v["stamp_ns"])
+    assert grown.values.tolist() == [v["stamp_ns"] for v in given]
+
+
+def test_a_path_built_pose_by_pose_is_encoded_to_the_same_bytes():
+    """The final paths' poses are built one at a time as the encoder reads them (:class:`PathPoses`),
+    from numpy stamps and poses: the same bytes as the list of dicts (itself checked against mcap_ros2)."""
+    from fmcwlog.io.mcap_log import _path_cdr
+    from fmcwlog.io.messages import path_message
+
+    rng = np.random.default_rng(5)
+    stamps = rng.integers(0, 2**31, 257) * 10**9 + rng.integers(0, 10**9, 257)
+    poses = rng.normal(size=(257, 3)) * 30
+    lazy = path_message(12345, "improved/odom", stamps, poses, lazy=True)
+    listed = path_message(12345, "improved/odom", [int(s) for s in stamps], list(poses))
+    assert len(lazy["poses"]) == 257 and lazy["poses"][3] == listed["poses"][3] and lazy["poses"][-2:] == listed["poses"][-2:]
+    assert _path_cdr(lazy) == _path_cdr(listed)

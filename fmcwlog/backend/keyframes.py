@@ -4,7 +4,8 @@ and the odometry edge between two consecutive ones.
 A node keeps what the front end made of its sweep: the pose in ``<method>/odom`` at the sweep's
 stamp, the deskewed static points in base_link (full density: the final map is rebuilt from
 them; in a temporary file once no local edge reads them, :class:`~fmcwlog.io.spill.PointStore`,
-so that memory does not grow with the log), and the registration's covariance (``σ² H⁻¹`` of the scan-to-map ICP, in the map frame).
+so that memory does not grow with the log), and the registration's covariance (``σ² H⁻¹`` of
+the scan-to-map ICP, in the map frame).
 """
 
 from __future__ import annotations

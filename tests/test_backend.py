@@ -392,3 +392,49 @@ def test_a_lap_of_the_ring_closes_with_closures_that_agree_with_the_ground_truth
     alone = ate_rmse(tum(out / "improved_frontend.tum"), gt)
     # measured 0.55 cm (1.4 cm before the local edges), the front end alone 4.1 cm
     assert with_backend < min(alone, 0.012), (with_backend, alone)
+
+
+def test_nodes_points_moved_to_disk_come_back_the_same_and_change_no_result(corridor_log, tmp_path, monkeypatch):
+    """A node's points leave memory once no local edge reads them (:class:`PointStore`); closures'
+    submaps and the final map read them back. The same sweeps through a back end that keeps every
+    node's points in memory give the same result, bit for bit."""
+    import json
+
+    from fmcwlog.api import ProcessOptions, process
+    from fmcwlog.backend.pipeline import PoseGraphBackend
+
+    seen = []
+    add = PoseGraphBackend.add
+    monkeypatch.setattr(PoseGraphBackend, "add", lambda self, r: (seen.append(r), add(self, r))[1])
+    opts = ProcessOptions(methods=("improved",))
+    process(corridor_log, tmp_path / "out", opts)
+    monkeypatch.undo()
+    mount = np.array(json.loads((tmp_path / "out" / "run.json").read_text())["mount"])
+    spilling, kept = (PoseGraphBackend(opts.params.backend, mount, opts.params.map_resolution) for _ in range(2))
+    kept._spill = lambda index: None  # type: ignore[method-assign]
+    for r in seen:
+        spilling.add(r)
+        kept.add(r)
+    in_memory = [n.index for n in spilling.nodes if n._points is not None]
+    assert len(spilling.nodes) > 20 and in_memory == [n.index for n in spilling.nodes[-opts.params.backend.local_links:]]
+    for a, b in zip(spilling.nodes, kept.nodes):
+        assert a.points.dtype == np.float32 and a.points.tobytes() == b.points.tobytes()
+    ra, rb = spilling.finish(), kept.finish()
+    assert ra.poses.tobytes() == rb.poses.tobytes() and ra.node_poses.tobytes() == rb.node_poses.tobytes()
+    assert [c.relative.tobytes() for c in ra.closures] == [c.relative.tobytes() for c in rb.closures]
+    assert ra.grid.log_odds.tobytes() == rb.grid.log_odds.tobytes() and ra.summary() | {"seconds": 0} == rb.summary() | {"seconds": 0}
+
+
+def test_a_point_store_gives_back_the_bytes_it_was_given_and_takes_only_float32_pairs():
+    from fmcwlog.io.spill import PointStore
+
+    rng = np.random.default_rng(3)
+    store = PointStore()
+    arrays = [(rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-3, 4)).astype(np.float32) for n in (0, 1, 7, 500)]
+    where = [store.put(a) for a in arrays]
+    for a, w in reversed(list(zip(arrays, where))):
+        back = store.get(w)
+        assert back.dtype == np.float32 and back.shape == a.shape and back.tobytes() == a.tobytes()
+    with pytest.raises(ValueError):
+        store.put(np.zeros((3, 2)))
+    store.close()

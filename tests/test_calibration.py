@@ -144,3 +144,25 @@ def test_the_report_says_where_the_motion_came_from_and_what_the_check_found(out
     rows = {ln.split("|")[1].strip(): ln for ln in md.splitlines() if ln.startswith("| lidar_")}
     assert "disagrees" in rows["lidar_x"] and "disagrees" not in rows["lidar_yaw"]
     assert "| improved | v and omega" in md
+
+
+def test_calibration_samples_kept_in_numpy_are_the_tuples_values():
+    """The per-sweep samples are float64 rows, not tuples of Python floats: the same numbers as
+    ``np.array`` of the tuples the estimate used to convert (numpy scalars, ints, many rows)."""
+    import numpy as np
+
+    from fmcwlog.frontend.self_calibration import CalibrationSamples
+
+    rng = np.random.default_rng(8)
+    samples, doppler, yaw = CalibrationSamples(), [], []
+    for k in range(2500):
+        z, cov = rng.normal(size=2), np.diag(rng.exponential(size=2))
+        turns = (np.float64(rng.normal()), float(rng.normal()))
+        stamp = 1.7e9 + 0.1 * k
+        samples.add_doppler(stamp, z, cov, turns, 0.1)
+        doppler.append((float(z[0]), float(z[1]), float(cov[0, 0]), float(cov[1, 1]), *turns, 0.1, stamp))
+        samples.add_yaw(stamp, float(rng.normal()), turns, k % 3)
+        yaw.append((samples.yaw.values[-1, 0], *turns, k % 3, stamp))
+    assert samples.doppler.values.tobytes() == np.array(doppler, dtype=float).reshape(-1, 8).tobytes()
+    assert samples.yaw.values.tobytes() == np.array(yaw, dtype=float).reshape(-1, 5).tobytes()
+    assert not CalibrationSamples().doppler and samples.doppler

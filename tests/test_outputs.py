@@ -239,3 +239,45 @@ def test_planar_covariance_places_x_y_yaw_in_the_6x6():
     assert np.array_equal(full[np.ix_([0, 1, 5], [0, 1, 5])], cov3)
     full[np.ix_([0, 1, 5], [0, 1, 5])] = 0.0
     assert not full.any() and planar_covariance(None) == [0.0] * 36
+
+
+def test_rows_kept_in_numpy_give_the_columns_pyarrow_builds_from_the_same_values():
+    """The parquet's rows are kept column-wise in numpy, not as Python objects; every column (nulls,
+    int64 stamps beyond float64's exact range, float64s, booleans) comes out as pyarrow's own
+    ``pa.array`` of the values, and a corrected pose replaces only its trajectory's rows."""
+    import pyarrow as pa
+
+    from fmcwlog.growing import GrowingArray
+    from fmcwlog.io.outputs import PARQUET_COLUMNS, TrajectoryRows
+
+    rng = np.random.default_rng(4)
+    rows, given = TrajectoryRows(), []
+    for k in range(3000):  # more than the first capacity: the arrays grow while rows arrive
+        method = ("improved", "baseline", "wheel_odometry")[k % 3]
+        values = {"method": method, "stamp_ns": 1_700_000_000_123_456_789 + 7 * k, "x": float(rng.normal()),
+                  "y": np.float64(rng.normal() * 1e-300), "yaw": -0.0 if k == 5 else rng.normal(), "v": rng.normal()}
+        if method != "wheel_odometry":
+            values.update(omega=rng.normal(), icp_iterations=int(rng.integers(0, 50)), correspondences=2**40 + k,
+                          moving_points=k, keyframe=bool(k % 2), ms=rng.exponential(), x_frontend=values["x"],
+                          y_frontend=values["y"], yaw_frontend=values["yaw"])
+        rows.add(values)
+        given.append(values)
+    for name, (kind, _) in PARQUET_COLUMNS.items():
+        if name == "t":
+            expected = pa.array([v["stamp_ns"] * 1e-9 for v in given], kind)
+        else:
+            expected = pa.array([v.get(name) for v in given], kind)
+        built = rows.arrow(name, kind)
+        built.validate(full=True)
+        assert built.equals(expected), name
+    idx = np.array([i for i, v in enumerate(given) if v["method"] == "baseline"])
+    poses = rng.normal(size=(len(idx), 3))
+    rows.set_pose(idx, poses)
+    x, valid = rows.column("x")
+    assert valid.all() and x[idx].tobytes() == poses[:, 0].copy().tobytes()
+    assert x[idx[0] - 1] == given[idx[0] - 1]["x"]
+    grown = GrowingArray(np.int64)
+    for v in given:
+        grown.append(v["stamp_ns"])
+    assert grown.values.tolist() == [v["stamp_ns"] for v in given]
+

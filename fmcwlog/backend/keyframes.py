@@ -3,32 +3,48 @@ and the odometry edge between two consecutive ones.
 
 A node keeps what the front end made of its sweep: the pose in ``<method>/odom`` at the sweep's
 stamp, the deskewed static points in base_link (full density: the final map is rebuilt from
-them), and the registration's covariance (``σ² H⁻¹`` of the scan-to-map ICP, in the map frame).
+them; in a temporary file once no local edge reads them, :class:`~fmcwlog.io.spill.PointStore`,
+so that memory does not grow with the log), and the registration's covariance (``σ² H⁻¹`` of
+the scan-to-map ICP, in the map frame).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..geometry import between, rot2
+from ..io.spill import PointStore
 from .params import BackendParams
 
 
-@dataclass
 class Node:
     """index: position in the graph; stamp_ns: the sweep's stamp; frontend_pose: (3,) the front
-    end's pose (m, m, rad); points: (N, 2) float32 static points in base_link (m); covariance:
-    (3, 3) the registration's, in the map frame (m², rad²), None where none ran; path_m: distance
-    travelled by then (m)."""
+    end's pose (m, m, rad); points: (N, 2) float32 static points in base_link (m), in memory or,
+    once :meth:`spill` moved them, read back from a :class:`PointStore` (the same values);
+    covariance: (3, 3) the registration's, in the map frame (m², rad²), None where none ran;
+    path_m: distance travelled by then (m)."""
 
-    index: int
-    stamp_ns: int
-    frontend_pose: np.ndarray
-    points: np.ndarray
-    covariance: np.ndarray | None
-    path_m: float
+    __slots__ = ("index", "stamp_ns", "frontend_pose", "_points", "_store", "_where", "covariance", "path_m")
+
+    def __init__(self, index: int, stamp_ns: int, frontend_pose: np.ndarray, points: np.ndarray,
+                 covariance: np.ndarray | None, path_m: float):
+        self.index, self.stamp_ns, self.frontend_pose = index, stamp_ns, frontend_pose
+        self._points: np.ndarray | None = points
+        self._store: PointStore | None = None
+        self._where = (0, 0)
+        self.covariance, self.path_m = covariance, path_m
+
+    @property
+    def points(self) -> np.ndarray:
+        if self._points is not None:
+            return self._points
+        assert self._store is not None
+        return self._store.get(self._where)
+
+    def spill(self, store: PointStore) -> None:
+        """Move the points into ``store`` (once); :attr:`points` reads them back."""
+        if self._points is not None:
+            self._where, self._store, self._points = store.put(self._points), store, None
 
 
 def is_new_node(last: Node | None, pose: np.ndarray, p: BackendParams) -> bool:

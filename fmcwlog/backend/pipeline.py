@@ -39,6 +39,8 @@ from ..frontend.correlative import MAX_LEVELS, CorrelativeParams
 from ..frontend.local_map import voxel_downsample
 from ..frontend.occupancy import OccupancyGrid, OccupancyParams
 from ..geometry import between, compose, inverse, transform_points
+from ..growing import GrowingArray
+from ..io.spill import PointStore
 from .candidates import closure_candidates
 from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
@@ -103,9 +105,12 @@ class BackendResult:
 
 @dataclass
 class _Sweeps:
-    stamps_ns: list[int] = field(default_factory=list)
-    poses: list[np.ndarray] = field(default_factory=list)
-    node: list[int] = field(default_factory=list)  # the node each sweep is corrected through
+    """Every sweep's stamp (ns), front-end pose (x, y, yaw) and the node it is corrected through,
+    in numpy: a few bytes a sweep, where a list held an object per value."""
+
+    stamps_ns: GrowingArray = field(default_factory=lambda: GrowingArray(np.int64))
+    poses: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64, (3,)))
+    node: GrowingArray = field(default_factory=lambda: GrowingArray(np.int64))
 
 
 class PoseGraphBackend:
@@ -133,6 +138,7 @@ class PoseGraphBackend:
         self._nodes_since_opt = 0
         self._dirty = False
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
+        self._store: PointStore | None = None  # the points of nodes older than the local links'
 
     # --- sweep by sweep -------------------------------------------------------------------
     def add(self, r: SweepResult) -> None:
@@ -172,6 +178,16 @@ class PoseGraphBackend:
             self._close_loops(node.index)
         if self._dirty and self._nodes_since_opt >= self.p.optimize_every:
             self._optimize()
+        self._spill(node.index - max(self.p.local_links, 1))
+
+    def _spill(self, index: int) -> None:
+        """Node ``index``'s points out of memory (:class:`~fmcwlog.io.spill.PointStore`): no later
+        local edge reads them; a closure's submap and the final map read them back, the same
+        float32 values. They were the one per-node cost that grew with the log (~4 kB a node)."""
+        if index >= 0:
+            if self._store is None:
+                self._store = PointStore()
+            self.nodes[index].spill(self._store)
 
     def _search_window(self, query: int) -> tuple[float, CorrelativeParams] | None:
         """The candidates' radius and the search for ``query``, widened with the path since the
@@ -239,7 +255,7 @@ class PoseGraphBackend:
         poses = self._corrected_sweeps()
         grid = self._rebuild_map()
         self.seconds += time.perf_counter() - t0
-        return BackendResult(poses, np.array(self.sweeps.poses).reshape(-1, 3),
+        return BackendResult(poses, self.sweeps.poses.values.copy(),
                              np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
                              self.records, grid, self.proposed, len(self.records),
                              sum(r.accepted for r in self.records), self.rejections, self.seconds,
@@ -247,10 +263,10 @@ class PoseGraphBackend:
 
     def _corrected_sweeps(self) -> np.ndarray:
         """Every sweep through its node: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)``."""
-        f = np.array(self.sweeps.poses).reshape(-1, 3)
+        f = self.sweeps.poses.values.copy()
         if not self.nodes:
             return f
-        idx = np.maximum(np.array(self.sweeps.node), 0)
+        idx = np.maximum(self.sweeps.node.values, 0)
         f_node = np.array([n.frontend_pose for n in self.nodes])[idx]
         return compose(self._estimates[idx], between(f_node, f))
 

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import Checked, param
+from ..growing import GrowingArray
 from ..io.calibration import Calibration
 
 MOUNT_NAMES = ("lidar_x", "lidar_y", "lidar_yaw")
@@ -120,10 +121,12 @@ class CalibrationSamples:
     doppler rows: ``z_x, z_y`` (m/s, lidar frame), ``var_x, var_y`` ((m/s)²), ``φ_L, φ_R``
     (rad), ``τ`` (s) and the sweep's stamp (s). yaw rows: scan-matched heading change
     (rad), ``φ_L, φ_R`` (rad), the interval between the two sweeps (s) and the stamp (s).
+    Rows are float64 numpy rows (:class:`~fmcwlog.growing.GrowingArray`), not tuples of Python
+    floats: 64 and 40 bytes a sweep where the tuples held ~500, the same float64 values.
     """
 
-    doppler: list[tuple[float, ...]] = field(default_factory=list)
-    yaw: list[tuple[float, ...]] = field(default_factory=list)
+    doppler: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64, (8,)))
+    yaw: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64, (5,)))
 
     def add_doppler(self, stamp: float, z: np.ndarray, cov: np.ndarray, turns: tuple[float, float],
                     span: float) -> None:
@@ -207,9 +210,9 @@ def estimate_calibration(samples: CalibrationSamples, cal: Calibration,
     if cal.wheels is None:
         return None
     p0 = _calibration_vector(cal)
-    d = np.array(samples.doppler, dtype=float).reshape(-1, 8)
+    d = samples.doppler.values.copy()
     d = d[_speed(p0, d[:, 4], d[:, 5], d[:, 6]) >= prm.min_speed]
-    y = np.array(samples.yaw, dtype=float).reshape(-1, 5)
+    y = samples.yaw.values.copy()
     y = y[_speed(p0, y[:, 1], y[:, 2], y[:, 3]) >= prm.min_speed]
     if len(d) < prm.min_samples:
         return None

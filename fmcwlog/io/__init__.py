@@ -11,4 +11,5 @@
 - ``outputs``       TUM, parquet, map_server maps, ``processed.mcap``, ``run.json``
 - ``map_files``     map_server maps read back as occupied and free cells
 - ``atomic``        a temporary name, then a rename: nothing is seen half-written
+- ``spill``         data that grows with the log kept in a temporary file until needed (nodes' points)
 """

@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
+from ..growing import GrowingArray
 from .mcap_log import LogWriter, Pose7, Stamp, odometry_cdr, path_cdr, pointcloud2_cdr, stamp_pair, tf_cdr
 from .messages import (
     FLOAT32,
@@ -133,32 +134,95 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _arrow_column(values: list, kind: pa.DataType) -> pa.Array:
-    """An Arrow array of ``values`` (None for null) built from its buffers.
+    """An Arrow array of ``values`` (None for null) built from its buffers (:func:`_arrow_from_numpy`)."""
+    n = len(values)
+    valid = np.fromiter((v is not None for v in values), bool, n)
+    if pa.types.is_string(kind):
+        return _arrow_strings(values, valid)
+    dtype = {pa.bool_(): bool, pa.int64(): np.int64, pa.float64(): np.float64}[kind]
+    return _arrow_from_numpy(np.fromiter((0 if v is None else v for v in values), dtype, n), valid, kind)
+
+
+def _arrow_strings(values: list, valid: np.ndarray) -> pa.Array:
+    """A string column: int32 offsets and the UTF-8 bytes, with a validity bitmap (LSB first)."""
+    n = len(values)
+    bitmap = None if valid.all() else pa.py_buffer(np.packbits(valid, bitorder="little"))
+    encoded = [b"" if v is None else str(v).encode() for v in values]
+    offsets = np.zeros(n + 1, np.int32)
+    np.cumsum([len(b) for b in encoded], out=offsets[1:])
+    return pa.Array.from_buffers(pa.string(), n, [bitmap, pa.py_buffer(offsets), pa.py_buffer(b"".join(encoded))])
+
+
+def _arrow_from_numpy(data: np.ndarray, valid: np.ndarray, kind: pa.DataType) -> pa.Array:
+    """A numeric or boolean Arrow array of ``data`` (0 in the null slots) where ``valid``.
 
     ``pa.array`` imports pandas on its first call (0.5 s, a quarter of ``process`` on a 20 s
     log); the buffers are Arrow's documented layout: a validity bitmap (LSB first), then the
-    values (bit-packed for booleans; int32 offsets and UTF-8 bytes for strings).
+    values (bit-packed for booleans).
     """
-    n = len(values)
-    valid = np.fromiter((v is not None for v in values), bool, n)
+    n = len(data)
     bitmap = None if valid.all() else pa.py_buffer(np.packbits(valid, bitorder="little"))
-    if pa.types.is_string(kind):
-        encoded = [b"" if v is None else str(v).encode() for v in values]
-        offsets = np.zeros(n + 1, np.int32)
-        np.cumsum([len(b) for b in encoded], out=offsets[1:])
-        return pa.Array.from_buffers(kind, n, [bitmap, pa.py_buffer(offsets), pa.py_buffer(b"".join(encoded))])
     dtype = {pa.bool_(): bool, pa.int64(): np.int64, pa.float64(): np.float64}[kind]
-    data = np.fromiter((0 if v is None else v for v in values), dtype, n)
+    data = np.ascontiguousarray(data, dtype)
     if pa.types.is_boolean(kind):
         return pa.Array.from_buffers(kind, n, [bitmap, pa.py_buffer(np.packbits(data, bitorder="little"))])
     return pa.Array.from_buffers(kind, n, [bitmap, pa.py_buffer(data)])
 
 
-def write_trajectories_parquet(path: Path, rows: dict[str, list]) -> None:
+_INT_COLUMNS = ("stamp_ns", "icp_iterations", "correspondences", "moving_points", "keyframe")  # keyframe as 0/1
+_FLOAT_COLUMNS = tuple(k for k, (t, _) in PARQUET_COLUMNS.items() if t == pa.float64() and k != "t")
+
+
+class TrajectoryRows:
+    """The parquet's rows, kept column-wise in numpy (int64 and float64 blocks with a validity mask)
+    rather than as a Python object per value: 8 bytes a value instead of ~40 on a long log. The
+    values are stored as given (an int64 stays exact, a float64 the same float64)."""
+
+    INTS = _INT_COLUMNS
+    FLOATS = _FLOAT_COLUMNS
+
+    def __init__(self) -> None:
+        self.method: list[str] = []  # a reference per row to one of a few shared strings
+        self._ints = GrowingArray(np.int64, (len(self.INTS),))
+        self._floats = GrowingArray(np.float64, (len(self.FLOATS),))
+        self._valid = GrowingArray(bool, (len(self.INTS) + len(self.FLOATS),))
+
+    def __len__(self) -> int:
+        return len(self.method)
+
+    def add(self, values: dict) -> None:
+        ints = [values.get(k) for k in self.INTS]
+        floats = [values.get(k) for k in self.FLOATS]
+        self.method.append(values["method"])
+        self._ints.append([0 if v is None else v for v in ints])
+        self._floats.append([0 if v is None else v for v in floats])
+        self._valid.append([v is not None for v in ints + floats])
+
+    def column(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Column ``name``'s values (0 where null, a view for the float columns) and validity."""
+        if name in self.INTS:
+            i = self.INTS.index(name)
+            return self._ints.values[:, i], self._valid.values[:, i]
+        i = self.FLOATS.index(name)
+        return self._floats.values[:, i], self._valid.values[:, len(self.INTS) + i]
+
+    def set_pose(self, rows: np.ndarray, poses: np.ndarray) -> None:
+        """Replace ``x, y, yaw`` of ``rows`` by ``poses`` (len(rows), 3)."""
+        cols = [self.FLOATS.index(k) for k in ("x", "y", "yaw")]
+        self._floats.values[np.asarray(rows, np.int64)[:, None], cols] = poses
+
+    def arrow(self, name: str, kind: pa.DataType) -> pa.Array:
+        if name == "method":
+            return _arrow_strings(self.method, np.ones(len(self.method), bool))
+        if name == "t":
+            stamps, valid = self.column("stamp_ns")
+            return _arrow_from_numpy(stamps * 1e-9, valid, kind)
+        return _arrow_from_numpy(*self.column(name), kind)
+
+
+def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
     """A row per sweep and trajectory; the schema's metadata says each column's unit and frame."""
-    cols = dict(rows)
-    cols["t"] = list(np.asarray(rows["stamp_ns"], dtype=np.int64) * 1e-9)
-    table = pa.table({k: _arrow_column(cols[k], t) for k, (t, _) in PARQUET_COLUMNS.items()})
+    table = pa.table({k: rows.arrow(k, t) for k, (t, _) in PARQUET_COLUMNS.items()})
     meta = {f"fmcwlog.column.{k}": doc for k, (_, doc) in PARQUET_COLUMNS.items()}
     meta.update({"fmcwlog.frames": "each trajectory in its own frame <method>/odom, starting at its origin; "
                                    "base_link is the rear-axle midpoint (REP-105)",
@@ -235,21 +299,22 @@ class ProcessOutputs:
                  publish_period: float = 5.0, publish_bytes_per_s: float = PUBLISH_BYTES_PER_S):
         self.folder = folder
         self.writer = LogWriter(folder / "processed.mcap")
-        self.rows: dict[str, list] = {k: [] for k in TRAJECTORY_COLUMNS if k != "t"}
-        self.trajectories: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
+        self.rows = TrajectoryRows()
+        # per trajectory: stamps (ns) and poses (x, y, yaw), in numpy (a few bytes a sweep on a long log)
+        self.trajectories: dict[str, tuple[GrowingArray, GrowingArray]] = {
+            name: (GrowingArray(np.int64), GrowingArray(np.float64, (3,))) for name in trajectories}
         self._path: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}  # decimated
-        # each trajectory's poses as a Path holds them, (stamp, frame, pose7): whole, and decimated
-        self._path_poses: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}
+        # the decimated path's poses as a Path holds them, (stamp, frame, pose7)
+        self._decimated: dict[str, list[tuple[Stamp, str, Pose7]]] = {name: [] for name in trajectories}
         self.mount = np.asarray(mount, dtype=float)
         self.publish_period_ns = int(publish_period * 1e9)
         self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
         self._transforms: list[tuple[Stamp, str, str, Pose7]] = []  # this sweep's, for /tf
-        self.frontend: dict[str, tuple[list, list]] = {}  # the front end's trajectories a back end corrected
+        self.frontend: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # the front end's trajectories a back end corrected
 
     def _row(self, **values) -> None:
-        for k in self.rows:
-            self.rows[k].append(values.get(k))
+        self.rows.add(values)
 
     def _track(self, name: str, stamp_ns: int, pose: np.ndarray) -> tuple[Stamp, Pose7]:
         """Keep the pose; the published paths keep one pose per 0.25 m or 10 deg of motion. Returns
@@ -257,14 +322,12 @@ class ProcessOutputs:
         entry = (stamp_pair(stamp_ns), odom_frame(name), pose7(pose))
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
-        whole, decimated = self._path_poses[name]
-        whole.append(entry)
         stamps, poses = self._path[name]
         if not poses or np.hypot(*(pose[:2] - poses[-1][:2])) >= 0.25 or \
                 abs((pose[2] - poses[-1][2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
             stamps.append(stamp_ns)
             poses.append(pose)
-            decimated.append(entry)
+            self._decimated[name].append(entry)
         return entry[0], entry[2]
 
     def add(self, r: SweepResult) -> None:
@@ -327,12 +390,14 @@ class ProcessOutputs:
         """Each path so far (decimated; whole when ``final``) and each map; returns their size (bytes,
         before compression: 56 a pose, 1 a cell)."""
         size = 0
-        for name, (whole, decimated) in self._path_poses.items():
-            poses = whole if final else decimated
-            if poses:
+        for name, (stamps, poses) in self.trajectories.items():
+            # the whole path (final) from the kept numpy rows, as its Path holds them, or the decimated one
+            entries = ([(stamp_pair(ns), odom_frame(name), pose7(p)) for ns, p in zip(stamps.values.tolist(), poses.values)]
+                       if final else self._decimated[name])
+            if entries:
                 self.writer.write_cdr(f"/{name}/path", "nav_msgs/msg/Path",
-                                      path_cdr(stamp_pair(stamp_ns), odom_frame(name), poses), stamp_ns)
-                size += 56 * len(poses)
+                                      path_cdr(stamp_pair(stamp_ns), odom_frame(name), entries), stamp_ns)
+                size += 56 * len(entries)
         for name, grid in grids.items():
             if grid.width:
                 size += grid.width * grid.height
@@ -349,32 +414,31 @@ class ProcessOutputs:
         poses = np.asarray(poses, float)
         if len(poses) != len(before):
             raise ValueError(f"{name}: {len(poses)} corrected poses for {len(before)} sweeps")
-        self.frontend[name] = (list(stamps), list(before))
-        self.trajectories[name] = (stamps, list(poses))
-        self._path_poses[name][0][:] = [(stamp_pair(ns), odom_frame(name), pose7(p)) for ns, p in zip(stamps, poses)]
-        rows = [i for i, m in enumerate(self.rows["method"]) if m == name]
-        for i, pose in zip(rows, poses):
-            self.rows["x"][i], self.rows["y"][i], self.rows["yaw"][i] = (float(v) for v in pose)
+        self.frontend[name] = (stamps.values.copy(), before.values.copy())
+        before.values[:] = poses
+        rows = [i for i, m in enumerate(self.rows.method) if m == name]
+        self.rows.set_pose(np.array(rows, np.int64), poses[: len(rows)])
 
     def ms_median(self) -> dict[str, float]:
-        method = np.asarray(self.rows["method"])
-        ms = np.asarray([np.nan if x is None else x for x in self.rows["ms"]], dtype=float)
-        return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows["method"])
+        method = np.asarray(self.rows.method)
+        values, valid = self.rows.column("ms")
+        ms = np.where(valid, values, np.nan)
+        return {m: float(np.median(ms[method == m])) for m in dict.fromkeys(self.rows.method)
                 if np.isfinite(ms[method == m]).any()}
 
     def finish(self, grids: dict[str, OccupancyGrid]) -> None:
         """The last paths and maps, ``processed.mcap`` closed; the trajectories, the map files, the parquet."""
-        last_ns = int(self.rows["stamp_ns"][-1])
+        last_ns = int(self.rows.column("stamp_ns")[0][-1])
         self._publish(last_ns, grids, final=True)
         self.writer.close()
         for method, grid in grids.items():
             write_grid(self.folder, f"{method}_map", grid)
         for name, (stamps, poses) in self.trajectories.items():
-            if stamps:
-                write_tum(self.folder / f"{name}.tum", np.asarray(stamps), np.asarray(poses))
-        for name, (stamps, poses) in self.frontend.items():
-            if stamps:
-                write_tum(self.folder / f"{name}_frontend.tum", np.asarray(stamps), np.asarray(poses))
+            if len(stamps):
+                write_tum(self.folder / f"{name}.tum", stamps.values, poses.values)
+        for name, (before_stamps, before) in self.frontend.items():
+            if len(before_stamps):
+                write_tum(self.folder / f"{name}_frontend.tum", before_stamps, before)
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:

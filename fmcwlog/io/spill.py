@@ -1,0 +1,47 @@
+"""Data that only grows with a log's length, moved out of memory until it is needed again.
+
+:class:`PointStore`: the back end's nodes' points (:mod:`fmcwlog.backend.keyframes`) in an
+unnamed temporary file (the system's temporary folder; removed when closed or when the process
+ends, so nothing is left beside the outputs), read back as the same bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+
+class PointStore:
+    """Nodes' points moved out of memory into an unnamed temporary file (deleted when closed or
+    when the process ends), read back as the same float32 bytes when a node is used again.
+
+    A node's points are read when it is matched (the few latest nodes, kept in memory), when it
+    is near a loop-closure candidate and when the final map is rebuilt; between those they are
+    bytes that only grow with the log's length (about 4 kB a node, a node per 0.5 m).
+    """
+
+    def __init__(self) -> None:
+        self._file = tempfile.TemporaryFile(prefix="fmcwlog-nodes-")
+        self._end = 0
+
+    def put(self, points: np.ndarray) -> tuple[int, int]:
+        """Append ``points`` (N, 2) float32 (as they are: nothing is converted); returns where they
+        lie (byte offset, N)."""
+        if points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 2:
+            raise ValueError(f"a point store holds (N, 2) float32 points, not {points.shape} {points.dtype}")
+        data = np.ascontiguousarray(points).tobytes()
+        os.pwrite(self._file.fileno(), data, self._end)
+        where = (self._end, len(points))
+        self._end += len(data)
+        return where
+
+    def get(self, where: tuple[int, int]) -> np.ndarray:
+        """The points (N, 2) float32 stored at ``where`` (read-only)."""
+        offset, n = where
+        data = os.pread(self._file.fileno(), 8 * n, offset)
+        return np.frombuffer(data, np.float32).reshape(n, 2)
+
+    def close(self) -> None:
+        self._file.close()

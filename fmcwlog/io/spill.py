@@ -7,7 +7,6 @@ ends, so nothing is left beside the outputs), read back as the same bytes.
 
 from __future__ import annotations
 
-import os
 import tempfile
 
 import numpy as np
@@ -32,7 +31,8 @@ class PointStore:
         if points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 2:
             raise ValueError(f"a point store holds (N, 2) float32 points, not {points.shape} {points.dtype}")
         data = np.ascontiguousarray(points).tobytes()
-        os.pwrite(self._file.fileno(), data, self._end)
+        self._file.seek(self._end)
+        self._file.write(data)
         where = (self._end, len(points))
         self._end += len(data)
         return where
@@ -40,7 +40,10 @@ class PointStore:
     def get(self, where: tuple[int, int]) -> np.ndarray:
         """The points (N, 2) float32 stored at ``where`` (read-only)."""
         offset, n = where
-        data = os.pread(self._file.fileno(), 8 * n, offset)
+        self._file.seek(offset)
+        data = self._file.read(8 * n)
+        if len(data) != 8 * n:  # the temporary file cut short under us: say so rather than mis-shape
+            raise OSError(f"fmcwlog's temporary point store {self._file.name!r} lost data")
         return np.frombuffer(data, np.float32).reshape(n, 2)
 
     def close(self) -> None:

@@ -438,3 +438,21 @@ def test_a_point_store_gives_back_the_bytes_it_was_given_and_takes_only_float32_
     with pytest.raises(ValueError):
         store.put(np.zeros((3, 2)))
     store.close()
+
+
+def test_a_point_store_that_cannot_write_says_so_in_one_line(monkeypatch, tmp_path):
+    """A full temporary folder is an OutputError naming it (the CLI's one line), not a traceback."""
+    import errno
+    import tempfile
+
+    from fmcwlog.errors import OutputError
+    from fmcwlog.io.spill import PointStore
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(tempfile, "TemporaryFile", full)
+    with pytest.raises(OutputError, match=f"^{tmp_path}: cannot keep fmcwlog's temporary point store") as err:
+        PointStore()
+    assert "\n" not in str(err.value)

@@ -8,8 +8,27 @@ ends, so nothing is left beside the outputs), read back as the same bytes.
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
+
+from ..errors import OutputError
+from .atomic import os_reason
+
+
+@contextmanager
+def _reported() -> Iterator[None]:
+    """The temporary file's failures (a full or missing temporary folder) as one line naming it."""
+    try:
+        yield
+    except OSError as exc:
+        try:
+            folder = tempfile.gettempdir()
+        except OSError:
+            folder = "the temporary folder"
+        raise OutputError(f"{folder}: cannot keep fmcwlog's temporary point store: {os_reason(exc)} "
+                          "(TMPDIR chooses another folder)") from None
 
 
 class PointStore:
@@ -22,7 +41,8 @@ class PointStore:
     """
 
     def __init__(self) -> None:
-        self._file = tempfile.TemporaryFile(prefix="fmcwlog-nodes-")
+        with _reported():
+            self._file = tempfile.TemporaryFile(prefix="fmcwlog-nodes-")
         self._end = 0
 
     def put(self, points: np.ndarray) -> tuple[int, int]:
@@ -31,8 +51,9 @@ class PointStore:
         if points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 2:
             raise ValueError(f"a point store holds (N, 2) float32 points, not {points.shape} {points.dtype}")
         data = np.ascontiguousarray(points).tobytes()
-        self._file.seek(self._end)
-        self._file.write(data)
+        with _reported():
+            self._file.seek(self._end)
+            self._file.write(data)
         where = (self._end, len(points))
         self._end += len(data)
         return where

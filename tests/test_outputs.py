@@ -143,7 +143,13 @@ def test_arrow_columns_built_from_buffers_equal_pyarrows_own():
     ``pa.array`` is the reference, nulls, booleans and non-ASCII text included."""
     import pyarrow as pa
 
-    from fmcwlog.io.outputs import _arrow_column
+    from fmcwlog.io.outputs import _NUMPY_DTYPE, _arrow_from_numpy, _arrow_strings
+
+    def _arrow_column(values, kind):
+        valid = np.array([v is not None for v in values], bool)
+        if pa.types.is_string(kind):
+            return _arrow_strings(values, valid)
+        return _arrow_from_numpy(np.array([0 if v is None else v for v in values], _NUMPY_DTYPE[kind]), valid, kind)
 
     cases = [([1.5, None, -2.0, float("inf")] * 5, pa.float64()), ([None] * 3, pa.float64()),
              ([3, None, 2**40, -1] * 3, pa.int64()), ([True, None, False, True, True, None, False, True, False], pa.bool_()),

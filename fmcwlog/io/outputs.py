@@ -133,14 +133,7 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return a[:, 0], np.column_stack([a[:, 1], a[:, 2], quaternion_to_yaw(a[:, 4], a[:, 5], a[:, 6], a[:, 7])])
 
 
-def _arrow_column(values: list, kind: pa.DataType) -> pa.Array:
-    """An Arrow array of ``values`` (None for null) built from its buffers (:func:`_arrow_from_numpy`)."""
-    n = len(values)
-    valid = np.fromiter((v is not None for v in values), bool, n)
-    if pa.types.is_string(kind):
-        return _arrow_strings(values, valid)
-    dtype = {pa.bool_(): bool, pa.int64(): np.int64, pa.float64(): np.float64}[kind]
-    return _arrow_from_numpy(np.fromiter((0 if v is None else v for v in values), dtype, n), valid, kind)
+_NUMPY_DTYPE = {pa.bool_(): bool, pa.int64(): np.int64, pa.float64(): np.float64}  # the parquet's non-string kinds
 
 
 def _arrow_strings(values: list, valid: np.ndarray) -> pa.Array:
@@ -162,8 +155,7 @@ def _arrow_from_numpy(data: np.ndarray, valid: np.ndarray, kind: pa.DataType) ->
     """
     n = len(data)
     bitmap = None if valid.all() else pa.py_buffer(np.packbits(valid, bitorder="little"))
-    dtype = {pa.bool_(): bool, pa.int64(): np.int64, pa.float64(): np.float64}[kind]
-    data = np.ascontiguousarray(data, dtype)
+    data = np.ascontiguousarray(data, _NUMPY_DTYPE[kind])
     if pa.types.is_boolean(kind):
         return pa.Array.from_buffers(kind, n, [bitmap, pa.py_buffer(np.packbits(data, bitorder="little"))])
     return pa.Array.from_buffers(kind, n, [bitmap, pa.py_buffer(data)])

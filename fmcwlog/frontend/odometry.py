@@ -31,10 +31,12 @@ def wheel_arc_lengths(
     """
     dl = np.diff(np.asarray(left_ticks, dtype=np.int64))  # integer diff: exact
     dr = np.diff(np.asarray(right_ticks, dtype=np.int64))
-    k = float(calib.ticks_per_revolution)
-    ds_l = 2.0 * np.pi * calib.wheel_radius_left * dl.astype(float) / k  # eq. 9
-    ds_r = 2.0 * np.pi * calib.wheel_radius_right * dr.astype(float) / k
-    return ds_l, ds_r
+    return _arc(dl.astype(float), calib.wheel_radius_left, calib), _arc(dr.astype(float), calib.wheel_radius_right, calib)
+
+
+def _arc(ticks, radius: float, calib: WheelCalibration):
+    """Eq. 9: the arc (m) of ``ticks`` counts (a float or a float array) on a wheel of ``radius`` (m)."""
+    return 2.0 * np.pi * radius * ticks / float(calib.ticks_per_revolution)
 
 
 def body_increments(
@@ -49,9 +51,16 @@ def body_increments(
         dl = int(left_ticks[1]) - int(left_ticks[0])
         dr = int(right_ticks[1]) - int(right_ticks[0])
         if -_I64 <= dl < _I64 and -_I64 <= dr < _I64:  # np.diff's int64 would not have wrapped
-            ds, dth = _increment(float(dl), float(dr), calib)
+            # one interval on floats (the motion prior adds a reading at a time, 50 a second: 14 µs
+            # of array calls each for two numbers), the same operations in the same order
+            ds, dth = _body(_arc(float(dl), calib.wheel_radius_left, calib),
+                            _arc(float(dr), calib.wheel_radius_right, calib), calib)
             return np.array([ds]), np.array([dth])
-    ds_l, ds_r = wheel_arc_lengths(left_ticks, right_ticks, calib)
+    return _body(*wheel_arc_lengths(left_ticks, right_ticks, calib), calib)
+
+
+def _body(ds_l, ds_r, calib: WheelCalibration):
+    """Eq. 13 (NOTES.md) on the wheels' arcs, floats or arrays alike: ``Δs`` and ``Δθ``."""
     return 0.5 * (ds_l + ds_r), (ds_r - ds_l) / calib.track_width
 
 
@@ -61,16 +70,6 @@ _I64 = 2**63
 def _two_readings(ticks: object) -> bool:
     """Two cumulative int64 counts: the motion prior's one interval at a time (the scalar path)."""
     return type(ticks) is np.ndarray and ticks.shape == (2,) and ticks.dtype == np.int64
-
-
-def _increment(dl: float, dr: float, calib: WheelCalibration) -> tuple[float, float]:
-    """``Δs``, ``Δθ`` of one interval from its tick counts, as floats: the operations of
-    :func:`wheel_arc_lengths` and :func:`body_increments` in the same order (the motion prior adds
-    one reading at a time, 50 a second: 14 µs of array calls each for two numbers)."""
-    k = float(calib.ticks_per_revolution)
-    ds_l = 2.0 * np.pi * calib.wheel_radius_left * dl / k  # eq. 9
-    ds_r = 2.0 * np.pi * calib.wheel_radius_right * dr / k
-    return 0.5 * (ds_l + ds_r), (ds_r - ds_l) / calib.track_width
 
 
 def integrate_arcs(

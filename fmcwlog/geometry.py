@@ -114,19 +114,22 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
     ``pose`` may also be (N, 3), one pose per point.
     """
-    out = np.empty((len(points), 2))
     if _is_pose(pose) and type(points) is np.ndarray and points.dtype is _F64:  # (a Python float is weak: float32
         # points would be multiplied in float32, where numpy's float64 scalar cos makes it float64)
         x, y, yaw = pose.tolist()
         if math.isfinite(yaw):
-            c, s = math.cos(yaw), math.sin(yaw)
-            out[:, 0] = c * points[:, 0] - s * points[:, 1] + x
-            out[:, 1] = s * points[:, 0] + c * points[:, 1] + y
-            return out
+            return rotate_translate(math.cos(yaw), math.sin(yaw), x, y, points)
     pose = np.asarray(pose, dtype=float)
-    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    out[:, 0] = c * points[:, 0] - s * points[:, 1] + pose[..., 0]
-    out[:, 1] = s * points[:, 0] + c * points[:, 1] + pose[..., 1]
+    return rotate_translate(np.cos(pose[..., 2]), np.sin(pose[..., 2]), pose[..., 0], pose[..., 1], points)
+
+
+def rotate_translate(c, s, tx, ty, points: np.ndarray) -> np.ndarray:
+    """``R p + t`` of points (N, 2) given ``cos``/``sin`` of the yaw and the translation, each a
+    float or one per point (N,): :func:`transform_points`' arithmetic, for callers that have the
+    pose as columns (the deskew)."""
+    out = np.empty((len(points), 2))
+    out[:, 0] = c * points[:, 0] - s * points[:, 1] + tx
+    out[:, 1] = s * points[:, 0] + c * points[:, 1] + ty
     return out
 
 

@@ -26,7 +26,7 @@ from typing import cast
 
 import numpy as np
 
-from ..geometry import _is_pose, compose, inverse, transform_points, wrap_angle
+from ..geometry import _is_pose, compose, inverse, rotate_translate, transform_points, wrap_angle
 
 _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 0
 
@@ -34,6 +34,12 @@ _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 
 def _floats(*values: object) -> bool:
     """Whether every value is a Python or numpy float (twists given as numbers, not arrays)."""
     return all(type(q) is float or type(q) is np.float64 for q in values)
+
+
+def _by_columns(dt: np.ndarray, mount: np.ndarray, *twist: object) -> bool:
+    """Whether the lidar's motion can take the column path: times (N,), one finite mount (3,), a
+    twist of floats; anything else takes the plain formulas."""
+    return dt.ndim == 1 and _is_pose(mount) and math.isfinite(mount[2]) and _floats(*twist)
 
 
 def _sinc(x: np.ndarray) -> np.ndarray:
@@ -121,7 +127,7 @@ def lidar_motion(
     """
     mount = np.asarray(mount, dtype=float)
     dt = np.asarray(t, dtype=float) - t_ref
-    if dt.ndim != 1 or not _is_pose(mount) or not math.isfinite(mount[2]) or not _floats(v, omega, v_y):
+    if not _by_columns(dt, mount, v, omega, v_y):
         return compose(compose(inverse(mount), se2_exp(v, v_y, omega, dt)), mount)
     x, y, yaw = _lidar_motion_columns(dt, v, omega, mount, v_y)
     out = np.empty((len(dt), 3))
@@ -173,17 +179,7 @@ def deskew(
         return xy.copy()
     mount = np.asarray(mount, dtype=float)
     dt = np.asarray(t, dtype=float) - t_ref
-    if (dt.ndim != 1 or not _is_pose(mount) or not math.isfinite(mount[2]) or not _floats(v, omega, v_y)
-            or xy.ndim != 2 or len(dt) != len(xy)):
+    if not _by_columns(dt, mount, v, omega, v_y) or xy.ndim != 2 or len(dt) != len(xy):
         return transform_points(lidar_motion(t, v, omega, mount, t_ref, v_y), xy)
     px, py, yaw = _lidar_motion_columns(dt, v, omega, mount, v_y)
-    c, s = np.cos(yaw), np.sin(yaw)  # transform_points(poses, xy)
-    out = np.empty((len(xy), 2))
-    x, y = xy[:, 0], xy[:, 1]
-    np.multiply(c, x, out=out[:, 0])
-    out[:, 0] -= s * y
-    out[:, 0] += px
-    np.multiply(s, x, out=out[:, 1])
-    out[:, 1] += c * y
-    out[:, 1] += py
-    return out
+    return rotate_translate(np.cos(yaw), np.sin(yaw), px, py, xy)  # transform_points(poses, xy)

@@ -105,10 +105,9 @@ class BackendResult:
 
 @dataclass
 class _Sweeps:
-    """Every sweep's stamp (ns), front-end pose (x, y, yaw) and the node it is corrected through,
-    in numpy: a few bytes a sweep, where a list held an object per value."""
+    """Every sweep's front-end pose (x, y, yaw) and the node it is corrected through, in numpy: a
+    few bytes a sweep, where a list held an object per value. (The stamps are the outputs'.)"""
 
-    stamps_ns: GrowingArray = field(default_factory=lambda: GrowingArray(np.int64))
     poses: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64, (3,)))
     node: GrowingArray = field(default_factory=lambda: GrowingArray(np.int64))
 
@@ -149,7 +148,6 @@ class PoseGraphBackend:
         last = self.nodes[-1] if self.nodes else None
         if (r.keyframe or last is None) and is_new_node(last, r.pose, self.p):
             self._add_node(r)
-        self.sweeps.stamps_ns.append(r.stamp_ns)
         self.sweeps.poses.append(np.asarray(r.pose, float))
         self.sweeps.node.append(len(self.nodes) - 1)
         self.seconds += time.perf_counter() - t0

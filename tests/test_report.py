@@ -407,3 +407,26 @@ def test_run_does_record_process_report_into_one_folder(tmp_path):
     assert page.is_file() and str(page.resolve()) in proc.stdout
     data = json.loads((out / "results" / "report.json").read_text())
     assert data["methods"]["improved"]["ate_rmse_m"] is not None
+
+
+def test_the_methods_feature_errors_are_compared_over_the_features_both_measure():
+    """Each method's own average covers the features its map shows; the comparison (and the page's
+    sentence) must use only those both maps show, and say "increase" when the improved method is worse."""
+    from fmcwlog.evaluation.evaluate import _comparison
+    from fmcwlog.evaluation.pages import _summary_line
+
+    def feats(errors):
+        return [{"id": i + 1, "rel_error_pct": e} for i, e in enumerate(errors)]
+
+    methods = {"baseline": {"features": feats([1.3, None, None, 9.0]), "feature_avg_rel_error_pct": 5.15},
+               "improved": {"features": feats([1.4, 3.0, 9.0, 6.0]), "feature_avg_rel_error_pct": 4.85}}
+    cmp = _comparison(methods)
+    assert cmp["features"] == 2
+    assert cmp["baseline_avg_rel_error_pct"] == pytest.approx((1.3 + 9.0) / 2)
+    assert cmp["improved_avg_rel_error_pct"] == pytest.approx((1.4 + 6.0) / 2)
+    assert cmp["reduction_pct"] == pytest.approx(100 * (5.15 - 3.7) / 5.15)
+    line = _summary_line({"feature_comparison": cmp})
+    assert "2 features both maps measure" in line and "baseline 5.15 %, improved 3.70 %" in line and "reduction" in line
+    worse = _comparison({"baseline": {"features": feats([1.3, None])}, "improved": {"features": feats([1.4, 8.0])}})
+    assert worse["features"] == 1 and "a 7.7 % increase" in _summary_line({"feature_comparison": worse})
+    assert _comparison({"baseline": {"features": feats([None])}, "improved": {"features": feats([2.0])}}) is None

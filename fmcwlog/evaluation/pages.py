@@ -32,7 +32,10 @@ reason in ``notes`` or ``methods.M.notes``):
   SE(2)-aligned onto the reference (Umeyama, no scale), and the reference, at M's stamps.
   This is how far two estimates disagree, not an error (:mod:`fmcwlog.evaluation.along_path`);
 - ``feature_avg_rel_error_reduction_pct``: how much the improved method cuts the
-  baseline's average relative feature error (the paper's figures: :mod:`fmcwlog.evaluation.published`);
+  baseline's average relative feature error over the features both maps measure (the paper's
+  figures: :mod:`fmcwlog.evaluation.published`); ``feature_comparison``: how many features
+  that is (``features``) and each method's average over them (``baseline_avg_rel_error_pct``,
+  ``improved_avg_rel_error_pct``), or ``null`` when none is in both;
 - ``paper``, ``params``, ``log``, ``out_dir``, ``sweeps``, ``doppler``, ``prior``, ``notes``,
   ``schema``, ``relations_file``, ``relations_published`` (and ``methods.M.relations`` with
   ``--relations``).
@@ -150,14 +153,19 @@ def _notes(result: dict) -> list[str]:
     return out
 
 
+def change_words(reduction_pct: float) -> str:
+    """``reduction_pct`` as words: "a 40.6 % reduction", or "a 2.1 % increase" when it is negative."""
+    return f"a {reduction_pct:.1f} % reduction" if reduction_pct >= 0 else f"a {-reduction_pct:.1f} % increase"
+
+
 def _summary_line(result: dict) -> str:
-    red = result["feature_avg_rel_error_reduction_pct"]
-    imp = result["methods"].get("improved", {}).get("feature_avg_rel_error_pct")
-    base = result["methods"].get("baseline", {}).get("feature_avg_rel_error_pct")
-    if red is None:
+    cmp = result.get("feature_comparison")
+    if not cmp or cmp["reduction_pct"] is None:
         return "The average relative feature error could not be compared (see the notes)."
-    return (f"Average relative feature error: baseline {base:.2f} %, improved {imp:.2f} %: "
-            f"a {red:.1f} % reduction ({paper_summary()}).")
+    n = cmp["features"]
+    return (f"Average relative feature error over the {n} feature{'s' if n != 1 else ''} both maps measure: "
+            f"baseline {cmp['baseline_avg_rel_error_pct']:.2f} %, improved {cmp['improved_avg_rel_error_pct']:.2f} %: "
+            f"{change_words(cmp['reduction_pct'])} ({paper_summary()}).")
 
 
 def header_rows(result: dict) -> list[tuple[str, str]]:

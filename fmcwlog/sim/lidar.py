@@ -168,11 +168,15 @@ class FmcwLidar:
 
     def sensor_motion(self, body: BodyState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Origin (N, 2), heading (N,) and origin velocity (N, 2) of ``lidar`` in ``map``."""
-        lever = (rot2(body.yaw) @ self.mount[:2])  # (N, 2): R(yaw)·l
-        origin = np.stack([body.x, body.y], -1) + lever
+        rot = rot2(body.yaw)
+        lever = rot @ self.mount[:2]  # (N, 2): R(yaw)·l (matmul kept: BLAS's rounding is the log's)
+        origin = np.empty_like(lever)
+        origin[:, 0], origin[:, 1] = body.x + lever[:, 0], body.y + lever[:, 1]
         heading = body.yaw + self.mount[2]
-        fwd = np.stack([np.cos(body.yaw), np.sin(body.yaw)], -1)
-        vel = body.v[:, None] * fwd + body.omega[:, None] * np.stack([-lever[:, 1], lever[:, 0]], -1)
+        fwd = rot[:, :, 0]  # (cos, sin) of the yaw
+        vel = np.empty_like(lever)
+        vel[:, 0] = body.v * fwd[:, 0] + body.omega * -lever[:, 1]
+        vel[:, 1] = body.v * fwd[:, 1] + body.omega * lever[:, 0]
         return origin, heading, vel
 
     def _cart_sides(self, cx, cy, vx, vy, which):

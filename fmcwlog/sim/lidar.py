@@ -26,6 +26,7 @@ steps); ``tests/test_ray_casting.py`` checks the result against a brute-force ca
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -94,24 +95,33 @@ class _Beams:
     def count(self) -> int:
         return len(self.drift)
 
-    @property
+    @cached_property
     def first(self) -> np.ndarray:
         """Index (count,) of each sweep's first beam."""
         return self.n * np.arange(self.count)
+
+    @cached_property
+    def _key(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each sweep's middle direction (count, 1) and one sorted key for all beams (count·n,):
+        each sweep's directions about its middle beam, sweeps 16π apart, farther than any window
+        of :meth:`within` reaches; None when a sweep's directions are not in order (a yaw rate
+        beyond any robot's). The same for walls, people and carts: computed once."""
+        count, n = self.count, self.n
+        ang = self.ang.reshape(count, n)
+        if not np.all(np.diff(ang, axis=1) > 0):
+            return None
+        mid = ang[:, n // 2, None]
+        return mid, (ang - mid + _SWEEP_SPACING * np.arange(count)[:, None]).ravel()
 
     def within(self, lo: np.ndarray, width: np.ndarray, everywhere: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Beam and target indices (K,) of the beams of sweep ``s`` whose direction lies in
         ``[lo[s, i], lo[s, i] + width[s, i]]`` (rad, modulo 2π; width < 2π) for target ``i``, or
         anywhere in the sweep where ``everywhere[s, i]``; arguments (count, M)."""
         count, n, m = self.count, self.n, lo.shape[1]
-        ang = self.ang.reshape(count, n)
-        if not np.all(np.diff(ang, axis=1) > 0):  # not in order (a yaw rate beyond any robot's): every pair
+        if self._key is None:  # not in order (a yaw rate beyond any robot's): every pair
             return np.repeat(np.arange(count * n), m), np.tile(np.arange(m), count * n)
-        # One sorted key for all sweeps: each sweep's directions about its middle beam, sweeps
-        # 16π apart, farther than any window reaches. Rounding moves a key by ~1e-13 rad, far
-        # inside the windows' margin (_CULL_MARGIN_ANGLE).
-        mid = ang[:, n // 2, None]
-        key = (ang - mid + _SWEEP_SPACING * np.arange(count)[:, None]).ravel()
+        # Rounding moves a key by ~1e-13 rad, far inside the windows' margin (_CULL_MARGIN_ANGLE).
+        mid, key = self._key
         lo = lo - mid
         lo = lo + 2.0 * np.pi * np.round((-lo - 0.5 * width) / (2.0 * np.pi))  # centred within π of it
         shifts = 2.0 * np.pi * np.arange(-2, 3)[:, None, None]  # a window may wrap round the field of view
@@ -320,7 +330,7 @@ class FmcwLidar:
         ang = heading + np.tile(self.beam_angle, count)
         dx, dy = np.cos(ang), np.sin(ang)
         rel = origin.reshape(count, n, 2) - origin[::n, None, :]
-        drift = np.sqrt((rel**2).sum(-1)).max(axis=1)
+        drift = np.sqrt(rel[..., 0]**2 + rel[..., 1]**2).max(axis=1)  # a sum over an axis of 2 is a slow reduce; same bits
         g = _Beams(origin, ang, dx, dy, np.asarray(t_movers, dtype=float), drift, n)
         # Each target is cast only against the beams that can reach it (``_Beams.within``); the
         # nearest surface wins. Kind: 0 wall, 1 person, 2 cart.

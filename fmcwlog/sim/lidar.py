@@ -57,17 +57,22 @@ def _cross(ax, ay, bx, by):
     return ax * by - ay * bx
 
 
+def _ray_hits(ox, oy, dx, dy, px, py, ex, ey):
+    """Ranges along rays o + r·d to segments from p to p + e (arrays that broadcast together); inf where missed."""
+    wx, wy = px - ox, py - oy
+    den = _cross(dx, dy, ex, ey)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = _cross(wx, wy, ex, ey) / den
+        u = _cross(wx, wy, dx, dy) / den
+    ok = (np.abs(den) > 1e-12) & (r > 0) & (u >= 0) & (u <= 1)
+    return np.where(ok, r, np.inf)
+
+
 def _hit_segments(ox, oy, dx, dy, px, py, qx, qy):
     """Ranges (N, M) along rays o + r·d to segments p→q (coordinates (M,) or (N, M)); inf where missed.
     Also the segments' direction components ``ex, ey`` (for their normals)."""
     ex, ey = qx - px, qy - py
-    wx, wy = px - ox[:, None], py - oy[:, None]
-    den = _cross(dx[:, None], dy[:, None], ex, ey)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = _cross(wx, wy, ex, ey) / den
-        u = _cross(wx, wy, dx[:, None], dy[:, None]) / den
-    ok = (np.abs(den) > 1e-12) & (r > 0) & (u >= 0) & (u <= 1)
-    return np.where(ok, r, np.inf), ex, ey
+    return _ray_hits(ox[:, None], oy[:, None], dx[:, None], dy[:, None], px, py, ex, ey), ex, ey
 
 
 def _normal(ex, ey):
@@ -99,6 +104,15 @@ class _Beams:
     def first(self) -> np.ndarray:
         """Index (count,) of each sweep's first beam."""
         return self.n * np.arange(self.count)
+
+    @cached_property
+    def ox(self) -> np.ndarray:
+        """The origins' x (count·n,), contiguous: gathered per (beam, target) pair."""
+        return np.ascontiguousarray(self.origin[:, 0])
+
+    @cached_property
+    def oy(self) -> np.ndarray:
+        return np.ascontiguousarray(self.origin[:, 1])
 
     @cached_property
     def _key(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -164,7 +178,9 @@ class FmcwLidar:
         self.walls_p = walls[:, 0:2].copy()
         self.walls_q = walls[:, 2:4].copy()
         self._walls = tuple(np.ascontiguousarray(c) for c in walls.T)  # px, py, qx, qy (M,)
-        self._walls_normal = _normal(self._walls[2] - self._walls[0], self._walls[3] - self._walls[1])
+        # each wall as its start and direction (px, py, ex, ey), what a ray is cast against: static
+        self._wall_rays = (*self._walls[:2], self._walls[2] - self._walls[0], self._walls[3] - self._walls[1])
+        self._walls_normal = _normal(*self._wall_rays[2:])
         self.people = MoverGroup([m for m in movers if m.kind == "person"])
         self.carts = MoverGroup([m for m in movers if m.kind == "cart"])
         self._radius = np.array([m.radius for m in self.people.movers])  # m
@@ -253,9 +269,9 @@ class FmcwLidar:
         """Per beam (N,): the nearest wall's normal x, y, its velocity x, y (0), kind (0) and range (inf: none)."""
         n = len(g.ang)
         beam, which = self._wall_candidates(g)
-        r = _hit_segments(g.origin[beam, 0], g.origin[beam, 1], g.dx[beam], g.dy[beam],
-                          *(c[which, None] for c in self._walls))[0]  # (K, 1): one wall per beam
-        pair, best = _nearest(n, len(self._walls[0]), beam, which, r[:, 0])
+        r = _ray_hits(*(np.take(c, beam) for c in (g.ox, g.oy, g.dx, g.dy)),
+                      *(np.take(c, which) for c in self._wall_rays))  # (K,): one wall per pair
+        pair, best = _nearest(n, len(self._walls[0]), beam, which, r)
         j = which[pair] if len(beam) else np.zeros(n, dtype=np.intp)
         return (self._walls_normal[0][j], self._walls_normal[1][j], np.zeros(n), np.zeros(n),
                 np.zeros(n, dtype=np.int8), best)
@@ -267,7 +283,7 @@ class FmcwLidar:
         beam, who = self._candidates(self.people, self._radius, g)
         if len(beam) == 0:
             return nearest
-        ox, oy = g.origin[:, 0], g.origin[:, 1]
+        ox, oy = g.ox, g.oy
         cx, cy, vx, vy = self.people.state(g.t[beam], who)  # (K,) per pair
         radius = self._radius[who]
         fx, fy = ox[beam] - cx, oy[beam] - cy
@@ -297,7 +313,7 @@ class FmcwLidar:
             return nearest
         cx, cy, vx, vy = self.carts.state(g.t[beam], who)
         px, py, qx, qy = self._cart_sides(cx, cy, vx, vy, who)  # (K, 4)
-        r, ex, ey = _hit_segments(g.origin[beam, 0], g.origin[beam, 1], g.dx[beam], g.dy[beam], px, py, qx, qy)
+        r, ex, ey = _hit_segments(g.ox[beam], g.oy[beam], g.dx[beam], g.dy[beam], px, py, qx, qy)
         side = np.arange(4)
         flat, rk = _nearest(len(g.ang), 4 * len(self.carts), np.repeat(beam, 4), (4 * who[:, None] + side).ravel(),
                             r.ravel())

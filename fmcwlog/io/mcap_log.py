@@ -306,21 +306,24 @@ class LogWriter:
         except BaseException:  # the header could not be written (a full disk): leave nothing behind
             self.abort()
             raise
-        self._schemas: dict[str, tuple[int, Callable[[Any], bytes]]] = {}
+        self._schemas: dict[str, int] = {}
+        self._generic: dict[str, Callable[[Any], bytes]] = {}
         self._channels: dict[str, int] = {}
 
-    def _schema(self, datatype: str) -> tuple[int, Callable[[Any], bytes]]:
+    def _schema(self, datatype: str) -> int:
         if datatype not in self._schemas:
             text = message_definition(datatype)
-            schema_id = self._writer.register_schema(datatype, SchemaEncoding.ROS2, text.encode())
-            self._schemas[datatype] = (schema_id, serialize_dynamic(datatype, text)[datatype])
+            self._schemas[datatype] = self._writer.register_schema(datatype, SchemaEncoding.ROS2, text.encode())
         return self._schemas[datatype]
 
     def encode(self, datatype: str, message: dict) -> bytes:
-        """CDR bytes of ``message`` (a dict of the type's fields)."""
-        encoder = self._schema(datatype)[1]
+        """CDR bytes of ``message`` (a dict of the type's fields). Registers the type's schema."""
+        self._schema(datatype)
         if datatype in _ENCODERS:
             return _ENCODERS[datatype](message)
+        encoder = self._generic.get(datatype)
+        if encoder is None:  # built on first use only: parsing the schema took 2 ms a type, 9 of record's 22 ms
+            encoder = self._generic[datatype] = serialize_dynamic(datatype, message_definition(datatype))[datatype]
         tail = _RAW_TAIL.get(datatype)
         if tail is not None and isinstance(message.get(tail), np.ndarray):
             raw = np.ascontiguousarray(message[tail]).tobytes()
@@ -336,7 +339,7 @@ class LogWriter:
         """Write one message already CDR-encoded (by :func:`odometry_cdr` and its like)."""
         channel = self._channels.get(topic)
         if channel is None:
-            channel = self._writer.register_channel(topic, "cdr", self._schema(datatype)[0])
+            channel = self._writer.register_channel(topic, "cdr", self._schema(datatype))
             self._channels[topic] = channel
         self._writer.add_message(channel, log_time=log_time_ns, data=data, publish_time=log_time_ns)
 

@@ -44,7 +44,9 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
 def rot2(yaw: np.ndarray | float) -> np.ndarray:
     """2x2 rotation matrix (eq. 14); for an array of N yaws, shape (N, 2, 2)."""
     c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    out = np.empty((*np.shape(c), 2, 2))  # filled in place: four nested np.stack calls cost more than the trig
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    return out
 
 
 def yaw_to_quaternion(yaw: np.ndarray | float) -> np.ndarray:

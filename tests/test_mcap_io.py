@@ -123,3 +123,41 @@ def test_recorded_types_are_encoded_as_mcap_ros2_encodes_them(datatype):
     reference = serialize_dynamic(datatype, message_definition(datatype))[datatype]
     for msg in _messages_of_every_alignment(datatype, np.random.default_rng(6)):
         assert _ENCODERS[datatype](msg) == reference(msg)
+
+
+def test_fixed_layout_batches_are_encoded_as_mcap_ros2_encodes_them():
+    """``record`` encodes its ground truth many messages at once (speed); each of them must be what
+    mcap_ros2's generic encoder makes of the same message dict, for frame names of every length
+    modulo 8 and stamps up to the last second an int32 holds."""
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    from fmcwlog.io.mcap_log import odometry_cdr_batch, tf_cdr_batch, wheel_ticks_cdr_batch
+    from fmcwlog.io.messages import odometry_message, planar_covariance, pose7, stamp, tf_message, transform_dict
+    from fmcwlog.io.schemas import message_definition
+
+    def reference(datatype):
+        return serialize_dynamic(datatype, message_definition(datatype))[datatype]
+
+    odometry, tf, ticks = (reference(t) for t in ("nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage",
+                                                  "fmcwlog_msgs/msg/WheelTicks"))
+    rng = np.random.default_rng(7)
+    for n in range(9):
+        frame, child = "bäse/"[: n % 6] + "m" * (n // 2), "c" * n
+        stamps = np.concatenate([rng.integers(0, 2**31 * 10**9, 4), [0, 2**31 * 10**9 - 1]])
+        poses, twists = rng.normal(size=(6, 3)) * 50, rng.normal(size=(6, 3))
+        twists[:, 1] = 0.0
+        covs = [(c @ c.T, np.eye(3) * k) for k, c in enumerate(rng.normal(size=(6, 3, 3)))]
+        left, right = rng.integers(-2**62, 2**62, 6), rng.integers(-2**62, 2**62, 6)
+        values = np.array([(*pose7(p), *planar_covariance(c0), tw[0], tw[1], 0.0, 0.0, 0.0, tw[2], *planar_covariance(c1))
+                           for p, tw, (c0, c1) in zip(poses, twists, covs)])
+        got = (odometry_cdr_batch(stamps, frame, child, values),
+               tf_cdr_batch(stamps, frame, child, np.array([pose7(p) for p in poses])),
+               wheel_ticks_cdr_batch(stamps, frame, left, right))
+        for i, ns in enumerate(stamps.tolist()):
+            assert got[0][i] == odometry(odometry_message(ns, frame, child, poses[i], twists[i], *covs[i]))
+            assert got[1][i] == tf(tf_message([transform_dict(ns, frame, child, poses[i])]))
+            assert got[2][i] == ticks({"header": {"stamp": stamp(ns), "frame_id": frame},
+                                       "left": int(left[i]), "right": int(right[i])})
+    assert odometry_cdr_batch(np.zeros(0, np.int64), "map", "base_link", np.zeros((0, 85))) == []
+    with pytest.raises(ValueError, match="int32"):
+        tf_cdr_batch(np.array([2**31 * 10**9]), "map", "base_link", np.zeros((1, 7)))

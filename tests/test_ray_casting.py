@@ -114,3 +114,25 @@ def test_culled_casting_finds_the_nearest_surface_of_every_beam(seed):
         np.testing.assert_allclose(np.hypot(sweep.x, sweep.y), want_r[hit], rtol=0, atol=1e-9)
         np.testing.assert_array_equal(sweep.moving.astype(bool), want_moving[hit])
         assert want_moving.any() and (~want_moving & hit).any()  # both kinds of return are exercised
+
+
+@pytest.mark.parametrize("mount", [(0.35, 0.0, 0.0), (-0.35, 0.0, 0.3), (0.35, 0.1, 0.0), (0.0, 0.0, 0.0)])
+def test_sensor_motion_is_the_rotated_lever_arm_bit_for_bit(mount):
+    """The sensor's origin and velocity, o = p + R(yaw)·l and v·(cos, sin) + ω × R(yaw)·l: written
+    out for a mount on the x axis, they must be the bits of the matrix product (the logs' bytes)."""
+    from fmcwlog.geometry import rot2
+
+    rng = np.random.default_rng(11)
+    n = 4000
+    yaw = np.concatenate([[0.0, -0.0, np.pi, -np.pi / 2], rng.uniform(-40.0, 40.0, n - 4)])
+    body = BodyState(np.zeros(n), rng.uniform(-50, 50, n), rng.uniform(-50, 50, n), yaw, rng.normal(size=n),
+                     rng.normal(size=n), np.zeros(n))
+    lidar = FmcwLidar(SensorConfig(mount_x=mount[0], mount_y=mount[1], mount_yaw_deg=np.degrees(mount[2])),
+                      np.array([[0.0, 0.0, 1.0, 0.0]]), [])
+    origin, heading, vel = lidar.sensor_motion(body)
+    lever = rot2(yaw) @ lidar.mount[:2]
+    fwd = np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    want = (np.stack([body.x, body.y], -1) + lever, yaw + lidar.mount[2],
+            body.v[:, None] * fwd + body.omega[:, None] * np.stack([-lever[:, 1], lever[:, 0]], -1))
+    for got, expected in zip((origin, heading, vel), want):
+        assert np.array_equal(got.view(np.int64), expected.view(np.int64))

@@ -17,15 +17,19 @@ Speed, with the same arithmetic for every (beam, target) pair that is cast, so a
 byte for byte what casting every beam against every target gave: a wall, person or cart is cast
 only against the beams whose direction lies within a bound that no beam outside it can hit
 (its angle from the sweep's first origin, widened by what it and the sensor can move during the
-sweep), each beam's nearest target is found over those pairs alone, and ten sweeps are cast in
-one numpy pass (``FmcwLidar.sweeps``). On ``crowd`` (20 walls, 28 people, 4 carts) this took
-``record()`` from 8.4 ms of CPU a sweep to 1.5 ms, writing included (the commits give the
-steps); ``tests/test_ray_casting.py`` checks the result against a brute-force cast.
+sweep), each beam's nearest target is found over those pairs alone, and several sweeps
+(``recorder.SWEEPS_AT_ONCE``) are cast in one numpy pass (``FmcwLidar.sweeps``). What does not
+change between passes is computed once: the walls' directions and normals, the beams' fixed angles'
+trig; and once a pass rather than once per kind of target, the beams' sorted directions. On
+``crowd`` (20 walls, 28 people, 4 carts) this took ``record()`` from 8.4 ms of CPU a sweep to
+1.5 ms, then to about 0.9 ms, writing included (the commits give the steps);
+``tests/test_ray_casting.py`` checks the result against a brute-force cast.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -56,17 +60,22 @@ def _cross(ax, ay, bx, by):
     return ax * by - ay * bx
 
 
+def _ray_hits(ox, oy, dx, dy, px, py, ex, ey):
+    """Ranges along rays o + r·d to segments from p to p + e (arrays that broadcast together); inf where missed."""
+    wx, wy = px - ox, py - oy
+    den = _cross(dx, dy, ex, ey)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = _cross(wx, wy, ex, ey) / den
+        u = _cross(wx, wy, dx, dy) / den
+    ok = (np.abs(den) > 1e-12) & (r > 0) & (u >= 0) & (u <= 1)
+    return np.where(ok, r, np.inf)
+
+
 def _hit_segments(ox, oy, dx, dy, px, py, qx, qy):
     """Ranges (N, M) along rays o + r·d to segments p→q (coordinates (M,) or (N, M)); inf where missed.
     Also the segments' direction components ``ex, ey`` (for their normals)."""
     ex, ey = qx - px, qy - py
-    wx, wy = px - ox[:, None], py - oy[:, None]
-    den = _cross(dx[:, None], dy[:, None], ex, ey)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = _cross(wx, wy, ex, ey) / den
-        u = _cross(wx, wy, dx[:, None], dy[:, None]) / den
-    ok = (np.abs(den) > 1e-12) & (r > 0) & (u >= 0) & (u <= 1)
-    return np.where(ok, r, np.inf), ex, ey
+    return _ray_hits(ox[:, None], oy[:, None], dx[:, None], dy[:, None], px, py, ex, ey), ex, ey
 
 
 def _normal(ex, ey):
@@ -94,24 +103,42 @@ class _Beams:
     def count(self) -> int:
         return len(self.drift)
 
-    @property
+    @cached_property
     def first(self) -> np.ndarray:
         """Index (count,) of each sweep's first beam."""
         return self.n * np.arange(self.count)
+
+    @cached_property
+    def ox(self) -> np.ndarray:
+        """The origins' x (count·n,), contiguous: gathered per (beam, target) pair."""
+        return np.ascontiguousarray(self.origin[:, 0])
+
+    @cached_property
+    def oy(self) -> np.ndarray:
+        return np.ascontiguousarray(self.origin[:, 1])
+
+    @cached_property
+    def _key(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each sweep's middle direction (count, 1) and one sorted key for all beams (count·n,):
+        each sweep's directions about its middle beam, sweeps 16π apart, farther than any window
+        of :meth:`within` reaches; None when a sweep's directions are not in order (a yaw rate
+        beyond any robot's). The same for walls, people and carts: computed once."""
+        count, n = self.count, self.n
+        ang = self.ang.reshape(count, n)
+        if not np.all(np.diff(ang, axis=1) > 0):
+            return None
+        mid = ang[:, n // 2, None]
+        return mid, (ang - mid + _SWEEP_SPACING * np.arange(count)[:, None]).ravel()
 
     def within(self, lo: np.ndarray, width: np.ndarray, everywhere: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Beam and target indices (K,) of the beams of sweep ``s`` whose direction lies in
         ``[lo[s, i], lo[s, i] + width[s, i]]`` (rad, modulo 2π; width < 2π) for target ``i``, or
         anywhere in the sweep where ``everywhere[s, i]``; arguments (count, M)."""
         count, n, m = self.count, self.n, lo.shape[1]
-        ang = self.ang.reshape(count, n)
-        if not np.all(np.diff(ang, axis=1) > 0):  # not in order (a yaw rate beyond any robot's): every pair
+        if self._key is None:  # not in order (a yaw rate beyond any robot's): every pair
             return np.repeat(np.arange(count * n), m), np.tile(np.arange(m), count * n)
-        # One sorted key for all sweeps: each sweep's directions about its middle beam, sweeps
-        # 16π apart, farther than any window reaches. Rounding moves a key by ~1e-13 rad, far
-        # inside the windows' margin (_CULL_MARGIN_ANGLE).
-        mid = ang[:, n // 2, None]
-        key = (ang - mid + _SWEEP_SPACING * np.arange(count)[:, None]).ravel()
+        # Rounding moves a key by ~1e-13 rad, far inside the windows' margin (_CULL_MARGIN_ANGLE).
+        mid, key = self._key
         lo = lo - mid
         lo = lo + 2.0 * np.pi * np.round((-lo - 0.5 * width) / (2.0 * np.pi))  # centred within π of it
         shifts = 2.0 * np.pi * np.arange(-2, 3)[:, None, None]  # a window may wrap round the field of view
@@ -154,7 +181,9 @@ class FmcwLidar:
         self.walls_p = walls[:, 0:2].copy()
         self.walls_q = walls[:, 2:4].copy()
         self._walls = tuple(np.ascontiguousarray(c) for c in walls.T)  # px, py, qx, qy (M,)
-        self._walls_normal = _normal(self._walls[2] - self._walls[0], self._walls[3] - self._walls[1])
+        # each wall as its start and direction (px, py, ex, ey), what a ray is cast against: static
+        self._wall_rays = (*self._walls[:2], self._walls[2] - self._walls[0], self._walls[3] - self._walls[1])
+        self._walls_normal = _normal(*self._wall_rays[2:])
         self.people = MoverGroup([m for m in movers if m.kind == "person"])
         self.carts = MoverGroup([m for m in movers if m.kind == "cart"])
         self._radius = np.array([m.radius for m in self.people.movers])  # m
@@ -164,15 +193,25 @@ class FmcwLidar:
         half = np.radians(cfg.fov_deg) / 2.0
         self.beam_angle = -half + np.radians(cfg.resolution_deg) * np.arange(n)  # rad, in ``lidar``
         self.beam_time = cfg.sweep_duration * np.arange(n) / max(n - 1, 1)  # s after the stamp
+        self._beam_cos, self._beam_sin = np.cos(self.beam_angle), np.sin(self.beam_angle)  # the same every sweep
         self.mount = np.array(cfg.mount)
 
     def sensor_motion(self, body: BodyState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Origin (N, 2), heading (N,) and origin velocity (N, 2) of ``lidar`` in ``map``."""
-        lever = (rot2(body.yaw) @ self.mount[:2])  # (N, 2): R(yaw)·l
-        origin = np.stack([body.x, body.y], -1) + lever
+        mx, my = self.mount[:2].tolist()
+        cos, sin = np.cos(body.yaw), np.sin(body.yaw)
+        lever = np.empty((len(cos), 2))  # R(yaw)·l
+        if my == 0.0 and mx != 0.0:  # a mount on the x axis (the default): the products by 0 are exact, so
+            lever[:, 0] = cos * mx + -sin * my  # this is what BLAS's dot product gives, with or without FMA,
+            lever[:, 1] = sin * mx + cos * my  # at a tenth of the cost of a matmul per beam
+        else:  # elsewhere BLAS's rounding (FMA) is what the logs hold
+            lever[:] = rot2(body.yaw) @ self.mount[:2]
+        origin = np.empty_like(lever)
+        origin[:, 0], origin[:, 1] = body.x + lever[:, 0], body.y + lever[:, 1]
         heading = body.yaw + self.mount[2]
-        fwd = np.stack([np.cos(body.yaw), np.sin(body.yaw)], -1)
-        vel = body.v[:, None] * fwd + body.omega[:, None] * np.stack([-lever[:, 1], lever[:, 0]], -1)
+        vel = np.empty_like(lever)
+        vel[:, 0] = body.v * cos + body.omega * -lever[:, 1]
+        vel[:, 1] = body.v * sin + body.omega * lever[:, 0]
         return origin, heading, vel
 
     def _cart_sides(self, cx, cy, vx, vy, which):
@@ -233,9 +272,9 @@ class FmcwLidar:
         """Per beam (N,): the nearest wall's normal x, y, its velocity x, y (0), kind (0) and range (inf: none)."""
         n = len(g.ang)
         beam, which = self._wall_candidates(g)
-        r = _hit_segments(g.origin[beam, 0], g.origin[beam, 1], g.dx[beam], g.dy[beam],
-                          *(c[which, None] for c in self._walls))[0]  # (K, 1): one wall per beam
-        pair, best = _nearest(n, len(self._walls[0]), beam, which, r[:, 0])
+        r = _ray_hits(*(np.take(c, beam) for c in (g.ox, g.oy, g.dx, g.dy)),
+                      *(np.take(c, which) for c in self._wall_rays))  # (K,): one wall per pair
+        pair, best = _nearest(n, len(self._walls[0]), beam, which, r)
         j = which[pair] if len(beam) else np.zeros(n, dtype=np.intp)
         return (self._walls_normal[0][j], self._walls_normal[1][j], np.zeros(n), np.zeros(n),
                 np.zeros(n, dtype=np.int8), best)
@@ -247,7 +286,7 @@ class FmcwLidar:
         beam, who = self._candidates(self.people, self._radius, g)
         if len(beam) == 0:
             return nearest
-        ox, oy = g.origin[:, 0], g.origin[:, 1]
+        ox, oy = g.ox, g.oy
         cx, cy, vx, vy = self.people.state(g.t[beam], who)  # (K,) per pair
         radius = self._radius[who]
         fx, fy = ox[beam] - cx, oy[beam] - cy
@@ -277,7 +316,7 @@ class FmcwLidar:
             return nearest
         cx, cy, vx, vy = self.carts.state(g.t[beam], who)
         px, py, qx, qy = self._cart_sides(cx, cy, vx, vy, who)  # (K, 4)
-        r, ex, ey = _hit_segments(g.origin[beam, 0], g.origin[beam, 1], g.dx[beam], g.dy[beam], px, py, qx, qy)
+        r, ex, ey = _hit_segments(g.ox[beam], g.oy[beam], g.dx[beam], g.dy[beam], px, py, qx, qy)
         side = np.arange(4)
         flat, rk = _nearest(len(g.ang), 4 * len(self.carts), np.repeat(beam, 4), (4 * who[:, None] + side).ravel(),
                             r.ravel())
@@ -310,7 +349,7 @@ class FmcwLidar:
         ang = heading + np.tile(self.beam_angle, count)
         dx, dy = np.cos(ang), np.sin(ang)
         rel = origin.reshape(count, n, 2) - origin[::n, None, :]
-        drift = np.sqrt((rel**2).sum(-1)).max(axis=1)
+        drift = np.sqrt(rel[..., 0]**2 + rel[..., 1]**2).max(axis=1)  # a sum over an axis of 2 is a slow reduce; same bits
         g = _Beams(origin, ang, dx, dy, np.asarray(t_movers, dtype=float), drift, n)
         # Each target is cast only against the beams that can reach it (``_Beams.within``); the
         # nearest surface wins. Kind: 0 wall, 1 person, 2 cart.
@@ -341,11 +380,10 @@ class FmcwLidar:
         for i in range(count):
             part = slice(i * n, (i + 1) * n)
             k = keep[part]
-            phi = self.beam_angle[k]
             r = r_noisy[part][k]
             out.append(Sweep(
-                x=r * np.cos(phi),
-                y=r * np.sin(phi),
+                x=r * self._beam_cos[k],
+                y=r * self._beam_sin[k],
                 intensity=intensity[part][k],
                 velocity=v_noisy[part][k],
                 t=self.beam_time[k],

@@ -22,8 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..io.mcap_log import LogWriter
-from ..io.messages import odometry_message, pointcloud_message, stamp, tf_message, transform_dict
+from ..geometry import yaw_to_quaternion
+from ..io.mcap_log import (
+    LogWriter,
+    odometry_cdr_batch,
+    point_labels_cdr,
+    pointcloud2_cdr,
+    stamp_pair,
+    tf_cdr_batch,
+    wheel_ticks_cdr_batch,
+)
+from ..io.messages import FLOAT32, POINT_FIELDS, tf_message, transform_dict
 from ..io.topics import (
     BASE_FRAME,
     CALIBRATION_KEY,
@@ -38,7 +47,7 @@ from ..io.topics import (
     TICKS_TOPIC,
     WORLD_KEY,
 )
-from .chassis import Chassis
+from .chassis import BodyState, Chassis
 from .config import SimConfig
 from .lidar import FmcwLidar, Sweep
 from .world import World
@@ -104,8 +113,11 @@ class _StopFlag:
 
 # Sweeps simulated in one numpy pass: 10 shares the per-call overhead that dominated a sweep
 # (record of 20 s of crowd: 3.5 ms a sweep one at a time, 2.2 ms ten at a time, 2.3 ms 25 at a
-# time, loaded 2-core machine) and holds only 10 x 1081 beams at once.
-SWEEPS_AT_ONCE = 10
+# time, loaded 2-core machine) and holds only 10 x 1081 beams at once. Once encoding and the
+# lidar's fixed costs had shrunk, 20 did better (record of 120 s, CPU, 3 runs each, alternating in
+# one process: crowd 1.31-1.34 s at 10, 1.13-1.22 at 20, 1.21-1.56 at 40; corridor 1.15-1.17,
+# 1.00-1.16, 1.24-1.40). The log's bytes do not depend on it.
+SWEEPS_AT_ONCE = 20
 
 
 def _ns(start_ns: int, k: np.ndarray, rate: float) -> np.ndarray:
@@ -119,6 +131,33 @@ def _sweeps(chassis: Chassis, lidar: FmcwLidar, n_sweeps: int, scan_rate: float,
         js = np.arange(j0, min(j0 + SWEEPS_AT_ONCE, n_sweeps))
         t_beams = ((js / scan_rate)[:, None] + lidar.beam_time).ravel()  # s, sweep after sweep
         yield from zip(js.tolist(), lidar.sweeps(chassis.state(t_beams), t_beams, rng))
+
+
+def _ground_truth(ns_ticks: np.ndarray, body: BodyState, left: np.ndarray, right: np.ndarray,
+                  ticks: slice) -> list[tuple[int, bytes, bytes, bytes]]:
+    """Per tick of ``ticks``: its stamp (ns), then its wheel ticks, ground-truth odometry and tf
+    messages, CDR-encoded (many at once: ``mcap_log._batch``)."""
+    ns = ns_ticks[ticks]
+    pose = np.zeros((len(ns), 7))  # pose7: x, y, z, then the quaternion
+    pose[:, 0], pose[:, 1], pose[:, 3:] = body.x[ticks], body.y[ticks], yaw_to_quaternion(body.yaw[ticks])
+    odom = np.zeros((len(ns), 85))  # pose7, its covariance (unknown: 0), twist (linear, angular), its covariance
+    odom[:, :7], odom[:, 43], odom[:, 48] = pose, body.v[ticks], body.omega[ticks]
+    return list(zip(ns.tolist(), wheel_ticks_cdr_batch(ns, BASE_FRAME, left[ticks], right[ticks]),
+                    odometry_cdr_batch(ns, MAP_FRAME, BASE_FRAME, odom), tf_cdr_batch(ns, MAP_FRAME, BASE_FRAME, pose)))
+
+
+_CLOUD_FIELDS = tuple((name, 4 * i, FLOAT32, 1) for i, name in enumerate(POINT_FIELDS))  # float32 each, packed
+
+
+def _cloud(ns: int, sweep: Sweep) -> bytes:
+    """The sweep as a PointCloud2 in ``lidar``: x y z (0) intensity velocity t, float32, point by point."""
+    packed = np.zeros((len(sweep.x), len(POINT_FIELDS)), dtype="<f4")
+    for i, column in enumerate((sweep.x, sweep.y, None, sweep.intensity, sweep.velocity, sweep.t)):
+        if column is not None:
+            packed[:, i] = column
+    step = 4 * len(POINT_FIELDS)
+    return pointcloud2_cdr(stamp_pair(ns), LIDAR_FRAME, 1, len(packed), _CLOUD_FIELDS, False, step, step * len(packed),
+                           packed.tobytes(), True)
 
 
 def record(
@@ -166,26 +205,22 @@ def record(
         writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage",
                      tf_message([transform_dict(run.start_time_ns, BASE_FRAME, LIDAR_FRAME, np.array(s_cfg.mount))]),
                      run.start_time_ns)
+        write, first, gt = writer.write_cdr, 0, []
         for j, sweep in _sweeps(chassis, lidar, n_sweeps, s_cfg.scan_rate, rng_lidar):
             if stop.set:
                 break
+            if j % SWEEPS_AT_ONCE == 0:  # the ground truth of the next SWEEPS_AT_ONCE periods
+                first = int(tick_bounds[j])
+                gt = _ground_truth(ns_ticks, body, left, right,
+                                   slice(first, int(tick_bounds[min(j + SWEEPS_AT_ONCE, n_sweeps)])))
             ns = int(ns_sweeps[j])
-            cols = {"x": sweep.x, "y": sweep.y, "z": np.zeros_like(sweep.x), "intensity": sweep.intensity,
-                    "velocity": sweep.velocity, "t": sweep.t}
-            writer.write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", pointcloud_message(ns, LIDAR_FRAME, cols), ns)
-            writer.write(GT_LABELS_TOPIC, "fmcwlog_msgs/msg/PointLabels",
-                         {"header": {"stamp": stamp(ns), "frame_id": "lidar"}, "moving": sweep.moving.tobytes()}, ns)
-            for i in range(tick_bounds[j], tick_bounds[j + 1]):
-                tns = int(ns_ticks[i])
-                writer.write(TICKS_TOPIC, "fmcwlog_msgs/msg/WheelTicks",
-                             {"header": {"stamp": stamp(tns), "frame_id": "base_link"},
-                              "left": int(left[i]), "right": int(right[i])}, tns)
-                pose = np.array([body.x[i], body.y[i], body.yaw[i]])
-                twist = np.array([body.v[i], 0.0, body.omega[i]])
-                writer.write(GT_ODOM_TOPIC, "nav_msgs/msg/Odometry",
-                             odometry_message(tns, MAP_FRAME, BASE_FRAME, pose, twist), tns)
-                writer.write(GT_TF_TOPIC, "tf2_msgs/msg/TFMessage",
-                             tf_message([transform_dict(tns, MAP_FRAME, BASE_FRAME, pose)]), tns)
+            write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", _cloud(ns, sweep), ns)
+            write(GT_LABELS_TOPIC, "fmcwlog_msgs/msg/PointLabels",
+                  point_labels_cdr(stamp_pair(ns), LIDAR_FRAME, sweep.moving.tobytes()), ns)
+            for tns, ticks, odom, tf in gt[tick_bounds[j] - first:tick_bounds[j + 1] - first]:
+                write(TICKS_TOPIC, "fmcwlog_msgs/msg/WheelTicks", ticks, tns)
+                write(GT_ODOM_TOPIC, "nav_msgs/msg/Odometry", odom, tns)
+                write(GT_TF_TOPIC, "tf2_msgs/msg/TFMessage", tf, tns)
             done += 1
             points += len(sweep.x)
             moving += int(sweep.moving.sum())

@@ -13,6 +13,7 @@ integrated exactly: a rear wheel at lateral offset ``±b/2`` rolls
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -52,13 +53,21 @@ class Route:
         k = self.curvature[i]
         h0 = self.start_heading[i]
         h = h0 + k * ds
-        straight = np.abs(k) < 1e-12
-        k_safe = np.where(straight, 1.0, k)
-        dx = np.where(straight, ds * np.cos(h0), (np.sin(h) - np.sin(h0)) / k_safe)
-        dy = np.where(straight, ds * np.sin(h0), (np.cos(h0) - np.cos(h)) / k_safe)
+        cos0, sin0 = self._start_trig
+        dx, dy = ds * cos0[i], ds * sin0[i]  # on a straight piece
+        arc = np.abs(k) >= 1e-12
+        if arc.any():  # the trig of h only where it is used (the same values, elementwise, as over every s)
+            ha, ka, ia = h[arc], k[arc], i[arc]
+            dx[arc] = (np.sin(ha) - sin0[ia]) / ka
+            dy[arc] = (cos0[ia] - np.cos(ha)) / ka
         x = self.start_xy[i, 0] + dx
         y = self.start_xy[i, 1] + dy
         return x, y, h + lap * self.turn_per_lap, k
+
+    @cached_property
+    def _start_trig(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cosine and sine of each piece's start heading (P,): computed once, not once per ``s``."""
+        return np.cos(self.start_heading), np.sin(self.start_heading)
 
 
 def _waypoints(waypoints: np.ndarray, loop: bool) -> np.ndarray:

@@ -411,11 +411,9 @@ class MoverTracker:
         when = stamp + float(np.median(t))
         map_xy = transform_points(lidar, deskew(xy, t, twist[0], twist[1], mount))
         seen_free = np.zeros(len(xy), bool)
-        if p.free_log_odds < 0:  # the point's own cell first: one gather for all
-            own = self.recent.log_odds(map_xy)
+        if p.free_log_odds < 0:
             placed = np.hypot(xy[:, 0], xy[:, 1]) * yaw_error <= p.map_tolerance
-            free = np.flatnonzero((own <= p.free_log_odds) & placed)
-            seen_free[free] = self.recent.local_max(map_xy[free]) <= p.free_log_odds
+            seen_free = self.recent.seen_free(map_xy, placed, p.free_log_odds)
         seg = segment_clusters(xy, epsilon, seg_params, seeds=self.seeds(lidar, when), seed_points=seen_free)
         idx = np.flatnonzero(seg.clustered)
         labels = seg.labels[idx]

@@ -197,11 +197,13 @@ def _refine(u: np.ndarray, v_r: np.ndarray, valid: np.ndarray, v: np.ndarray, in
             if inliers.sum() < 3:
                 return failed
             v, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+            fitted = inliers
         eps = v_r + u @ v
         inliers = valid & (np.abs(eps) < inlier_threshold)
         if inliers.sum() < 3:
             return failed
-        _, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+        if not np.array_equal(inliers, fitted):  # else (AᵀA)⁻¹ of these inliers is the one in hand
+            _, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
     except np.linalg.LinAlgError:  # inliers along a single bearing: v_s unobservable
         return failed
     dof = max(int(inliers.sum()) - 2, 1)

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fmcwlog.frontend.egomotion import (
     base_twist_from_sensor_velocity,
@@ -203,3 +205,16 @@ def test_refinement_equals_the_one_that_always_refits(seed):
         assert got.covariance.tobytes() == want.covariance.tobytes()
         assert np.array_equal(got.inliers, want.inliers)
         assert np.array(got.sigma).tobytes() == np.array(want.sigma).tobytes()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([0.0, -0.0, 1.0, -0.5, np.nan, np.inf]),
+                          st.sampled_from([0.0, -0.0, 0.3, np.nan]), st.sampled_from([0.0, 0.2, np.nan, -np.inf])),
+                max_size=30))
+def test_usable_is_the_any_formula(rows):
+    """Zero, signed-zero, NaN and infinite bearings and Dopplers: the formula it replaced."""
+    from fmcwlog.frontend.egomotion import usable
+
+    a = np.array(rows, float).reshape(-1, 3)
+    u, v_r = a[:, :2], a[:, 2]
+    np.testing.assert_array_equal(usable(u, v_r), np.isfinite(v_r) & np.any(u != 0.0, axis=1))

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fmcwlog.frontend.egomotion import (
     base_twist_from_sensor_velocity,
@@ -158,3 +160,61 @@ def test_seeded_fit_draws_as_a_fresh_generator():
     from fmcwlog.frontend.egomotion import _generator
     for _ in range(2):  # the draws themselves, which the fit's refinement could hide
         assert np.array_equal(_generator(7).integers(0, 1000, 64), np.random.default_rng(7).integers(0, 1000, 64))
+
+
+def _refine_before(u, v_r, valid, v, inlier_threshold, refinements):
+    """The refinement before its last least squares was skipped when the inliers had not changed."""
+    from fmcwlog.frontend.egomotion import EgoMotion, _failed, _lstsq_2
+
+    try:
+        for _ in range(max(1, refinements)):
+            inliers = valid & (np.abs(v_r + u @ v) < inlier_threshold)
+            if inliers.sum() < 3:
+                return _failed(len(v_r))
+            v, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+        eps = v_r + u @ v
+        inliers = valid & (np.abs(eps) < inlier_threshold)
+        if inliers.sum() < 3:
+            return _failed(len(v_r))
+        _, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+    except np.linalg.LinAlgError:
+        return _failed(len(v_r))
+    sigma = float(np.sqrt(np.sum(eps[inliers] ** 2) / max(int(inliers.sum()) - 2, 1)))
+    return EgoMotion(v, sigma**2 * ata_inv, inliers, sigma)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_refinement_equals_the_one_that_always_refits(seed):
+    """Inliers settled or still moving at the last pass, 0-3 refinements: the same velocity,
+    covariance, inliers and σ, bit for bit."""
+    from fmcwlog.frontend.egomotion import _refine, unit_bearings
+
+    rng = np.random.default_rng(seed)
+    xy = _room_points(rng, int(rng.integers(20, 400)))
+    u = unit_bearings(xy)
+    v_true = rng.normal(0, 1.5, 2)
+    v_r = _quantise(-(u @ v_true) + rng.normal(0, rng.choice([0.02, 0.08]), len(xy)))
+    movers = rng.random(len(xy)) < 0.3
+    v_r[movers] += rng.normal(0, 1.0, movers.sum())
+    valid = np.isfinite(v_r)
+    start = v_true + rng.normal(0, rng.choice([0.01, 0.2]), 2)
+    for refinements in (0, 1, 2, 3):
+        got = _refine(u, v_r, valid, start, 0.15, refinements)
+        want = _refine_before(u, v_r, valid, start, 0.15, refinements)
+        assert got.v_sensor.tobytes() == want.v_sensor.tobytes()
+        assert got.covariance.tobytes() == want.covariance.tobytes()
+        assert np.array_equal(got.inliers, want.inliers)
+        assert np.array(got.sigma).tobytes() == np.array(want.sigma).tobytes()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([0.0, -0.0, 1.0, -0.5, np.nan, np.inf]),
+                          st.sampled_from([0.0, -0.0, 0.3, np.nan]), st.sampled_from([0.0, 0.2, np.nan, -np.inf])),
+                max_size=30))
+def test_usable_is_the_any_formula(rows):
+    """Zero, signed-zero, NaN and infinite bearings and Dopplers: the formula it replaced."""
+    from fmcwlog.frontend.egomotion import usable
+
+    a = np.array(rows, float).reshape(-1, 3)
+    u, v_r = a[:, :2], a[:, 2]
+    np.testing.assert_array_equal(usable(u, v_r), np.isfinite(v_r) & np.any(u != 0.0, axis=1))

@@ -1,6 +1,8 @@
 """Doppler segmentation on hand-built scenes with physically computed Doppler."""
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fmcwlog.frontend.egomotion import compensated_velocity, fit_sensor_velocity
 from fmcwlog.frontend.segmentation import SegmentationParams, segment_clusters, segment_moving
@@ -159,3 +161,38 @@ def test_seed_points_are_seeds():
     assert a.clustered[600:].all()  # the seeds brought the silent mover in
     assert np.array_equal(a.labels, b.labels) and np.array_equal(a.clustered, b.clustered)
     assert np.array_equal(a.moving, b.moving)
+
+
+def _lowered_until_stable(n, i, j):
+    """The component labelling the fast one replaced: labels lowered along every edge and pointed
+    at their roots, until nothing changes."""
+    lab = np.arange(n)
+    while True:
+        lo = np.minimum(lab[i], lab[j])
+        new = lab.copy()
+        np.minimum.at(new, lab[i], lo)
+        np.minimum.at(new, lab[j], lo)
+        while not np.array_equal(hop := new[new], new):
+            new = hop
+        if np.array_equal(new, lab):
+            return lab
+        lab = new
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(1, 60), edges=st.lists(st.tuples(st.integers(0, 59), st.integers(0, 59)), max_size=150))
+def test_lowest_connected_is_the_lowest_node_of_each_component(n, edges):
+    """Any graph (self-loops, repeated edges, either order, isolated nodes): each node gets the lowest
+    node of its component, as the labelling before it gave and as scipy's components say."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from fmcwlog.frontend.segmentation import _lowest_connected
+
+    e = np.array([(a % n, b % n) for a, b in edges], np.intp).reshape(-1, 2)
+    got = _lowest_connected(n, e[:, 0], e[:, 1])
+    np.testing.assert_array_equal(got, _lowered_until_stable(n, e[:, 0], e[:, 1]))
+    _, comp = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    lowest = np.full(comp.max() + 1, n)
+    np.minimum.at(lowest, comp, np.arange(n))
+    np.testing.assert_array_equal(got, lowest[comp])

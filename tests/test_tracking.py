@@ -10,9 +10,13 @@ dense-crowd log the truth is ``/ground_truth/point_labels`` and the method's ver
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from helpers import decoded
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.frontend.occupancy import OccupancyGrid, Scan
@@ -182,3 +186,18 @@ def test_dense_crowd_recall_and_precision(dense_scores):
 def test_tracker_off_loses_the_walkers_across_the_beams(dense_scores):
     (on, _), (off, _) = dense_scores[True], dense_scores[False]
     assert on - off >= 0.04, (on, off)  # measured 0.958 vs 0.882
+
+
+@settings(max_examples=300, deadline=None)
+@given(t=st.lists(st.floats(-1e3, 1e3, allow_nan=False) | st.sampled_from([0.0, 0.05, 0.1, np.nan]), max_size=40),
+       sort=st.booleans())
+def test_middle_time_is_numpys_median(t, sort):
+    """Sorted (as a sweep's capture times) or not, with NaN, odd or even counts: ``np.median``'s float."""
+    from fmcwlog.frontend.tracking import middle_time
+
+    a = np.sort(np.array(t, float)) if sort else np.array(t, float)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # np.median of no value
+        want = float(np.median(a))
+        got = middle_time(a)
+    assert np.array(got).tobytes() == np.array(want).tobytes()

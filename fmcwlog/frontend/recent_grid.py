@@ -54,37 +54,59 @@ class RecentOccupancy:
         self._started = [self._started[i] for i in keep]
         self.grids[-1].add(scan)
 
-    def log_odds(self, map_xy: np.ndarray) -> np.ndarray:
-        """(N,) the summed log-odds of each point's cell (0 where never observed)."""
-        out = np.zeros(len(map_xy))
-        for grid in self.grids:
-            out += _gather(grid, map_xy, _OWN)[:, 0]
+    def seen_free(self, map_xy: np.ndarray, candidates: np.ndarray, threshold: float) -> np.ndarray:
+        """(N,) whether each of the ``candidates`` (N,) among points ``map_xy`` (N, 2) lies where the
+        summed log-odds of its cell and of each of its 8 neighbours is at most ``threshold`` (cells
+        never observed or outside a grid hold 0 there); False for the others.
+
+        The point's own cell is looked up first, for all at once, and the 8 neighbours only where it
+        passed; each point's lattice cell is computed once for every grid and both lookups."""
+        out = np.zeros(len(map_xy), bool)
+        if len(map_xy) == 0:
+            return out
+        ix, iy = _lattice(map_xy, self.resolution)
+        views = [_GridView(grid) for grid in self.grids]
+        own = np.zeros(len(map_xy))
+        for view in views:
+            own += view.values(ix, iy)
+        near = np.flatnonzero((own <= threshold) & candidates)
+        around = np.zeros((near.size, len(_AROUND)))
+        ix_near, iy_near = ix[near, None] + _AROUND[:, 1], iy[near, None] + _AROUND[:, 0]
+        for view in views:
+            around += view.values(ix_near, iy_near)
+        out[near] = around.max(axis=1, initial=-np.inf) <= threshold
         return out
 
-    def local_max(self, map_xy: np.ndarray) -> np.ndarray:
-        """(N,) the largest summed log-odds of a point's cell and its 8 neighbours."""
-        out = np.zeros((len(map_xy), len(_AROUND)))
-        for grid in self.grids:
-            out += _gather(grid, map_xy, _AROUND)
-        return out.max(axis=1) if len(map_xy) else np.zeros(0)
+
+_AROUND = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])  # (rows, cols): a cell and its 8 neighbours
 
 
-_OWN = np.zeros((1, 2), np.int64)
-_AROUND = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])  # a cell and its 8 neighbours
+def _lattice(map_xy: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """The global lattice column and row (N,) int64 of each point (N, 2), as
+    :meth:`.OccupancyGrid.cell_of` computes them before taking its origin off."""
+    ij = np.floor(np.asarray(map_xy, float) / resolution).astype(np.int64)
+    return ij[:, 0], ij[:, 1]
 
 
-def _gather(grid: OccupancyGrid, map_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """(N, K) log-odds of the cells at ``offsets`` (K, 2) (rows, cols) from each point's cell; 0
-    outside the grid."""
-    log_odds = grid.log_odds  # read once: each property read flushes the grid's queue
-    height, width = log_odds.shape
-    if width == 0 or len(map_xy) == 0:
-        return np.zeros((len(map_xy), len(offsets)))
-    rc = grid.cell_of(map_xy)
-    r = rc[:, :1] + offsets[:, 0]
-    c = rc[:, 1:] + offsets[:, 1]
-    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-    return np.where(inside, log_odds[np.where(inside, r, 0), np.where(inside, c, 0)], 0.0)
+class _GridView:
+    """A grid's log-odds as they stand (its queue cast, read once), looked up by lattice cell."""
+
+    def __init__(self, grid: OccupancyGrid):
+        log_odds = grid.log_odds  # read once: each property read flushes the grid's queue
+        self.height, self.width = log_odds.shape
+        self.flat = log_odds.reshape(-1)
+        self.ix0, self.iy0 = grid.ix0, grid.iy0
+
+    def values(self, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+        """The log-odds (float32, ``ix``'s shape) of lattice cells ``(ix, iy)`` (int64); 0 outside the grid."""
+        if self.width == 0:
+            return np.zeros(ix.shape, np.float32)
+        r = iy - self.iy0
+        c = ix - self.ix0
+        inside = (r.view(np.uint64) < self.height) & (c.view(np.uint64) < self.width)  # negatives wrap past
+        r *= self.width
+        r += c
+        return np.where(inside, self.flat.take(r, mode="clip"), np.float32(0.0))
 
 
 def local_max_log_odds(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
@@ -92,4 +114,5 @@ def local_max_log_odds(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
     observed or outside the grid): ≥ a few hits is static structure mapped repeatedly."""
     if len(map_xy) == 0:
         return np.zeros(0)
-    return _gather(grid, map_xy, _AROUND).max(axis=1)
+    ix, iy = _lattice(map_xy, grid.resolution)
+    return _GridView(grid).values(ix[:, None] + _AROUND[:, 1], iy[:, None] + _AROUND[:, 0]).max(axis=1)

@@ -13,11 +13,16 @@ and decide per cluster, so the clearly moving points of an object carry its
 points whose motion is perpendicular to the beam (``ε ≈ 0``).
 
 DBSCAN is :func:`dbscan` here rather than sklearn's: the neighbourhood graph from
-one ``cKDTree.query_pairs`` and its components by min-label propagation, which gives
+one ``cKDTree.query_pairs`` and its components by hooking roots under the lowest node
+and following pointers (:func:`_lowest_connected`), which gives
 sklearn's labels exactly (``tests/test_segmentation.py`` compares them) at 0.56
 against 2.0 ms per sweep on the corridor log and 2.0 against 5.2 ms on the crowd
 log (the same machine, busy; the order of the two held on repeats), and saves the
-1.5 s import of sklearn.
+1.5 s import of sklearn. The components were found by lowering labels along every edge until
+stable (two ``minimum.at`` over all edges a round, and a last round to see nothing change); hooking
+the roots and dropping the edges already inside one tree takes :func:`dbscan` on the corridor log's
+925 calls from 0.27-0.31 to 0.22-0.23 s CPU, on the crowd log's 200 from 0.14-0.24 to 0.11-0.16 s
+(5 runs each, alternating; the same labels, ``tests/test_segmentation.py``).
 """
 
 from __future__ import annotations
@@ -89,12 +94,13 @@ def dbscan(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
     core = np.bincount(pairs.ravel(), minlength=n) + 1 >= min_samples
     if not core.any():
         return labels
-    both = core[i] & core[j]
-    root = _lowest_connected(n, i[both], j[both])
+    core_i, core_j = core[i], core[j]
+    both = core_i & core_j
+    root = _lowest_connected(n, i[both], j[both])[core]
     is_root = np.zeros(n, bool)
-    is_root[root[core]] = True
-    labels[core] = (np.cumsum(is_root) - 1)[root[core]]
-    to_core, from_core = core[j] & ~core[i], core[i] & ~core[j]
+    is_root[root] = True
+    labels[core] = (np.cumsum(is_root) - 1)[root]
+    to_core, from_core = core_j & ~core_i, core_i & ~core_j
     border = np.concatenate([i[to_core], j[from_core]])
     if border.size:
         first = np.full(n, n)
@@ -106,18 +112,19 @@ def dbscan(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
 
 def _lowest_connected(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """For each of ``n`` nodes the lowest node of its connected component under the undirected
-    edges ``i``-``j``: labels lowered along every edge, then pointed at their roots, until stable."""
+    edges ``i``-``j``. Every node points at a lower or equal one (a forest whose roots are the lowest
+    node of their tree); per round, each edge's higher root is hooked under its lower one, the
+    pointers are followed to the roots, and the edges now inside one tree are dropped, until none
+    is left (the answer is unique: the same as lowering labels along every edge until stable)."""
     lab = np.arange(n)
-    while True:
-        lo = np.minimum(lab[i], lab[j])
-        new = lab.copy()
-        np.minimum.at(new, lab[i], lo)
-        np.minimum.at(new, lab[j], lo)
-        while not np.array_equal(hop := new[new], new):
-            new = hop
-        if np.array_equal(new, lab):
-            return lab
-        lab = new
+    while i.size:
+        li, lj = lab[i], lab[j]
+        np.minimum.at(lab, np.maximum(li, lj), np.minimum(li, lj))
+        while not np.array_equal(hop := lab[lab], lab):
+            lab = hop
+        apart = lab[i] != lab[j]
+        i, j = i[apart], j[apart]
+    return lab
 
 
 def moving_from_labels(

@@ -237,6 +237,18 @@ def detections(map_xy: np.ndarray, origin: np.ndarray, times: np.ndarray, epsilo
     return Detections(centroid, bearing, doppler, radius, time, is_moving, free_space)
 
 
+def middle_time(t: np.ndarray) -> float:
+    """``np.median(t)`` (s) of a sweep's capture times: where they are sorted, as a sweep's beams
+    come, its middle value (or the mean of its two middle values) read directly: the same value
+    without the partition (23 -> 7 µs a sweep of 1,080 points); else ``np.median`` itself."""
+    n = len(t)
+    if n and t.dtype == np.float64 and bool(np.all(t[1:] >= t[:-1])):  # False with a NaN
+        if n % 2:
+            return float(t[n // 2])
+        return float((t[n // 2 - 1] + t[n // 2]) / 2.0)  # np.mean's sum, then its division
+    return float(np.median(t))
+
+
 class MoverTracker:
     """Tracks of moving objects in ``map``; :meth:`segment` once per sweep, in time order."""
 
@@ -408,14 +420,12 @@ class MoverTracker:
         """
         p = self.params
         lidar = compose(base_pose, mount)
-        when = stamp + float(np.median(t))
+        when = stamp + middle_time(t)
         map_xy = transform_points(lidar, deskew(xy, t, twist[0], twist[1], mount))
         seen_free = np.zeros(len(xy), bool)
-        if p.free_log_odds < 0:  # the point's own cell first: one gather for all
-            own = self.recent.log_odds(map_xy)
+        if p.free_log_odds < 0:
             placed = np.hypot(xy[:, 0], xy[:, 1]) * yaw_error <= p.map_tolerance
-            free = np.flatnonzero((own <= p.free_log_odds) & placed)
-            seen_free[free] = self.recent.local_max(map_xy[free]) <= p.free_log_odds
+            seen_free = self.recent.seen_free(map_xy, placed, p.free_log_odds)
         seg = segment_clusters(xy, epsilon, seg_params, seeds=self.seeds(lidar, when), seed_points=seen_free)
         idx = np.flatnonzero(seg.clustered)
         labels = seg.labels[idx]

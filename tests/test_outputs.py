@@ -233,8 +233,16 @@ def test_processed_messages_are_encoded_as_mcap_ros2_encodes_them():
         stamps = [ns + k * 10**8 for k in range(n)]
         assert tf_cdr([(stamp_pair(s), frame, child * k, pose7(p)) for k, (s, p) in enumerate(zip(stamps, poses))]) == \
             tf(tf_message([transform_dict(s, frame, child * k, p) for k, (s, p) in enumerate(zip(stamps, poses))]))
+        reference_path = path(path_message(ns, frame, stamps, poses))
         assert path_cdr(stamp_pair(ns), frame, [(stamp_pair(s), frame, pose7(p)) for s, p in zip(stamps, poses)]) == \
-            path(path_message(ns, frame, stamps, poses))
+            reference_path
+        # the published paths' poses as process keeps them (numbers, made into entries as read)
+        kept = outputs.PathPoses(frame)
+        for s, p in zip(stamps, poses):
+            kept.append(s, pose7(p))
+        whole = outputs._WholePath(frame, np.array(stamps, np.int64), np.array(poses).reshape(-1, 3))
+        assert len(kept) == len(whole) == n
+        assert path_cdr(stamp_pair(ns), frame, kept) == path_cdr(stamp_pair(ns), frame, whole) == reference_path
 
 
 def test_planar_covariance_places_x_y_yaw_in_the_6x6():

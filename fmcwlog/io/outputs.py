@@ -36,6 +36,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..allocator import release_freed_memory
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from ..growing import GrowingArray
@@ -466,6 +467,7 @@ class ProcessOutputs:
         for name, (before_stamps, before) in self.frontend.items():
             if len(before_stamps):
                 write_tum(self.folder / f"{name}_frontend.tum", before_stamps, before)
+        release_freed_memory()  # the parquet writer's buffers come from Arrow's allocator, not this heap
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:

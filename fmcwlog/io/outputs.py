@@ -222,6 +222,9 @@ def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
                                    "base_link is the rear-axle midpoint (REP-105)",
                  "fmcwlog.angles": "radians, counter-clockwise positive, z up (REP-103)"})
     pq.write_table(table.replace_schema_metadata(meta), path)
+    # Arrow's allocator (mimalloc) keeps the writer's freed buffers resident (26 MB for 36,000 rows):
+    # give them back, so that what runs after the write does not stand on them
+    pa.default_memory_pool().release_unused()
 
 
 def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
@@ -141,7 +141,16 @@ def _tf_cdr(m: dict) -> bytes:
                     _dict_pose7(tr["transform"]["translation"], tr["transform"]["rotation"])) for tr in m["transforms"]])
 
 
-def path_cdr(stamp: Stamp, frame_id: str, poses: Sequence[tuple[Stamp, str, Pose7]]) -> bytes:
+class PathEntries(Protocol):
+    """What :func:`path_cdr` reads: a count, then (stamp, frame, pose7) per pose (a list, or entries
+    made as they are read)."""
+
+    def __len__(self) -> int: ...
+
+    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]: ...
+
+
+def path_cdr(stamp: Stamp, frame_id: str, poses: PathEntries) -> bytes:
     """``nav_msgs/Path``: its header, the count, then per pose its header and 7 float64. ``process``
     publishes each method's whole path every few seconds of log; through mcap_ros2's generic encoder
     that was 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose

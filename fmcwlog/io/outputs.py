@@ -28,6 +28,7 @@ in ``map`` (the ground truth's frame) the robot started, so no estimate claims `
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -35,6 +36,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..allocator import release_freed_memory
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from ..growing import GrowingArray
@@ -220,6 +222,9 @@ def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
                                    "base_link is the rear-axle midpoint (REP-105)",
                  "fmcwlog.angles": "radians, counter-clockwise positive, z up (REP-103)"})
     pq.write_table(table.replace_schema_metadata(meta), path)
+    # Arrow's allocator (mimalloc) keeps the writer's freed buffers resident (26 MB for 36,000 rows):
+    # give them back, so that what runs after the write does not stand on them
+    pa.default_memory_pool().release_unused()
 
 
 def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
@@ -274,6 +279,42 @@ def _planar_twist(v: float, omega: float) -> tuple[float, ...]:
     return float(v), 0.0, 0.0, 0.0, 0.0, float(omega)
 
 
+class PathPoses:
+    """A published path's poses in ``frame``, as numbers: the stamp (ns) and the 7 float64 of the
+    pose (:func:`~fmcwlog.io.messages.pose7`) each, 64 bytes a pose where a tuple of Python objects
+    per pose held ~420; read as :func:`~fmcwlog.io.mcap_log.path_cdr`'s entries, the same values."""
+
+    def __init__(self, frame: str):
+        self.frame = frame
+        self._stamps = GrowingArray(np.int64)
+        self._poses = GrowingArray(np.float64, (7,))
+
+    def append(self, stamp_ns: int, pose: Pose7) -> None:
+        self._stamps.append(stamp_ns)
+        self._poses.append(pose)
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]:
+        for ns, p in zip(self._stamps.values.tolist(), self._poses.values.tolist()):
+            yield stamp_pair(ns), self.frame, tuple(p)
+
+
+class _WholePath:
+    """Every pose of a trajectory, stamps (S,) ns and poses (S, 3), as path_cdr's entries."""
+
+    def __init__(self, frame: str, stamps_ns: np.ndarray, poses: np.ndarray):
+        self.frame, self.stamps_ns, self.poses = frame, stamps_ns, poses
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]:
+        for ns, p in zip(self.stamps_ns.tolist(), self.poses):
+            yield stamp_pair(ns), self.frame, pose7(p)
+
+
 ODOMETRY, POINTCLOUD2 = "nav_msgs/msg/Odometry", "sensor_msgs/msg/PointCloud2"
 PUBLISH_BYTES_PER_S = 1e6  # paths and maps put into processed.mcap, at most, per second of log (before compression)
 
@@ -295,9 +336,8 @@ class ProcessOutputs:
         # per trajectory: stamps (ns) and poses (x, y, yaw), in numpy (a few bytes a sweep on a long log)
         self.trajectories: dict[str, tuple[GrowingArray, GrowingArray]] = {
             name: (GrowingArray(np.int64), GrowingArray(np.float64, (3,))) for name in trajectories}
-        self._path: dict[str, tuple[list, list]] = {name: ([], []) for name in trajectories}  # decimated
-        # the decimated path's poses as a Path holds them, (stamp, frame, pose7)
-        self._decimated: dict[str, list[tuple[Stamp, str, Pose7]]] = {name: [] for name in trajectories}
+        self._decimated = {name: PathPoses(odom_frame(name)) for name in trajectories}  # the published paths
+        self._kept: dict[str, np.ndarray] = {}  # per trajectory, the last pose its decimated path kept
         self.mount = np.asarray(mount, dtype=float)
         self.publish_period_ns = int(publish_period * 1e9)
         self.publish_bytes_per_s = float(publish_bytes_per_s)
@@ -311,16 +351,15 @@ class ProcessOutputs:
     def _track(self, name: str, stamp_ns: int, pose: np.ndarray) -> tuple[Stamp, Pose7]:
         """Keep the pose; the published paths keep one pose per 0.25 m or 10 deg of motion. Returns
         the stamp and the pose as messages carry them."""
-        entry = (stamp_pair(stamp_ns), odom_frame(name), pose7(pose))
+        at, p7 = stamp_pair(stamp_ns), pose7(pose)
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
-        stamps, poses = self._path[name]
-        if not poses or np.hypot(*(pose[:2] - poses[-1][:2])) >= 0.25 or \
-                abs((pose[2] - poses[-1][2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
-            stamps.append(stamp_ns)
-            poses.append(pose)
-            self._decimated[name].append(entry)
-        return entry[0], entry[2]
+        kept = self._kept.get(name)
+        if kept is None or np.hypot(*(pose[:2] - kept[:2])) >= 0.25 or \
+                abs((pose[2] - kept[2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
+            self._kept[name] = pose
+            self._decimated[name].append(stamp_ns, p7)
+        return at, p7
 
     def add(self, r: SweepResult) -> None:
         """One method's result for one sweep."""
@@ -383,9 +422,9 @@ class ProcessOutputs:
         before compression: 56 a pose, 1 a cell)."""
         size = 0
         for name, (stamps, poses) in self.trajectories.items():
-            # the whole path (final) from the kept numpy rows, as its Path holds them, or the decimated one
-            entries = ([(stamp_pair(ns), odom_frame(name), pose7(p)) for ns, p in zip(stamps.values.tolist(), poses.values)]
-                       if final else self._decimated[name])
+            # the whole path (final) from the kept numpy rows, or the decimated one: either made entry
+            # by entry as path_cdr reads it, not held as a list of tuples (~420 bytes a pose)
+            entries = _WholePath(odom_frame(name), stamps.values, poses.values) if final else self._decimated[name]
             if entries:
                 self.writer.write_cdr(f"/{name}/path", "nav_msgs/msg/Path",
                                       path_cdr(stamp_pair(stamp_ns), odom_frame(name), entries), stamp_ns)
@@ -431,6 +470,7 @@ class ProcessOutputs:
         for name, (before_stamps, before) in self.frontend.items():
             if len(before_stamps):
                 write_tum(self.folder / f"{name}_frontend.tum", before_stamps, before)
+        release_freed_memory()  # the parquet writer's buffers come from Arrow's allocator, not this heap
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:

@@ -305,6 +305,12 @@ class ProcessOutputs:
         self._transforms: list[tuple[Stamp, str, str, Pose7]] = []  # this sweep's, for /tf
         self.frontend: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # the front end's trajectories a back end corrected
 
+    @property
+    def next_publish_ns(self) -> int | None:
+        """Log time (ns) from which :meth:`end_sweep` publishes the paths and maps next; None before
+        the first sweep. It moves only when they are published."""
+        return self._next_publish
+
     def _row(self, **values) -> None:
         self.rows.add(values)
 

@@ -209,7 +209,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             backends = _backends(opts, cal, elsewhere)
             steps = runner.run(inputs)
             if elsewhere is not None:
-                steps = elsewhere.steps(steps, grids, lambda: outputs.next_publish_ns)
+                steps = elsewhere.steps(steps, grids, outputs)
             try:
                 searches = _feed(opts.methods, _steps(steps, log), outputs, backends, grids,
                                  lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
@@ -288,7 +288,7 @@ def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9))
+                     int(opts.publish_period * 1e9))  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 

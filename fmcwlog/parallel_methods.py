@@ -34,6 +34,32 @@ One process instead (``jobs=1``, ``fmcwlog process --jobs 1``): one CPU usable, 
 asked, and inside the fleet's workers (:mod:`fmcwlog.fleet.worker`: they run logs side by side
 already). The outputs do not depend on it, so ``options_sha256`` does not either.
 
+What it buys, on the shared 2-core machine of issue 14 (load average 4-9 from other work, so
+wall times swing by half between repeats of the same command): the work is split, not added.
+Both processes pinned to one core (``taskset``), CPU s of ``process`` (both methods, pose graph):
+
+| log | one process | two: parent (improved + outputs) | two: child (baseline) | two: sum |
+|---|---|---|---|---|
+| 120 s corridor | 22.7-26.4 | 13.2-13.7 | 9.0-9.2 | 22.2-22.9 |
+| 200 s ring | 37.8 | 22.3 | 16.8 | 39.1 |
+| 20 s crowd | 5.1-7.0 | 3.7-4.2 | 2.3-2.8 | 5.9-7.1 |
+
+so with two free cores the run's wall time falls to about the parent's share, 50-60 % of one
+process's on the corridor and the ring (the child runs up to a publishing period ahead, so its
+back end's slow sweeps need not stall the parent). The child's fixed costs are its own read of
+the log (0.5 s CPU on the corridor) and the results it sends. ``fmcwlog run`` (record, process,
+report), its process step as there (after a recording in the same process): parent 14.0 s +
+child 9.4 s against 22.8 s. Not pinned, the two processes' CPU was 0-30 % above one process's
+(the corridor 14.5 + 10.0 s against 21.9 s; the ring 38.8 and 48.4 s against 35.2 and 36.7 s;
+``fmcwlog run`` as a whole 36.6 and 32.3 s against 28.8 and 26.7 s): since the pinned runs add
+no work, presumably the time both cores running fmcwlog lose to the other work. The wall-time gain
+could not be shown there: the other work kept both cores busy, and the kernel's autogroup
+scheduling gives a command's session one fair share however many processes it runs (two
+processes each burning 2 s of CPU took 4.0 s of wall time, one took 2.1 s), so the walls of
+one and two processes moved with the load alone (corridor 94 and 50 s against 68 and 43 s;
+ring 73 and 52 s against 82 and 51 s; crowd 15.7-17.1 s against 17.2-17.6 s; ``fmcwlog run``
+33 and 40 s against 51 and 57 s; alternated).
+
 How the child starts: ``fork`` where the system has it safely (Linux), else ``spawn``. Measured
 on the shared 2-core machine, a parent that has imported the estimation stack, three starts
 each, until the child's first message: fork 9-20 ms wall and 8-10 ms CPU; spawn 1.2-2.2 s
@@ -52,7 +78,7 @@ import sys
 import threading
 import traceback
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -72,6 +98,7 @@ if TYPE_CHECKING:
     from .frontend.runner import SweepStep
     from .io.calibration import Calibration
     from .io.inputs import InputTopics
+    from .io.outputs import ProcessOutputs
 
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"  # numbers in the module docstring
 _JOIN_S = 5.0  # s to wait for a child that was told to end, or has ended, before it is killed
@@ -218,11 +245,10 @@ class MethodProcess:
             self._proc.join()
         self._reader.join()
 
-    def steps(self, local: Iterable[SweepStep], maps: dict, next_publish: Callable[[], int | None]) -> Iterator[SweepStep]:
+    def steps(self, local: Iterable[SweepStep], maps: dict, outputs: ProcessOutputs) -> Iterator[SweepStep]:
         """``local``'s steps with the child's results of each sweep after their own. ``maps`` (the
-        grids the outputs publish) gets the child's maps at the sweeps they publish;
-        ``next_publish()`` is the outputs' next publishing time, read after each sweep."""
-        told = None
+        grids ``outputs`` publish) gets the child's maps at the sweeps they publish; after each
+        sweep that published, the child is told the outputs' next publishing time."""
         for step in local:
             msg = self._receive()
             if not isinstance(msg, _Sweep) or msg.stamp_ns != step.sweep.stamp_ns:
@@ -234,14 +260,14 @@ class MethodProcess:
             if msg.backend_error is not None:
                 method, error = msg.backend_error
                 self.backends[method].error = error
+            publishes = outputs.publishes
             yield _merged(step, msg.results)
-            due = next_publish()
-            if (due != told and told is not None) != (msg.maps is not None):  # published without the child's maps
+            published = outputs.publishes > publishes
+            if published != (msg.maps is not None):  # published without the child's maps, or the reverse
                 raise self._out_of_step(f"the maps at {step.sweep.stamp_ns} ns")
-            if due != told:
-                told = due
+            if published:
                 try:
-                    self._schedule.send(due)
+                    self._schedule.send(outputs.next_publish_ns)
                 except OSError:  # the child has ended: the next message says how
                     pass
 
@@ -263,6 +289,7 @@ class MethodProcess:
                 msg.error.add_note(f"raised in {self._who()}:\n{msg.trace}")
             raise msg.error
         if msg is None:  # the pipe closed without a last message: the child died
+            self._inbox.put(None)  # and says so again to any later call
             self._proc.join(_JOIN_S)
             raise MethodProcessError(f"{self.task.log}: {self._who()} ended without its results "
                                      f"({_exit_reason(self._proc.exitcode)}) after sweep {self.sweeps}; "
@@ -404,8 +431,9 @@ def _without_warnings(items: Iterable[Any]) -> Iterator[Any]:
 
 
 class _Schedule:
-    """When the outputs publish the maps, as the child learns it: never sooner than a period after
-    the last time (or the first sweep); the exact time is the parent's, asked for when needed."""
+    """When the outputs publish the maps, as the child learns it: first one period after the first
+    sweep (:meth:`~fmcwlog.io.outputs.ProcessOutputs.add`), then never sooner than a period after
+    the last time; the exact time is the parent's, asked for when that much log has passed."""
 
     def __init__(self, conn: Connection, period_ns: int):
         self.conn, self.period_ns = conn, period_ns
@@ -413,8 +441,8 @@ class _Schedule:
         self.next: int | None = None
 
     def due(self, stamp_ns: int) -> bool:
-        if self.earliest is None:
-            self.earliest = stamp_ns + self.period_ns
+        if self.earliest is None:  # the first sweep
+            self.earliest = self.next = stamp_ns + self.period_ns
         if stamp_ns < self.earliest:
             return False
         if self.next is None:

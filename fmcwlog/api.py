@@ -19,6 +19,7 @@ import logging
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -76,6 +77,9 @@ if TYPE_CHECKING:
     from .frontend.params import FrontEndParams
     from .frontend.runner import LogRunner, SweepStep
     from .io.outputs import ProcessOutputs
+    from .parallel_methods import ChildBackend, MethodProcess
+
+    Backends = dict[str, PoseGraphBackend | ChildBackend]  # a child's stand in for the back ends it runs
 
 logger = logging.getLogger(__name__)
 
@@ -161,19 +165,21 @@ class ProcessSummary:
 
 
 def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
-            on_sweep: Callable[[int, int | None], None] | None = None) -> ProcessSummary:
+            on_sweep: Callable[[int, int | None], None] | None = None, jobs: int | None = None) -> ProcessSummary:
     """Run ``opts.methods`` over ``log`` and write everything into ``out_dir``.
 
     ``on_sweep(done, total)`` is called after each sweep (total None when unknown). The
     outputs are written to a temporary folder that replaces ``out_dir`` when complete.
     ``out_dir`` must be empty or absent; with ``force`` it may also be an output folder
     fmcwlog made, but never one holding anything else or the log itself
-    (:func:`fmcwlog.io.atomic.check_output_folder`).
+    (:func:`fmcwlog.io.atomic.check_output_folder`). ``jobs``: 1 runs every method in this
+    process; otherwise (None: where two or more CPUs are usable) the methods after the first
+    run in a child process (:mod:`fmcwlog.parallel_methods`). The outputs are the same bytes.
     """
     from .allocator import keep_freed_memory
-    from .backend import PoseGraphBackend
     from .frontend.runner import LogRunner
     from .io.outputs import ProcessOutputs, odom_frame
+    from .parallel_methods import merge_diagnostics
 
     opts = opts or ProcessOptions()
     if opts.backend not in BACKENDS:
@@ -190,30 +196,34 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                   reader.path, topics.scan, topics.prior or "none",
                   total if total is not None else "an unknown number of", *cal.mount)
-        with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp:
+        with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp, \
+                _methods_elsewhere(log, opts, cal, topics, jobs) as elsewhere:
             digest = file_sha256(log)  # report refuses a --log whose bytes differ
-            runner = LogRunner(opts.methods, opts.params, cal, topics, reader.path)
+            here = tuple(m for m in opts.methods if elsewhere is None or m not in elsewhere.methods)
+            runner = LogRunner(here, opts.params, cal, topics, reader.path)
             inputs = LogInputs(reader, topics, cal)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
-            grids = {fe.name: fe.grid for fe in runner.fronts}
-            backends = {m: PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
-                        for m in opts.methods} if opts.backend == "pose-graph" else {}
+            own_grids = {fe.name: fe.grid for fe in runner.fronts}
+            grids: dict[str, Any] = {m: own_grids.get(m) for m in opts.methods}  # the child's: its maps, as published
+            backends = _backends(opts, cal, elsewhere)
+            steps = runner.run(inputs)
+            if elsewhere is not None:
+                steps = elsewhere.steps(steps, grids, outputs)
             try:
-                searches = _feed(runner, _steps(runner, inputs, log), outputs, backends, grids,
+                searches = _feed(opts.methods, _steps(steps, log), outputs, backends, grids,
                                  lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
                 optimised = _optimise(backends, outputs, grids, tmp)
+                if elsewhere is not None:
+                    grids.update(elsewhere.end().grids)  # without a back end: the child's last maps
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
                 raise
-            diagnostics, diagnostic_notes = runner.diagnostics()
+            diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
+                                             merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
             notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
-            if topics.ticks:
-                prior = f"wheel ticks ({topics.ticks})"
-            else:
-                prior = f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), _prior_name(topics), inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
                                      reader.contents.truncated, notes,
                                      {m: res.summary() for m, res in optimised.items()})
@@ -247,11 +257,47 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def _feed(runner: LogRunner, steps: Iterator[SweepStep], outputs: ProcessOutputs,
-          backends: dict[str, PoseGraphBackend], grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
+def _prior_name(topics: InputTopics) -> str:
+    """The motion prior, as ``run.json`` and the summary say it."""
+    if topics.ticks:
+        return f"wheel ticks ({topics.ticks})"
+    return f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
+
+
+def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess | None) -> Backends:
+    """Each method's back end (none without ``opts.backend``); the child's stand in for those it runs."""
+    from .backend import PoseGraphBackend
+
+    if opts.backend != "pose-graph":
+        return {}
+    there = elsewhere.backends if elsewhere is not None else {}
+    return {m: there[m] if m in there else
+            PoseGraphBackend(opts.params.backend, np.asarray(cal.mount), opts.params.map_resolution)
+            for m in opts.methods}
+
+
+@contextmanager
+def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics: InputTopics,
+                       jobs: int | None) -> Iterator[MethodProcess | None]:
+    """The child process that runs the methods after the first (:mod:`fmcwlog.parallel_methods`),
+    ended on the way out; None where they all run here."""
+    from .parallel_methods import ChildTask, MethodProcess, child_methods
+
+    methods = child_methods(tuple(opts.methods), jobs)
+    if not methods:
+        yield None
+        return
+    task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
+                     int(opts.publish_period * 1e9))  # as ProcessOutputs has it
+    with MethodProcess(task) as child:
+        yield child
+
+
+def _feed(methods: Sequence[str], steps: Iterator[SweepStep], outputs: ProcessOutputs,
+          backends: Backends, grids: dict, after_sweep: Callable[[], None]) -> dict[str, list[int]]:
     """Every sweep through the front ends, into the outputs and the back ends. Returns, per method,
     how many correlative searches ran and how many of them replaced the ICP's match."""
-    searches = {fe.name: [0, 0] for fe in runner.fronts}
+    searches = {m: [0, 0] for m in methods}
     for step in steps:
         for r in step.results:
             outputs.add(r)
@@ -266,7 +312,7 @@ def _feed(runner: LogRunner, steps: Iterator[SweepStep], outputs: ProcessOutputs
     return searches
 
 
-def _optimise(backends: dict[str, PoseGraphBackend], outputs: ProcessOutputs, grids: dict,
+def _optimise(backends: Backends, outputs: ProcessOutputs, grids: dict,
               folder: Path) -> dict[str, BackendResult]:
     """Each back end's last optimisation: its trajectory replaces the front end's in the outputs,
     its map the front end's grid, and ``<method>_backend.json`` records its graph."""
@@ -293,10 +339,10 @@ def backend_json(res: BackendResult) -> dict:
     }
 
 
-def _steps(runner: LogRunner, inputs: LogInputs, log: Path) -> Iterator[SweepStep]:
+def _steps(steps: Iterator[SweepStep], log: Path) -> Iterator[SweepStep]:
     """The runner's steps; a map that outgrows its budget is an error about this log."""
     try:
-        yield from runner.run(inputs)
+        yield from steps
     except MapSizeError as exc:
         raise LogError(f"{log}: {exc}") from None
 

@@ -286,7 +286,9 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
                    "--config takes it back), and exit.")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
-              help="Many logs: how many to process at once, each in a worker of its own.  [default: every core]")
+              help="Many logs: how many to process at once, each in a worker of its own.  One log: 1 runs both "
+                   "methods in this process, 2 or more the baseline in a process of its own (the same outputs, "
+                   "sooner).  [default: every core]")
 @click.option("--timeout", "timeout_s", type=click.FloatRange(min=0), default=0.0, metavar="SECONDS",
               help="Many logs: a log still running after this long is stopped and reported failed (0: no limit).")
 @click.option("--memory-limit", "memory_limit_mb", type=click.IntRange(min=0), default=Limits().memory_limit_mb,
@@ -319,12 +321,12 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
         if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
             console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
                             "here, in this process, without them")
-        _process(logs[0], out_dir, opts, force)
+        _process(logs[0], out_dir, opts, force, jobs)
         return
     _process_many(list(logs), out_dir, opts, force, jobs, Limits(memory_limit_mb, timeout_s), ray_address, retries)
 
 
-def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) -> None:
+def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None = None) -> None:
     import time
 
     bar = None
@@ -339,7 +341,7 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool) ->
         bar.update(1, current_item=done)
 
     try:
-        summary = api.process(log, out_dir, opts, force=force, on_sweep=on_sweep)
+        summary = api.process(log, out_dir, opts, force=force, on_sweep=on_sweep, jobs=jobs)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

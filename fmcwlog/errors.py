@@ -44,5 +44,10 @@ class OutputError(FmcwlogError):
     """An output cannot be written where it was asked for; the message says where and why."""
 
 
+class MethodProcessError(FmcwlogError):
+    """The process running some of the methods (:mod:`fmcwlog.parallel_methods`) ended without its
+    results: killed, out of memory or crashed; the message says how, and that ``--jobs 1`` avoids it."""
+
+
 class MapSizeError(FmcwlogError, ValueError):
     """An occupancy grid would exceed its cell budget (points far off, or a resolution too fine)."""

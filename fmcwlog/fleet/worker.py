@@ -50,9 +50,9 @@ def _out_of_memory(exc: BaseException) -> bool:
         isinstance(exc, ImportError) and ("failed to map segment" in text or "Cannot allocate memory" in text))
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Linux: end this worker when the process that started it dies (a killed batch or Ray worker),
-    rather than finish a log nobody waits for."""
+    rather than finish a log nobody waits for (also the child of :mod:`fmcwlog.parallel_methods`)."""
     try:
         import ctypes
 
@@ -63,7 +63,7 @@ def _die_with_parent() -> None:
 
 
 def main() -> int:
-    _die_with_parent()
+    die_with_parent()
     proto = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1)
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # stray prints land in stderr, not the protocol
 
@@ -84,7 +84,8 @@ def main() -> int:
                 last[0] = now
                 say("sweeps", f"{done} {total if total is not None else '-'}")
 
-        s = process(task.log, task.out_dir, task.options, force=task.force, on_sweep=on_sweep)
+        # jobs=1: the methods in this one process; the workers already fill the cores with logs
+        s = process(task.log, task.out_dir, task.options, force=task.force, on_sweep=on_sweep, jobs=1)
         say("done", json.dumps({"sweeps": s.sweeps, "ms_median": s.ms_median, "warnings": s.warnings,
                                 "truncated": s.truncated}))
         return 0

@@ -342,8 +342,15 @@ class ProcessOutputs:
         self.publish_period_ns = int(publish_period * 1e9)
         self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
+        self.publishes = 0  # times end_sweep published the paths and maps
         self._transforms: list[tuple[Stamp, str, str, Pose7]] = []  # this sweep's, for /tf
         self.frontend: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # the front end's trajectories a back end corrected
+
+    @property
+    def next_publish_ns(self) -> int | None:
+        """Log time (ns) from which :meth:`end_sweep` publishes the paths and maps next; None before
+        the first sweep. It moves only when they are published."""
+        return self._next_publish
 
     def _row(self, **values) -> None:
         self.rows.add(values)
@@ -410,6 +417,7 @@ class ProcessOutputs:
             self._next_publish = stamp_ns + self.publish_period_ns
         if stamp_ns >= self._next_publish:
             size = self._publish(stamp_ns, grids)
+            self.publishes += 1
             # every publish_period, unless the maps and paths have grown so large that this would write
             # more than publish_bytes_per_s per second of log: each publish repeats them whole, so a
             # fixed period is quadratic in a long log's length (MIT Killian, 2.1 h: 1,535 maps of 25

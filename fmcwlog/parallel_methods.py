@@ -58,7 +58,10 @@ scheduling gives a command's session one fair share however many processes it ru
 processes each burning 2 s of CPU took 4.0 s of wall time, one took 2.1 s), so the walls of
 one and two processes moved with the load alone (corridor 94 and 50 s against 68 and 43 s;
 ring 73 and 52 s against 82 and 51 s; crowd 15.7-17.1 s against 17.2-17.6 s; ``fmcwlog run``
-33 and 40 s against 51 and 57 s; alternated).
+33 and 40 s against 51 and 57 s; alternated). Once the machine was quiet (load 0.2), the
+corridor, two alternating pairs, ``/usr/bin/time python -m fmcwlog process``: 12.8-13.0 s wall
+with two processes against 20.3-20.6 s with ``--jobs 1`` (-37 %), CPU 21.9-22.7 against
+20.4-20.9 s.
 
 How the child starts: ``fork`` where the system has it safely (Linux), else ``spawn``. Measured
 on the shared 2-core machine, a parent that has imported the estimation stack, three starts

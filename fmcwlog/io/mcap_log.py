@@ -35,6 +35,7 @@ from .. import __version__
 from ..errors import LogError
 from .atomic import partial_path
 from .mcap_scan import Damaged, McapScan
+from .messages import FLOAT32
 from .schemas import message_definition
 
 # Types whose last field is a large primitive array given as a numpy array: written as raw
@@ -224,6 +225,23 @@ def pointcloud2_cdr(stamp: Stamp, frame_id: str, height: int, width: int, fields
     return b"".join((_CDR_LE, _STAMP.pack(*stamp), _after_stamp((frame_id,), 4), _U32.pack(height),
                      _U32.pack(width), _fields_block(fields), _BOOL.pack(is_bigendian), b"\0\0\0",
                      _CLOUD_TAIL.pack(point_step, row_step, len(data)), data, _BOOL.pack(is_dense)))
+
+
+@lru_cache(maxsize=64)
+def _float32_fields(names: tuple[str, ...]) -> tuple[PointField, ...]:
+    return tuple((name, 4 * i, FLOAT32, 1) for i, name in enumerate(names))
+
+
+def float32_cloud_cdr(stamp: Stamp, frame_id: str, n: int, columns: dict[str, np.ndarray | None]) -> bytes:
+    """A ``sensor_msgs/PointCloud2`` of ``n`` points with one float32 field per column, in order,
+    packed point by point (as :func:`fmcwlog.io.messages.pointcloud_message`); a None column is 0."""
+    packed = np.zeros((n, len(columns)), dtype="<f4")
+    for i, column in enumerate(columns.values()):
+        if column is not None:
+            packed[:, i] = column
+    step = 4 * len(columns)
+    return pointcloud2_cdr(stamp, frame_id, 1, n, _float32_fields(tuple(columns)), False, step, step * n,
+                           packed.tobytes(), True)
 
 
 def _pointcloud2_cdr(m: dict) -> bytes:

@@ -40,9 +40,8 @@ from ..allocator import release_freed_memory
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from ..growing import GrowingArray
-from .mcap_log import LogWriter, Pose7, Stamp, odometry_cdr, path_cdr, pointcloud2_cdr, stamp_pair, tf_cdr
+from .mcap_log import LogWriter, Pose7, Stamp, float32_cloud_cdr, odometry_cdr, path_cdr, stamp_pair, tf_cdr
 from .messages import (
-    FLOAT32,
     occupancy_grid_message,
     planar_covariance,
     pose7,
@@ -259,19 +258,12 @@ def pgm_pixels(data: bytes) -> np.ndarray:
     return np.frombuffer(data, np.uint8, count=w * h, offset=pos + 1).reshape(h, w)
 
 
-_CLOUD_FIELDS = {k: tuple((name, 4 * i, FLOAT32, 1) for i, name in enumerate(("x", "y", "z", "velocity")[:k]))
-                 for k in (3, 4)}
-
-
 def _cloud(stamp: Stamp, frame: str, xy: np.ndarray, velocity: np.ndarray | None) -> bytes:
     """A PointCloud2 of float32 ``x, y, z`` (0) and ``velocity`` if given, packed point by point."""
-    k = 3 if velocity is None else 4
-    packed = np.zeros((len(xy), k), dtype="<f4")
-    packed[:, :2] = xy
+    columns: dict[str, np.ndarray | None] = {"x": xy[:, 0], "y": xy[:, 1], "z": None}
     if velocity is not None:
-        packed[:, 3] = velocity
-    return pointcloud2_cdr(stamp, frame, 1, len(xy), _CLOUD_FIELDS[k], False, 4 * k, 4 * k * len(xy),
-                           packed.tobytes(), True)
+        columns["velocity"] = velocity
+    return float32_cloud_cdr(stamp, frame, len(xy), columns)
 
 
 def _planar_twist(v: float, omega: float) -> tuple[float, ...]:

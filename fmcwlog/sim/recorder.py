@@ -25,14 +25,14 @@ from .. import __version__
 from ..geometry import yaw_to_quaternion
 from ..io.mcap_log import (
     LogWriter,
+    float32_cloud_cdr,
     odometry_cdr_batch,
     point_labels_cdr,
-    pointcloud2_cdr,
     stamp_pair,
     tf_cdr_batch,
     wheel_ticks_cdr_batch,
 )
-from ..io.messages import FLOAT32, POINT_FIELDS, tf_message, transform_dict
+from ..io.messages import POINT_FIELDS, tf_message, transform_dict
 from ..io.topics import (
     BASE_FRAME,
     CALIBRATION_KEY,
@@ -146,18 +146,10 @@ def _ground_truth(ns_ticks: np.ndarray, body: BodyState, left: np.ndarray, right
                     odometry_cdr_batch(ns, MAP_FRAME, BASE_FRAME, odom), tf_cdr_batch(ns, MAP_FRAME, BASE_FRAME, pose)))
 
 
-_CLOUD_FIELDS = tuple((name, 4 * i, FLOAT32, 1) for i, name in enumerate(POINT_FIELDS))  # float32 each, packed
-
-
 def _cloud(ns: int, sweep: Sweep) -> bytes:
     """The sweep as a PointCloud2 in ``lidar``: x y z (0) intensity velocity t, float32, point by point."""
-    packed = np.zeros((len(sweep.x), len(POINT_FIELDS)), dtype="<f4")
-    for i, column in enumerate((sweep.x, sweep.y, None, sweep.intensity, sweep.velocity, sweep.t)):
-        if column is not None:
-            packed[:, i] = column
-    step = 4 * len(POINT_FIELDS)
-    return pointcloud2_cdr(stamp_pair(ns), LIDAR_FRAME, 1, len(packed), _CLOUD_FIELDS, False, step, step * len(packed),
-                           packed.tobytes(), True)
+    columns = dict(zip(POINT_FIELDS, (sweep.x, sweep.y, None, sweep.intensity, sweep.velocity, sweep.t)))
+    return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
 
 
 def record(

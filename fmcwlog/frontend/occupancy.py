@@ -216,6 +216,13 @@ def cast(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
     return ScanUpdate(y0, x0, rows.astype(np.int32), cols.astype(np.int32), increment)
 
 
+def lattice_cells(xy: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """The global lattice column and row (N,) int64 of map points ``xy`` (N, 2) at ``resolution``
+    (m): the cells every grid of that resolution shares, before a grid's origin is taken off."""
+    ij = np.floor(np.asarray(xy, float) / resolution).astype(np.int64)
+    return ij[:, 0], ij[:, 1]
+
+
 class OccupancyGrid:
     """A growing log-odds occupancy grid (see module docstring for conventions)."""
 
@@ -285,8 +292,8 @@ class OccupancyGrid:
 
     def cell_of(self, xy: np.ndarray) -> np.ndarray:
         """Array indices (N, 2) as (row, col) of map points (N, 2); may be out of bounds."""
-        ij = np.floor(np.asarray(xy, float) / self.resolution).astype(np.int64)
-        return np.stack([ij[:, 1] - self.iy0, ij[:, 0] - self.ix0], -1)
+        ix, iy = lattice_cells(xy, self.resolution)
+        return np.stack([iy - self.iy0, ix - self.ix0], -1)
 
     def _ensure(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """Grow the arrays (keeping content) so that the box [lo, hi] (m) is inside."""

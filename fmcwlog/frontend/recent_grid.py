@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .occupancy import OccupancyGrid, OccupancyParams, Scan
+from .occupancy import OccupancyGrid, OccupancyParams, Scan, lattice_cells
 
 
 class RecentOccupancy:
@@ -64,7 +64,7 @@ class RecentOccupancy:
         out = np.zeros(len(map_xy), bool)
         if len(map_xy) == 0:
             return out
-        ix, iy = _lattice(map_xy, self.resolution)
+        ix, iy = lattice_cells(map_xy, self.resolution)
         views = [_GridView(grid) for grid in self.grids]
         own = np.zeros(len(map_xy))
         for view in views:
@@ -79,13 +79,6 @@ class RecentOccupancy:
 
 
 _AROUND = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])  # (rows, cols): a cell and its 8 neighbours
-
-
-def _lattice(map_xy: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
-    """The global lattice column and row (N,) int64 of each point (N, 2), as
-    :meth:`.OccupancyGrid.cell_of` computes them before taking its origin off."""
-    ij = np.floor(np.asarray(map_xy, float) / resolution).astype(np.int64)
-    return ij[:, 0], ij[:, 1]
 
 
 class _GridView:
@@ -114,5 +107,5 @@ def local_max_log_odds(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
     observed or outside the grid): ≥ a few hits is static structure mapped repeatedly."""
     if len(map_xy) == 0:
         return np.zeros(0)
-    ix, iy = _lattice(map_xy, grid.resolution)
+    ix, iy = lattice_cells(map_xy, grid.resolution)
     return _GridView(grid).values(ix[:, None] + _AROUND[:, 1], iy[:, None] + _AROUND[:, 0]).max(axis=1)

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+from collections.abc import Callable
+from functools import cache
 
 M_TRIM_THRESHOLD = -1  # glibc's malloc.h
 M_MMAP_THRESHOLD = -3
@@ -36,10 +38,8 @@ def keep_freed_memory() -> bool:
     global _done
     if _done:
         return True
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc (macOS, musl without mallopt, Windows)
+    mallopt = _glibc("mallopt")
+    if mallopt is None:
         return False
     _done = bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
     return _done
@@ -48,9 +48,18 @@ def keep_freed_memory() -> bool:
 def release_freed_memory() -> bool:
     """Give the heap's freed pages back to the system (glibc's ``malloc_trim``) before a step whose
     memory comes from elsewhere; False where there is no glibc."""
-    try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):  # not glibc
+    trim = _glibc("malloc_trim")
+    if trim is None:
         return False
     trim(0)
     return True
+
+
+@cache
+def _glibc(name: str) -> Callable[..., int] | None:
+    """glibc's function ``name``, looked up once (``find_library`` runs a subprocess); None where
+    there is no such function (macOS, musl without it, Windows)."""
+    try:
+        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
+    except (OSError, AttributeError):
+        return None

@@ -243,9 +243,10 @@ def middle_time(t: np.ndarray) -> float:
     without the partition (23 -> 7 µs a sweep of 1,080 points); else ``np.median`` itself."""
     n = len(t)
     if n and t.dtype == np.float64 and bool(np.all(t[1:] >= t[:-1])):  # False with a NaN
+        # np.mean's sum starts from +0.0 (so a -0.0 comes back as 0.0), then its division
         if n % 2:
-            return float(t[n // 2])
-        return float((t[n // 2 - 1] + t[n // 2]) / 2.0)  # np.mean's sum, then its division
+            return float(0.0 + t[n // 2])
+        return float((0.0 + t[n // 2 - 1] + t[n // 2]) / 2.0)
     return float(np.median(t))
 
 

@@ -456,3 +456,46 @@ def test_a_point_store_that_cannot_write_says_so_in_one_line(monkeypatch, tmp_pa
     with pytest.raises(OutputError, match=f"^{tmp_path}: cannot keep fmcwlog's temporary point store") as err:
         PointStore()
     assert "\n" not in str(err.value)
+
+
+def test_isam2_fed_as_the_pipeline_feeds_it_ends_where_a_batch_solve_and_the_truth_put_the_loop():
+    """Two laps of the square with a 1°/m yaw bias: nodes and odometry come one by one, each
+    node from the end of the first lap on closes on its twin a lap before (the true relative pose), and the graph is
+    re-solved every 5 nodes as the pipeline does. ISAM2, given only what was added since its last
+    update, must end where Levenberg-Marquardt on the whole graph ends, and near the truth; its
+    final whole-graph solve must give the batch answer."""
+    lap = _square_loop()
+    truth = np.vstack([lap, lap[1:]])
+    n_lap = len(lap) - 1
+    odom_cov = np.diag([0.02**2, 0.02**2, 0.01**2])
+    closure_cov = np.diag([0.01**2, 0.01**2, 0.002**2])
+    graphs = {"batch": PoseGraph(3.0), "isam2": PoseGraph(3.0, "isam2", isam2_steps=3, relinearize_threshold=0.001)}
+    for g in graphs.values():
+        est = truth[0]
+        g.add_node(est)
+        for i in range(1, len(truth)):
+            rel = between(truth[i - 1], truth[i]) + np.array([0.0, 0.0, np.radians(1.0)])
+            # a new node starts where the current estimate of the one before and the odometry put it
+            est = compose(g.estimate(i - 1), rel)
+            g.add_node(est)
+            g.add_odometry(Edge(i - 1, i, rel, odom_cov))
+            if i >= n_lap:  # back at the start, then along the first lap
+                g.add_closure(Edge(i - n_lap, i, between(truth[i - n_lap], truth[i]), closure_cov))
+            if i >= n_lap and i % 5 == 0:
+                g.optimize()
+        g.optimize()
+    batch, isam2 = graphs["batch"].estimates(), graphs["isam2"].estimates()
+    drift = np.hypot(*(_drifting_graph(truth, 3.0).estimates()[:, :2] - truth[:, :2]).T).max()
+    assert drift > 5.0
+    assert np.hypot(*(batch[:, :2] - truth[:, :2]).T).max() < 0.1
+    assert np.hypot(*(isam2[:, :2] - batch[:, :2]).T).max() < 0.01
+    assert np.abs(wrap_angle(isam2[:, 2] - batch[:, 2])).max() < np.radians(0.1)
+    graphs["isam2"].optimize(final=True)
+    final = graphs["isam2"].estimates()
+    assert np.abs(final[:, :2] - batch[:, :2]).max() < 1e-4
+    assert np.allclose(graphs["isam2"].closure_errors(), graphs["batch"].closure_errors(), atol=1e-3)
+
+
+def test_an_unknown_solver_is_refused():
+    with pytest.raises(ValueError, match="solver"):
+        PoseGraph(3.0, "gauss-seidel")

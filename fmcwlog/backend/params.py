@@ -41,6 +41,10 @@ class BackendParams(Checked):
     local_gate, local_gate_deg: a match that moved farther than this from the front end's
         relative pose gives no edge (m, deg).
     local_sigma_xy_floor, local_sigma_yaw_floor: floors added to a local edge's covariance (m, rad).
+    local_query_voxel, local_submap_voxel: the new node's points are thinned to this voxel as the
+        query, an earlier node's as the submap it is matched against (m).
+    local_max_iterations, local_tolerance: the local matches' ICP stops after this many
+        iterations or once a step moves less than this (m, and rad × 1 m); ``icp`` otherwise.
 
     Loop-closure candidates (:mod:`.candidates`):
     closure_radius: a node within this distance (m) of the query node in the current estimate...
@@ -82,6 +86,13 @@ class BackendParams(Checked):
     cauchy_scale: scale of the Cauchy kernel on closures, in standard deviations; a closure whose
         whitened error ends above it weighs less than half and is counted as not accepted.
     optimize_every: re-optimise after this many new nodes once a closure has been added (≥ 1).
+    solver: ``batch`` re-solves the whole graph with Levenberg-Marquardt each time; ``isam2`` hands
+        gtsam's ISAM2 what was added since the last time and solves the whole graph once in
+        :meth:`~.pipeline.PoseGraphBackend.finish`: less CPU, but its Bayes tree is held and grows
+        with the log (:mod:`.graph` gives the figures), so ``batch`` is the default.
+    isam2_steps: ISAM2 updates (Gauss-Newton steps on the affected part) per re-optimisation (≥ 1).
+    isam2_relinearize: ISAM2 relinearises a node whose estimate moved more than this since its last
+        linearisation (m and rad, > 0).
     """
 
     node_distance: float = param(0.5, "m", gt=0.0, le=100.0)
@@ -97,6 +108,10 @@ class BackendParams(Checked):
     local_gate_deg: float = param(2.0, "deg", gt=0.0, le=180.0)
     local_sigma_xy_floor: float = param(0.002, "m", gt=0.0, le=10.0)
     local_sigma_yaw_floor: float = param(0.0005, "rad", gt=0.0, le=math.pi)
+    local_query_voxel: float = param(0.05, "m", gt=0.0, le=1.0)
+    local_submap_voxel: float = param(0.05, "m", gt=0.0, le=1.0)
+    local_max_iterations: int = param(20, "", ge=1, le=1000)
+    local_tolerance: float = param(1e-3, "m", gt=0.0, le=1.0)
     closure_radius: float = param(3.0, "m", gt=0.0, le=100.0)
     closure_min_path: float = param(15.0, "m", ge=0.0, le=10_000.0)
     closure_every: float = param(1.0, "m", gt=0.0, le=1000.0)
@@ -123,3 +138,6 @@ class BackendParams(Checked):
     min_pairs: int = param(30, "pairs", ge=1, le=100_000)
     cauchy_scale: float = param(3.0, "sigma", gt=0.0, le=100.0)
     optimize_every: int = param(10, "nodes", ge=1, le=100_000)
+    solver: str = param("batch", choices=("batch", "isam2"))
+    isam2_steps: int = param(3, "", ge=1, le=100)
+    isam2_relinearize: float = param(0.001, "m, rad", gt=0.0, le=10.0)

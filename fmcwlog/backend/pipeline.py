@@ -120,7 +120,7 @@ class PoseGraphBackend:
         self.p = params
         self.mount = np.asarray(mount, float)
         self.map_resolution = map_resolution
-        self.graph = PoseGraph(params.cauchy_scale)
+        self.graph = PoseGraph(params.cauchy_scale, params.solver, params.isam2_steps, params.isam2_relinearize)
         self.local = LocalMatcher(params)
         self.local_edges = 0
         self.nodes: list[Node] = []
@@ -236,8 +236,8 @@ class PoseGraphBackend:
                  for i in range(lo, hi)]
         return voxel_downsample(np.concatenate(parts), SUBMAP_VOXEL)
 
-    def _optimize(self) -> None:
-        self.graph.optimize()
+    def _optimize(self, final: bool = False) -> None:
+        self.graph.optimize(final=final)
         self._estimates = self.graph.estimates()
         self._nodes_since_opt = 0
         self._dirty = False
@@ -246,7 +246,7 @@ class PoseGraphBackend:
     def finish(self) -> BackendResult:
         t0 = time.perf_counter()
         if self.records:
-            self._optimize()
+            self._optimize(final=True)
             for rec, err in zip(self.records, self.graph.closure_errors()):
                 rec.whitened_error = float(err)
                 rec.accepted = bool(err <= self.p.cauchy_scale)

@@ -111,7 +111,7 @@ class BackendParams(Checked):
     local_query_voxel: float = param(0.05, "m", gt=0.0, le=1.0)
     local_submap_voxel: float = param(0.05, "m", gt=0.0, le=1.0)
     local_max_iterations: int = param(20, "", ge=1, le=1000)
-    local_tolerance: float = param(1e-3, "m", gt=0.0, le=1.0)
+    local_tolerance: float = param(1e-4, "m", gt=0.0, le=1.0)
     closure_radius: float = param(3.0, "m", gt=0.0, le=100.0)
     closure_min_path: float = param(15.0, "m", ge=0.0, le=10_000.0)
     closure_every: float = param(1.0, "m", gt=0.0, le=1000.0)

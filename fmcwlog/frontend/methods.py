@@ -35,6 +35,22 @@ the end of the log.
 Both maps take a keyframe's points when the robot has moved or turned enough
 since the last one, which also bounds the KD-tree rebuilds.
 
+Only registration's input is thinned, as KISS-ICP thins each deskewed frame: the first point
+in beam order of each ``source_voxel`` (10 cm) voxel (:func:`.local_map.voxel_downsample`),
+for both methods (thinning the source is the classic ICP pipeline's practice too). The map,
+the occupancy grid, segmentation, the Doppler fit and the published clouds keep every point.
+Coarser voxels were measured for speed (issue 14) and not taken. On the 120 s corridor (front
+ends alone, CPU, two alternating runs, the lesser of each) 20 cm voxels (150 points a sweep
+instead of 344) cut the improved method's registration 1.31 -> 1.18 ms, under the run-to-run
+spread of its 4.7 ms sweep, and the baseline's sweep 3.0 -> 2.3 ms (mean); but on six
+scenarios x 3 seeds x 20 s (``bench/suite.py --quick --seeds 0 1 2``) the improved ATE grew
++25 to +111 % (15 cm: +9 to +32 %) and the baseline's up to +81 % (15 cm: +15 %). The
+thinner source also triples the error on the tests' known room (0.2-0.7 -> 1.2-1.5 mm).
+Without thinning (``source_voxel = 0``) the near walls' dense points outweigh the far ones
+(the 30 s corridor sample: 0.92 -> 1.62 cm). Finer, 5 cm voxels (registration +0.27 ms) cut the
+improved ATE on four of those scenarios (-5 to -44 %, ring most) and raised the baseline's on
+four (up to +129 %): an accuracy trade for the improved method, not taken here.
+
 The two methods are two classes, :class:`ImprovedFrontEnd` and
 :class:`BaselineFrontEnd`, over one :class:`FrontEnd` that holds what they
 share (deskew, map, occupancy grid, keyframes); :data:`METHODS` names them.
@@ -537,7 +553,8 @@ def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: fl
 
 
 class BaselineFrontEnd(FrontEnd):
-    """The classic ICP baseline: all points, the wheel-odometry prior, point-to-point ICP."""
+    """The classic ICP baseline: all points, the wheel-odometry prior, point-to-point ICP (its source
+    thinned to a point per ``source_voxel`` voxel, as classic ICP pipelines do; module docstring)."""
 
     name = BASELINE
 

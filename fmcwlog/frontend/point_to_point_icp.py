@@ -5,7 +5,8 @@ search and distance gate as :mod:`fmcwlog.frontend.robust_icp`, but unit
 weights, no rejection, no kernel, solved in closed form each iteration (2-D
 Kabsch / Arun SVD: the optimal rotation from the cross-covariance of the
 centred pairs). The centring there is part of the least-squares solution, not
-a pre-alignment.
+a pre-alignment. The front end registers a thinned source (one point per voxel, the
+standard practice of ICP pipelines such as KISS-ICP; :mod:`fmcwlog.frontend.methods`).
 """
 
 from __future__ import annotations

@@ -83,8 +83,10 @@ class FrontEndParams(Checked):
     # a scan every 1 m instead of 0.5 m: the ray casting, shared by the grid and the tracker's free
     # space (recent_grid.py), is the tracker's largest part. 120 s corridor: 231 -> 134 casts, cast
     # CPU 0.57 -> 0.40 s, front end 5.75 -> 5.50 s (min of 3 alternating); moving F1 and ATE the same
-    # there; dense-crowd 60 s F1 0.9876 -> 0.9870, crowd 20 s 0.9900 -> 0.9891 (tracking.py). 2 m:
-    # 0.24 s of casting, but dense-crowd's F1 0.9824 and ATE +8 %, and free space found a second later.
+    # there and on the 200 s ring; dense-crowd 60 s F1 0.9876 -> 0.9870, 20 s seeds 0/1/2 0.9813 /
+    # 0.9809 / 0.9748 -> 0.9724 / 0.9730 / 0.9794 (which seed loses a walker for 4 s moves: a mean of
+    # -0.004; static points judged moving 3-5x, still precision > 0.999), crowd 20 s 0.9900 -> 0.9891
+    # (tracking.py). 2 m: 0.24 s of casting, but dense-crowd 60 s F1 0.9824 and ATE +8 %.
     grid_distance: float = param(1.0, "m", ge=0.0, le=100.0)
     grid_angle_deg: float = param(10.0, "deg", ge=0.0, le=180.0)
     source_voxel: float = param(0.1, "m", ge=0.0, le=10.0)

@@ -99,12 +99,11 @@ all on, no structure check     0.984 / 0.988 / 6915          0.991 / 0.989 / 418
 all on, no point claims        0.982 / 0.9998 / 99           0.989 / 0.9999 / 53
 =============================  ============================  ============================
 
-The tables above were measured with the grids given a scan every 0.5 m of path; since issue 14
-they get one every 1 m (``grid_distance``, half the ray casting): dense-crowd 60 s (seed 0) went
-from 0.9757 / 0.9998 / 73 to 0.9752 / 0.9991 / 286, crowd 20 s from 0.9804 / 0.9996 / 28 to
-0.9792 / 0.9992 / 65, the 120 s corridor and the 200 s ring not at all; dense-crowd 20 s F1 over
-seeds 0/1/2 from 0.9813 / 0.9809 / 0.9748 to 0.9724 / 0.9730 / 0.9794 (a walker lost for ~4 s
-moves from one seed to another; static points judged moving 43-104 -> 230-292).
+With the grids given a scan every 1 m of path instead of 0.5 m (``grid_distance``: 30 % less
+ray casting; issue 14, not taken) dense-crowd 60 s (seed 0) went from 0.9757 / 0.9998 / 73 to
+0.9752 / 0.9991 / 286, crowd 20 s from 0.9804 / 0.9996 / 28 to 0.9792 / 0.9992 / 65, the 120 s
+corridor and the 200 s ring not at all; dense-crowd 20 s F1 over seeds 0/1/2 from 0.9813 / 0.9809 /
+0.9748 to 0.9724 / 0.9730 / 0.9794 (a walker lost for ~4 s moves from one seed to another).
 
 An earlier ``max_blind`` (a track labels only so long after its last Doppler or
 free-space match) was meant to stop tracks sliding along unmapped walls; with the

@@ -249,9 +249,10 @@ def middle_time(t: np.ndarray) -> float:
     without the partition (23 -> 7 µs a sweep of 1,080 points); else ``np.median`` itself."""
     n = len(t)
     if n and t.dtype == np.float64 and bool(np.all(t[1:] >= t[:-1])):  # False with a NaN
+        # np.median's mean sums from 0.0 (which turns -0.0 into 0.0, and leaves every other value as is)
         if n % 2:
-            return float(t[n // 2])
-        return float((t[n // 2 - 1] + t[n // 2]) / 2.0)  # np.mean's sum, then its division
+            return float(0.0 + t[n // 2])
+        return float((0.0 + t[n // 2 - 1] + t[n // 2]) / 2.0)  # np.mean's sum, then its division
     return float(np.median(t))
 
 

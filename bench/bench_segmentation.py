@@ -22,14 +22,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path.cwd()))
 
+from fmcwlog.api import _calibration  # noqa: E402
 from fmcwlog.config import parse_set_option  # noqa: E402
 from fmcwlog.frontend import methods  # noqa: E402
 from fmcwlog.frontend.params import load_frontend_params  # noqa: E402
 from fmcwlog.frontend.runner import LogRunner  # noqa: E402
-from fmcwlog.io.calibration import parse_calibration  # noqa: E402
-from fmcwlog.io.inputs import choose_topics, iter_inputs  # noqa: E402
+from fmcwlog.io.inputs import LogInputs, choose_topics  # noqa: E402
 from fmcwlog.io.mcap_log import LogReader  # noqa: E402
-from fmcwlog.io.topics import CALIBRATION_KEY  # noqa: E402
 
 
 def timed(cls: type, name: str, into: list[float]) -> None:
@@ -65,9 +64,9 @@ def main() -> None:
         segment.clear()
         reader = LogReader(log)
         topics = choose_topics(reader, None, None, None)
-        cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=topics.ticks is not None)
+        cal, _ = _calibration(reader, log, topics.ticks is not None, None)
         runner = LogRunner(["improved"], params, cal, topics, log)
-        for _ in runner.run(iter_inputs(reader, topics)):
+        for _ in runner.run(LogInputs(reader, topics, cal)):
             pass
         row = [f"{log.name}: {len(total)} sweeps, ms per sweep median / p95: front end {np.median(total):.2f} / "
                f"{np.percentile(total, 95):.2f}, doppler_stages {np.median(stages):.2f} / {np.percentile(stages, 95):.2f}"]

@@ -16,7 +16,7 @@ Scans are cast when the grid is read, not when they arrive: :meth:`OccupancyGrid
 queues a scan (at most :data:`PENDING_SCANS` of them, then they are cast), and reading the
 grid (its arrays, size, origin or any export) casts the queue in arrival order first, which
 gives exactly the grid of casting each scan on arrival. A front end hands a scan over every
-0.5 m and ``process`` reads its grid every 5 s of log, so the ray casting (3-8 ms a scan)
+0.5 m (``grid_distance``) and ``process`` reads its grid every 5 s of log, so the ray casting (3-8 ms a scan)
 leaves the per-sweep path, where it made the p95 (e.g. corridor, 20 s: p95/median 3.2),
 for the publishing of the map, and costs the same in all.
 

@@ -66,9 +66,8 @@ class PoseGraph:
         self.closures: list[Edge] = []
         self._closure_factors: list[gtsam.BetweenFactorPose2] = []
         self.n = 0
-        self.solver = solver
         self.isam2_steps = isam2_steps
-        self._isam: gtsam.ISAM2 | None = None
+        self._isam: gtsam.ISAM2 | None = None  # None: LM on the whole graph (batch, or after the final solve)
         self._new_values = gtsam.Values()  # ISAM2: the nodes and factors it has not seen yet
         self._new_factors = gtsam.NonlinearFactorGraph()
         if solver == "isam2":

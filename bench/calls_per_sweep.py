@@ -1,0 +1,107 @@
+"""Benchmark: how many Python and C function calls each method makes a sweep, and what a numpy call costs.
+
+The front end is stages of numpy calls on sweep-sized arrays, so its floor is the number of calls
+times what one costs, whatever the arithmetic. The counts come from ``cProfile`` enabled only
+inside :meth:`fmcwlog.frontend.methods.FrontEnd.step` (counts, not times: the same on any machine
+for the same log and code); the per-call costs from ``timeit`` (best of 7) on 1,000-point arrays,
+a sweep's size. Compare the product with KISS-ICP's whole sweep (``bench/speed.py``).
+
+    python bench/calls_per_sweep.py                     # 20 s crowd and 120 s corridor, both methods
+    python bench/calls_per_sweep.py --log my.mcap       # an existing log instead
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import os
+import pstats
+import subprocess
+import sys
+import tempfile
+import timeit
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # this checkout's fmcwlog, in the child too
+ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def count_calls(log: str, method: str) -> dict:
+    """Calls a sweep inside one method's step, processing ``log`` with that method alone, in this process."""
+    from fmcwlog.api import ProcessOptions, process
+    from fmcwlog.frontend.methods import FrontEnd
+
+    prof, sweeps, step = cProfile.Profile(), [0], FrontEnd.step
+
+    def profiled_step(self, sweep, prior):
+        sweeps[0] += 1
+        prof.enable()
+        try:
+            return step(self, sweep, prior)
+        finally:
+            prof.disable()
+
+    FrontEnd.step = profiled_step  # type: ignore[method-assign]
+    with tempfile.TemporaryDirectory() as tmp:
+        process(log, str(Path(tmp) / "out"), ProcessOptions(methods=(method,)), jobs=1)
+    python_calls = c_calls = 0
+    for (filename, _, _), (_, ncalls, _, _, _) in pstats.Stats(prof).stats.items():  # type: ignore[attr-defined]
+        if filename == "~":  # cProfile's mark of a built-in (C) function
+            c_calls += ncalls
+        else:
+            python_calls += ncalls
+    return {"method": method, "sweeps": sweeps[0], "python_calls_per_sweep": python_calls / sweeps[0],
+            "c_calls_per_sweep": c_calls / sweeps[0]}
+
+
+def numpy_call_costs() -> dict[str, float]:
+    """Microseconds a call, best of 7, on 1,000-point float64 arrays."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    a, b = rng.random(1000), rng.random(1000)
+    idx, mask = rng.integers(0, 1000, 1000), a > 0.5
+    env = {"np": np, "a": a, "b": b, "idx": idx, "mask": mask}
+    cases = {"np.add(a, b)": "np.add(a, b)", "np.take(a, idx)": "np.take(a, idx)",
+             "a[mask]": "a[mask]", "a.sum()": "a.sum()"}
+    return {name: min(timeit.repeat(stmt, globals=env, number=20000, repeat=7)) / 20000 * 1e6
+            for name, stmt in cases.items()}
+
+
+def _record(scenario: str, seconds: float, out: Path) -> None:
+    subprocess.run([sys.executable, "-m", "fmcwlog", "record", "--scenario", scenario, "--duration",
+                    str(seconds), "-o", str(out)], check=True, cwd=ROOT, capture_output=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--log", action="append", help="log(s) to count on instead of recording crowd 20 s and corridor 120 s")
+    ap.add_argument("--child", nargs=2, metavar=("LOG", "METHOD"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print(json.dumps(count_calls(*args.child)))
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        logs = args.log
+        if not logs:
+            logs = [str(Path(tmp) / "crowd20.mcap"), str(Path(tmp) / "corridor120.mcap")]
+            _record("crowd", 20, Path(logs[0]))
+            _record("corridor", 120, Path(logs[1]))
+        print("| log | method | sweeps | Python calls a sweep | C calls a sweep |")
+        print("|---|---|---|---|---|")
+        for log in logs:
+            for method in ("improved", "baseline"):
+                res = subprocess.run([sys.executable, __file__, "--child", log, method], check=True, cwd=ROOT,
+                                     capture_output=True, text=True, env={**os.environ, **ONE_THREAD})
+                r = json.loads(res.stdout.strip().splitlines()[-1])
+                print(f"| {Path(log).name} | {method} | {r['sweeps']} | {r['python_calls_per_sweep']:.0f} | "
+                      f"{r['c_calls_per_sweep']:.0f} |")
+    print()
+    for name, us in numpy_call_costs().items():
+        print(f"{name:18s} {us:.2f} us a call (1,000 points)")
+
+
+if __name__ == "__main__":
+    main()

@@ -6,6 +6,7 @@ datasets (skipped where ../shared is absent) check it on real files.
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import lzma
 import math
@@ -245,7 +246,7 @@ def test_impossible_values_are_counted_bad_lines(tmp_path):
 
 
 @settings(max_examples=50, deadline=None, derandomize=True, database=None)
-@given(kind=st.sampled_from(["plain", "gz", "xz"]), cut=st.floats(0.0, 1.0),
+@given(kind=st.sampled_from(["plain", "gz", "xz", "bz2"]), cut=st.floats(0.0, 1.0),
        flips=st.lists(st.tuples(st.integers(0, 2**31), st.integers(1, 255)), max_size=3),
        tokens=st.lists(st.tuples(st.integers(0, 10**6), st.sampled_from(["nan", "inf", "-inf", "1e308", "-1", "0",
                                                                        "x", "", "FLASER", "9" * 30])), max_size=3))
@@ -258,7 +259,7 @@ def test_fuzz_damaged_carmen_files(kind, cut, flips, tokens):
         row = lines[at % len(lines)]
         row[at % len(row)] = token
     data = ("\n".join(" ".join(row) for row in lines) + "\n").encode()
-    data = {"plain": bytes, "gz": gzip.compress, "xz": lzma.compress}[kind](data)
+    data = {"plain": bytes, "gz": gzip.compress, "xz": lzma.compress, "bz2": bz2.compress}[kind](data)
     data = bytearray(data[: int(cut * len(data))] if flips else data[: max(int(cut * len(data)), len(data) // 2)])
     for at, mask in flips:
         if data:
@@ -267,3 +268,65 @@ def test_fuzz_damaged_carmen_files(kind, cut, flips, tokens):
         src = Path(tmp) / f"log.clf{'' if kind == 'plain' else '.' + kind}"
         src.write_bytes(bytes(data))
         _import(src, Path(tmp) / "out.mcap")
+
+
+# ----------------------------------------------------------------------------- files as users ship them
+
+def _stamps_and_ranges(log: Path) -> tuple[list[int], list[np.ndarray]]:
+    """The /scan log times and ranges of an MCAP log, read with plain mcap/mcap_ros2."""
+    stamps, ranges = [], []
+    with open(log, "rb") as fh:
+        for _, _, msg, ros in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/scan"]):
+            stamps.append(msg.log_time)
+            ranges.append(np.asarray(ros.ranges))
+    return stamps, ranges
+
+
+@pytest.mark.parametrize("name, encode", [
+    ("log.clf.GZ", lambda b: gzip.compress(b)),  # the suffix in capitals
+    ("log.clf", lambda b: gzip.compress(b)),  # a gzip stream without its suffix
+    ("log.clf.bz2", lambda b: bz2.compress(b)),
+    ("log.clf", lambda b: "\ufeff".encode() + b.replace(b"\n", b"\r\n")),  # Windows: byte-order mark, CR LF
+])
+def test_a_log_as_users_ship_it_imports_like_the_plain_file(tmp_path, name, encode):
+    """Known by its first bytes, not its name; a byte-order mark must not hide the first line."""
+    text = "\n".join(x for x in _room_clf(12).splitlines() if x.startswith("FLASER")) + "\n"  # a scan on line 1
+    plain = _write(tmp_path, text, "plain.clf")
+    (tmp_path / "v").mkdir()
+    src = tmp_path / "v" / name
+    src.write_bytes(encode(text.encode()))
+    assert _import(plain, tmp_path / "plain.mcap") == (0, [])
+    assert _import(src, tmp_path / "v.mcap") == (0, [])
+    want, got = _stamps_and_ranges(tmp_path / "plain.mcap"), _stamps_and_ranges(tmp_path / "v.mcap")
+    assert len(want[0]) == 12 and got[0] == want[0]
+    assert all(np.array_equal(a, b) for a, b in zip(got[1], want[1]))
+
+
+def test_damaged_bzip2_data_are_one_error(tmp_path):
+    data = bytearray(bz2.compress(_room_clf(40).encode()))
+    data[len(data) // 2] ^= 0x55
+    src = tmp_path / "flip.clf.bz2"
+    src.write_bytes(bytes(data))
+    code, lines = _import(src, tmp_path / "out.mcap")
+    assert code == 2 and "compressed data are damaged" in lines[0], lines
+
+
+def test_time_going_backwards_is_written_in_order_and_named_by_line(tmp_path):
+    lines = _room_clf(12).splitlines()  # lines 3..14 are scans at 100.0, 100.1, ... s
+    lines[6], lines[7] = lines[7], lines[6]  # file lines 7 and 8 swapped: line 8 goes back 0.1 s
+    src = _write(tmp_path, "\n".join(lines) + "\n")
+    code, out = _import(src, tmp_path / "out.mcap")
+    assert code == 0 and len(out) == 1 and "time goes backwards at line 8 (0.100 s" in out[0], out
+    stamps, _ = _stamps_and_ranges(tmp_path / "out.mcap")
+    assert stamps == [round((100.0 + 0.1 * k) * 1e9) for k in range(12)]
+
+
+def test_repeated_scans_are_counted_once(tmp_path):
+    lines = _room_clf(6).splitlines()
+    src = _write(tmp_path, "\n".join(lines + lines[2:]) + "\n")  # every scan twice
+    from helpers import run_cli_here
+
+    code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0 and "6 scans repeat an earlier scan's stamp" in err, err
+    assert _scans(tmp_path / "out.mcap") == 6 and "wrote" in stdout and ": 6 scans, 6 odometry poses" in stdout, stdout

@@ -16,7 +16,9 @@ CARMEN conventions followed (``carmen/src/logger``):
 - ``ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp``.
 - ``PARAM name value ipc_timestamp host logger_timestamp``.
 
-Times are the ``ipc_timestamp`` (s), which benchmark relations refer to. Ranges at or beyond the maximum
+Times are the ``ipc_timestamp`` (s), which benchmark relations refer to. A record older than the latest of
+its stream (a laser's, or odometry) is kept and its line noted in :attr:`ParsedLog.backwards`: the importer
+writes every stream in time order and warns, naming the line. Ranges at or beyond the maximum
 range are no returns. A malformed line is counted and reported by number, never fatal on its own; so is a
 line whose values are impossible: NaN anywhere, a negative or infinite time or one past 2038 (ROS 2 stamps
 count seconds in an int32), a negative range, a pose beyond 1000 km or a heading beyond 1000 rad, a beam
@@ -27,6 +29,7 @@ damage may be garbage too (gzip and xz check their CRC only at the end).
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import lzma
 import math
@@ -77,15 +80,23 @@ class ParsedLog:
     ignored: dict[str, int] = field(default_factory=dict)  # message types not used, with counts
     lines: int = 0  # lines read
     stopped: str | None = None  # why reading stopped before the end of the file (a compressed file cut off)
+    backwards: list[tuple[int, float]] = field(default_factory=list)  # (line number, s back): time went back
+
+
+# A compressed file is known by its first bytes, not its name: logs ship as .gz, .GZ, .xz or .bz2, and a
+# gzip stream saved as ``log.clf`` is common (a browser undoing nothing). Text is UTF-8 with an optional
+# byte-order mark (Windows editors write one; left in, it would hide the first line's message name).
+_MAGIC = ((b"\x1f\x8b", gzip.open), (b"\xfd7zXZ\x00", lzma.open), (b"BZh", bz2.open))
 
 
 def open_text(path: Path):
-    """Open a plain, ``.xz`` or ``.gz`` text file."""
-    if path.suffix == ".xz":
-        return lzma.open(path, "rt", errors="replace")
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt", errors="replace")
-    return open(path, errors="replace")
+    """Open a plain, xz, gzip or bzip2 text file (UTF-8, a byte-order mark dropped), known by its first bytes."""
+    with open(path, "rb") as fh:
+        head = fh.read(6)
+    for magic, opener in _MAGIC:
+        if head.startswith(magic):
+            return opener(path, "rt", encoding="utf-8-sig", errors="replace")
+    return open(path, encoding="utf-8-sig", errors="replace")
 
 
 class _Bad(ValueError):
@@ -232,6 +243,19 @@ def _carmen_line(tok: list[str], out: ParsedLog) -> None:
         out.ignored[kind] = out.ignored.get(kind, 0) + 1
 
 
+def _check_order(out: ParsedLog, lineno: int, counts: tuple[int, int], latest: dict[str, float]) -> None:
+    """Note the line if the record it added is older than the latest of its stream (a laser's or odometry)."""
+    if len(out.scans) > counts[0]:
+        stream, t = out.scans[-1].topic, out.scans[-1].stamp
+    elif len(out.odometry) > counts[1]:
+        stream, t = "/odom", out.odometry[-1].stamp
+    else:
+        return
+    if t < latest.get(stream, -math.inf):
+        out.backwards.append((lineno, latest[stream] - t))
+    latest[stream] = max(t, latest.get(stream, -math.inf))
+
+
 def parse_log(path: str | Path) -> ParsedLog:
     """Parse a CARMEN or CMU course log; the format is recognised from its first data line.
 
@@ -241,8 +265,10 @@ def parse_log(path: str | Path) -> ParsedLog:
     path = Path(path)
     out = ParsedLog(path, "carmen")
     data_lines = 0
+    latest: dict[str, float] = {}
+    fh = open_text(path)  # a file that cannot be opened is the caller's OSError, never 'damaged data'
     try:
-        with open_text(path) as fh:
+        with fh:
             for lineno, line in enumerate(fh, 1):
                 out.lines = lineno
                 tok = line.split()
@@ -251,14 +277,18 @@ def parse_log(path: str | Path) -> ParsedLog:
                 data_lines += 1
                 if data_lines == 1:
                     out.format = "cmu" if tok[0] in ("O", "L") else "carmen"
+                counts = (len(out.scans), len(out.odometry))
                 try:
                     (_cmu_line if out.format == "cmu" else _carmen_line)(tok, out)
+                    _check_order(out, lineno, counts, latest)
                 except (_Bad, IndexError, ValueError) as exc:
                     why = str(exc) if isinstance(exc, _Bad) else f"{tok[0]}: too few or malformed fields"
                     out.bad_lines.append((lineno, why))
     except EOFError:
         out.stopped = f"the compressed file ends early, after line {out.lines}"
-    except (lzma.LZMAError, gzip.BadGzipFile, zlib.error) as exc:
+    except (lzma.LZMAError, zlib.error, OSError) as exc:  # gzip's and bzip2's damaged data are OSErrors
+        if isinstance(exc, OSError) and not isinstance(fh.buffer, (gzip.GzipFile, bz2.BZ2File)):
+            raise  # a plain file's read error is the caller's to report
         where = f"after line {out.lines}" if out.lines else "from its start"
         raise CarmenImportError(f"{path}: its compressed data are damaged {where} ({exc})") from None
     return out

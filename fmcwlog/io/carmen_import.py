@@ -74,6 +74,15 @@ def _import_record(parsed: ParsedLog, scans: int, odometry: int, source: str) ->
     return info
 
 
+def _warn_order(parsed: ParsedLog) -> None:
+    """Say where the log's time went backwards: its records are written in time order, which moves them."""
+    if parsed.backwards:
+        (line, back), n = parsed.backwards[0], len(parsed.backwards)
+        more = f" and {n - 1} more" if n > 1 else ""
+        logger.warning(f"{parsed.path}: time goes backwards at line {line} ({back:.3f} s before an earlier "
+                       f"record of its kind){more}; wrote every stream in time order")
+
+
 def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     scans = [s for s in parsed.scans if s.topic == "/scan"] + [s for s in parsed.scans if s.topic != "/scan"]
     if not parsed.scans:
@@ -86,8 +95,11 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     else:
         odom = [(s.stamp, s.odom_pose) for s in parsed.scans if s.odom_pose is not None and s.topic == "/scan"]
         source = "the odometry pose of each laser line"
+    _warn_order(parsed)
     events = sorted([(s.stamp, 0, i) for i, s in enumerate(scans)] + [(t, 1, i) for i, (t, _) in enumerate(odom)])
     last: dict[str, int] = {}
+    written = {0: 0, 1: 0}
+    repeated = 0
     with LogWriter(out) as w:
         w.add_metadata(CALIBRATION_KEY, _calibration(scans))
         w.add_metadata(IMPORT_KEY, _import_record(parsed, len(scans), len(odom), source))
@@ -95,8 +107,10 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
             ns = _ns(t)
             topic = scans[i].topic if kind == 0 else "/odom"
             if last.get(topic) == ns:  # a repeated stamp: keep the first
+                repeated += kind == 0
                 continue
             last[topic] = ns
+            written[kind] += 1
             if kind == 0:
                 s = scans[i]
                 n = len(s.ranges)
@@ -109,4 +123,6 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
             else:
                 w.write("/odom", "nav_msgs/msg/Odometry",
                         odometry_message(ns, "odom", "base_link", np.asarray(odom[i][1], float), np.zeros(3)), ns)
-    return ImportSummary(out, len(scans), len(odom), source, parsed.bad_lines, events[-1][0] - events[0][0])
+    if repeated:
+        logger.warning(f"{parsed.path}: {repeated} scans repeat an earlier scan's stamp; kept the first of each")
+    return ImportSummary(out, written[0], written[1], source, parsed.bad_lines, events[-1][0] - events[0][0])

@@ -330,3 +330,53 @@ def test_repeated_scans_are_counted_once(tmp_path):
     code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
     assert code == 0 and "6 scans repeat an earlier scan's stamp" in err, err
     assert _scans(tmp_path / "out.mcap") == 6 and "wrote" in stdout and ": 6 scans, 6 odometry poses" in stdout, stdout
+
+
+def _rawlaser_from_flaser(line: str, kind: str = "RAWLASER1") -> list[str]:
+    """An ODOM line and a RAWLASER line carrying what a FLASER line does (180 beams from -90 deg, 1 deg apart)."""
+    tok = line.split()
+    ranges, odom, t = tok[2:182], tok[185:188], tok[188]
+    return [" ".join(["ODOM", *odom, "0", "0", "0", t, "host", t]),
+            " ".join([kind, "0", f"{-math.pi / 2:.9f}", f"{math.pi:.9f}", f"{math.pi / 180:.9f}", "81.9", "0.01", "0",
+                      "180", *ranges, "0", t, "host", t])]
+
+
+def test_rawlaser1_with_odom_imports_as_the_flaser_lines_do(tmp_path):
+    """The same scans as RAWLASER1 + ODOM lines: the same stamps, beams and ranges on /scan, the same
+    laser offset (from PARAM), the odometry from ODOM."""
+    room = _room_clf(8).splitlines()
+    raw = room[:2] + [x for line in room[2:] for x in _rawlaser_from_flaser(line)]
+    flaser, rawlog = _write(tmp_path, "\n".join(room) + "\n", "f.clf"), _write(tmp_path, "\n".join(raw) + "\n", "r.clf")
+    a, b = parse_log(flaser), parse_log(rawlog)
+    assert len(b.scans) == 8 and len(b.odometry) == 8 and not b.bad_lines and not b.ignored
+    for s, r in zip(a.scans, b.scans):
+        assert r.stamp == s.stamp and r.laser_pose == s.laser_pose == (0.1, 0.0, 0.0) and r.topic == "/scan"
+        assert r.angle_min == pytest.approx(s.angle_min) and r.angle_increment == pytest.approx(s.angle_increment)
+        assert np.array_equal(r.ranges, s.ranges)
+    assert [o.pose for o in b.odometry] == [s.odom_pose for s in a.scans]
+    assert _import(rawlog, tmp_path / "r.mcap") == (0, []) and _scans(tmp_path / "r.mcap") == 8
+
+
+def test_rawlaser1_beside_robotlaser1_is_not_a_second_scan(tmp_path):
+    """The CARMEN logger writes a scan as ROBOTLASER1 and RAWLASER1: one scan each, the posed one kept."""
+    n, lines = 180, []
+    for k in range(5):
+        t = f"{300 + 0.1 * k:.3f}"
+        robot = (0.1 * k, 0.0, 0.0)
+        laser = (0.1 * k + 0.25, 0.0, 0.0)
+        lines.append(" ".join(["ROBOTLASER1", "0", "-1.570796", "3.141593", "0.017453", "50.0", "0.1", "0", str(n)]
+                              + ["3.0"] * n + ["0"] + [f"{v:.6f}" for v in laser + robot] + ["0"] * 5 + [t, "host", t]))
+        lines.append(_rawlaser_from_flaser(" ".join(["FLASER", "180"] + ["3.0"] * 180 + ["0"] * 6 + [t, "h", t]))[1])
+    p = parse_log(_write(tmp_path, "\n".join(lines) + "\n"))
+    assert len(p.scans) == 5 and all(s.laser_pose == pytest.approx((0.25, 0.0, 0.0)) for s in p.scans)
+    assert p.ignored == {"RAWLASER1": 5}
+
+
+def test_rawlaser1_without_odom_says_there_is_no_odometry(tmp_path):
+    from helpers import run_cli_here
+
+    lines = [_rawlaser_from_flaser(line)[1] for line in _room_clf(4).splitlines()[2:]]
+    src = _write(tmp_path, "\n".join(lines) + "\n")
+    code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0 and not err and _scans(tmp_path / "out.mcap") == 4
+    assert "4 scans, 0 odometry poses (from nowhere: the log has no ODOM lines" in stdout, stdout

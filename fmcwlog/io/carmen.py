@@ -1,5 +1,5 @@
-"""Real 2-D laser logs: CARMEN (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``ODOM``, ``PARAM``) and the
-CMU Wean Hall course format (``O``/``L`` lines in centimetres), parsed into numpy records.
+"""Real 2-D laser logs: CARMEN (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``RAWLASER1``/``2``, ``ODOM``,
+``PARAM``) and the CMU Wean Hall course format (``O``/``L`` lines in centimetres), parsed into numpy records.
 
 Pure parsing, no MCAP: :mod:`fmcwlog.importer` writes the records as a log.
 
@@ -13,6 +13,10 @@ CARMEN conventions followed (``carmen/src/logger``):
 - ``ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r1..rn m [rem1..remm]
   laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv fsd ssd turn_axis ipc_timestamp host
   logger_timestamp``: the laser's pose relative to the robot is ``inv(robot) ⊕ laser``.
+- ``RAWLASER1 type start_angle fov resolution max_range accuracy remission_mode n r1..rn m [rem1..remm]
+  ipc_timestamp host logger_timestamp``: the front laser alone (``RAWLASER2`` the rear one), mounted as
+  ``FLASER`` (``RLASER``) from ``PARAM``; used only where no ``FLASER``/``ROBOTLASER1`` (``RLASER``) line
+  gives that laser, since the CARMEN logger writes the same scan as both. ``RAWLASER3``/``4`` are not read.
 - ``ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp``.
 - ``PARAM name value ipc_timestamp host logger_timestamp``.
 
@@ -61,6 +65,7 @@ class ScanRecord:
     laser_pose: tuple[float, float, float]  # laser in the robot frame
     odom_pose: tuple[float, float, float] | None  # the robot's odometry pose at the scan, if the line has it
     topic: str = "/scan"
+    raw: bool = False  # from a RAWLASERn line: kept only where no FLASER/ROBOTLASER1 (RLASER) line gives the laser
 
 
 @dataclass
@@ -172,7 +177,9 @@ def _flaser(tok: list[str], params: dict[str, str], rear: bool) -> ScanRecord:
                       "/rear_scan" if rear else "/scan")
 
 
-def _robotlaser1(tok: list[str]) -> ScanRecord:
+def _laser_fields(tok: list[str]) -> tuple[float, float, float, np.ndarray, list[str]]:
+    """``ROBOTLASER1``'s and ``RAWLASERn``'s common head: start angle, resolution (rad), maximum range (m),
+    the ranges (inf at or past the maximum) and the fields after the remissions."""
     start, fov, res, max_range = _floats(tok[2:6], "angles or range")
     if not (abs(start) <= 2 * math.pi and 0 < fov <= 2 * math.pi + 1e-6 and 0 < res <= fov and 0.1 <= max_range <= 1e4):
         raise _Bad(f"start angle {start:g}, field of view {fov:g}, resolution {res:g} rad or "
@@ -182,7 +189,12 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
         raise _Bad(f"expected {n} ranges, got {len(tok) - 9} fields")
     ranges = _ranges(tok[9:9 + n])
     m = _count(tok[9 + n], 0, "remission count")
-    rest = tok[10 + n + m:]
+    ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
+    return start, res, max_range, ranges, tok[10 + n + m:]
+
+
+def _robotlaser1(tok: list[str]) -> ScanRecord:
+    start, res, max_range, ranges, rest = _laser_fields(tok)
     if len(rest) < 14:
         raise _Bad(f"expected 14 fields after the remissions, got {len(rest)}")
     lx, ly, lth = _pose(rest[0:3], "laser pose")
@@ -190,8 +202,20 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
     stamp = _stamp(rest[11])
     mx, my, mth = (float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
     mount = (mx, my, mth)
-    ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
     return ScanRecord(stamp, start, res, ranges, max_range, mount, (rx, ry, rth))
+
+
+def _rawlaser(tok: list[str], params: dict[str, str]) -> ScanRecord:
+    """``RAWLASER1`` (the front laser) or ``RAWLASER2`` (the rear one): the laser alone, no pose; its
+    mount from ``PARAM`` as for ``FLASER``/``RLASER``, the robot's motion from ``ODOM``."""
+    start, res, max_range, ranges, rest = _laser_fields(tok)
+    if len(rest) < 3:
+        raise _Bad(f"expected 3 fields after the remissions, got {len(rest)}")
+    stamp = _stamp(rest[0])
+    rear = tok[0] == "RAWLASER2"
+    offset = _param(params, f"robot_{'rear' if rear else 'front'}laser_offset", 0.0)
+    mount = (-offset, 0.0, math.pi) if rear else (offset, 0.0, 0.0)
+    return ScanRecord(stamp, start, res, ranges, max_range, mount, None, "/rear_scan" if rear else "/scan", raw=True)
 
 
 def _cmu_laser(tok: list[str]) -> ScanRecord:
@@ -235,6 +259,8 @@ def _carmen_line(tok: list[str], out: ParsedLog) -> None:
         out.scans.append(_flaser(tok, out.params, rear=kind == "RLASER"))
     elif kind == "ROBOTLASER1":
         out.scans.append(_robotlaser1(tok))
+    elif kind in ("RAWLASER1", "RAWLASER2"):
+        out.scans.append(_rawlaser(tok, out.params))
     elif kind == "ODOM":
         if len(tok) < 10:
             raise _Bad(f"ODOM has at least 10 fields, this one {len(tok)}")
@@ -254,6 +280,18 @@ def _check_order(out: ParsedLog, lineno: int, counts: tuple[int, int], latest: d
     if t < latest.get(stream, -math.inf):
         out.backwards.append((lineno, latest[stream] - t))
     latest[stream] = max(t, latest.get(stream, -math.inf))
+
+
+def _drop_raw_duplicates(out: ParsedLog) -> None:
+    """A log with ``FLASER`` or ``ROBOTLASER1`` lines holds the same scans as ``RAWLASER1`` lines (the
+    CARMEN logger writes both); keep the ones with the robot's pose and count the raw ones as ignored."""
+    posed = {s.topic for s in out.scans if not s.raw}
+    dropped = [s for s in out.scans if s.raw and s.topic in posed]
+    for s in dropped:
+        kind = "RAWLASER2" if s.topic == "/rear_scan" else "RAWLASER1"
+        out.ignored[kind] = out.ignored.get(kind, 0) + 1
+    if dropped:
+        out.scans = [s for s in out.scans if not (s.raw and s.topic in posed)]
 
 
 def parse_log(path: str | Path) -> ParsedLog:
@@ -291,4 +329,5 @@ def parse_log(path: str | Path) -> ParsedLog:
             raise  # a plain file's read error is the caller's to report
         where = f"after line {out.lines}" if out.lines else "from its start"
         raise CarmenImportError(f"{path}: its compressed data are damaged {where} ({exc})") from None
+    _drop_raw_duplicates(out)
     return out

@@ -1,6 +1,6 @@
 """``fmcwlog import``: real 2-D laser logs (CARMEN, CMU course format) as fmcwlog MCAP logs.
 
-A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` (``/rear_scan`` for ``RLASER``), odometry a
+A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` (``/rear_scan`` for ``RLASER``, ``RAWLASER2``), odometry a
 ``nav_msgs/msg/Odometry`` on ``/odom`` (frame ``odom``, child ``base_link``), stamped with the log's own
 times. Where the log has no odometry messages (the Intel subset), the odometry pose each laser line
 carries is used. The laser's pose on the robot goes into ``fmcwlog.calibration`` (``lidar_x``,
@@ -94,7 +94,8 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
         source = "odometry messages"
     else:
         odom = [(s.stamp, s.odom_pose) for s in parsed.scans if s.odom_pose is not None and s.topic == "/scan"]
-        source = "the odometry pose of each laser line"
+        source = ("the odometry pose of each laser line" if odom
+                  else "nowhere: the log has no ODOM lines and its laser lines no pose")
     _warn_order(parsed)
     events = sorted([(s.stamp, 0, i) for i, s in enumerate(scans)] + [(t, 1, i) for i, (t, _) in enumerate(odom)])
     last: dict[str, int] = {}

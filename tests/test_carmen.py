@@ -190,6 +190,7 @@ def _scans(log: Path) -> int:
     (bytes(range(256)) * 20, "binary data"),
     (b"", "no laser scans found in 0 lines"),
     (b"# only a comment\nFLASER 3 1 2\n", "first malformed: line 2"),
+    (b"ODOM 1 2 0 0 0 0 10.0 h 10.0\nODOM 1 2 0 0 0 0 10.1 h 10.1\n", "in 2 lines (0 malformed, 2 of odometry)"),
 ])
 def test_a_file_without_a_usable_scan_is_one_error(tmp_path, content, words):
     src = tmp_path / "bad.clf"

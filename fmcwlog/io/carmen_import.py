@@ -49,8 +49,9 @@ def _no_scans(parsed: ParsedLog) -> str:
         other = f", {sum(parsed.ignored.values())} of kinds not imported: {kinds}" if readable else ""
     first = f"; first malformed: line {parsed.bad_lines[0][0]}: {parsed.bad_lines[0][1]}" if parsed.bad_lines else ""
     stopped = f"; {parsed.stopped}" if parsed.stopped else ""
+    odometry = f", {len(parsed.odometry)} of odometry" if parsed.odometry else ""
     return (f"{parsed.path}: no laser scans found in {parsed.lines} lines "
-            f"({len(parsed.bad_lines)} malformed{other}){first}{stopped}")
+            f"({len(parsed.bad_lines)} malformed{odometry}{other}){first}{stopped}")
 
 
 def _calibration(scans: list[ScanRecord]) -> dict[str, str]:

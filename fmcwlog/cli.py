@@ -578,10 +578,11 @@ def import_group() -> None:
               help="Log to write (.mcap); with several sources or a folder, the folder to write them into.")
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never a SOURCE).")
 def import_carmen_cmd(sources, output, force):
-    """Convert a CARMEN log (plain, .xz or .gz) into an MCAP log.
+    """Convert a CARMEN log (plain, .xz, .gz or .bz2) into an MCAP log.
 
     \b
-    Reads FLASER, RLASER (-> /rear_scan), ROBOTLASER1, ODOM and PARAM lines (the laser
+    Reads FLASER, RLASER (-> /rear_scan), ROBOTLASER1, RAWLASER1/2 (where no FLASER or
+    ROBOTLASER1 / RLASER line gives that laser), ODOM and PARAM lines (the laser
     offset and field of view come from PARAM robot_frontlaser_offset / robot_front_laser_fov),
     and the CMU Wean Hall course format (O and L lines, centimetres), recognised by its first
     line. Stamps are the log's own ipc_timestamps, which benchmark relations refer to. Without
@@ -589,7 +590,7 @@ def import_carmen_cmd(sources, output, force):
     skipped, counted and listed with their line numbers. Then: fmcwlog process OUTPUT -o DIR.
 
     \b
-    Several SOURCES, or folders (searched for *.clf and *.log, plain, .gz or .xz): each
+    Several SOURCES, or folders (searched for *.clf and *.log, plain, .gz, .xz or .bz2): each
     becomes OUTPUT/<name>.mcap; an existing one is kept unless --force, and a source that
     cannot be read is reported while the others go on (exit status 1 if any failed).
     Then: fmcwlog process OUTPUT -o DIR.

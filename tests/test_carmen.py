@@ -6,6 +6,7 @@ datasets (skipped where ../shared is absent) check it on real files.
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import lzma
 import math
@@ -189,6 +190,7 @@ def _scans(log: Path) -> int:
     (bytes(range(256)) * 20, "binary data"),
     (b"", "no laser scans found in 0 lines"),
     (b"# only a comment\nFLASER 3 1 2\n", "first malformed: line 2"),
+    (b"ODOM 1 2 0 0 0 0 10.0 h 10.0\nODOM 1 2 0 0 0 0 10.1 h 10.1\n", "in 2 lines (0 malformed, 2 of odometry)"),
 ])
 def test_a_file_without_a_usable_scan_is_one_error(tmp_path, content, words):
     src = tmp_path / "bad.clf"
@@ -245,7 +247,7 @@ def test_impossible_values_are_counted_bad_lines(tmp_path):
 
 
 @settings(max_examples=50, deadline=None, derandomize=True, database=None)
-@given(kind=st.sampled_from(["plain", "gz", "xz"]), cut=st.floats(0.0, 1.0),
+@given(kind=st.sampled_from(["plain", "gz", "xz", "bz2"]), cut=st.floats(0.0, 1.0),
        flips=st.lists(st.tuples(st.integers(0, 2**31), st.integers(1, 255)), max_size=3),
        tokens=st.lists(st.tuples(st.integers(0, 10**6), st.sampled_from(["nan", "inf", "-inf", "1e308", "-1", "0",
                                                                        "x", "", "FLASER", "9" * 30])), max_size=3))
@@ -258,7 +260,7 @@ def test_fuzz_damaged_carmen_files(kind, cut, flips, tokens):
         row = lines[at % len(lines)]
         row[at % len(row)] = token
     data = ("\n".join(" ".join(row) for row in lines) + "\n").encode()
-    data = {"plain": bytes, "gz": gzip.compress, "xz": lzma.compress}[kind](data)
+    data = {"plain": bytes, "gz": gzip.compress, "xz": lzma.compress, "bz2": bz2.compress}[kind](data)
     data = bytearray(data[: int(cut * len(data))] if flips else data[: max(int(cut * len(data)), len(data) // 2)])
     for at, mask in flips:
         if data:
@@ -267,3 +269,115 @@ def test_fuzz_damaged_carmen_files(kind, cut, flips, tokens):
         src = Path(tmp) / f"log.clf{'' if kind == 'plain' else '.' + kind}"
         src.write_bytes(bytes(data))
         _import(src, Path(tmp) / "out.mcap")
+
+
+# ----------------------------------------------------------------------------- files as users ship them
+
+def _stamps_and_ranges(log: Path) -> tuple[list[int], list[np.ndarray]]:
+    """The /scan log times and ranges of an MCAP log, read with plain mcap/mcap_ros2."""
+    stamps, ranges = [], []
+    with open(log, "rb") as fh:
+        for _, _, msg, ros in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/scan"]):
+            stamps.append(msg.log_time)
+            ranges.append(np.asarray(ros.ranges))
+    return stamps, ranges
+
+
+@pytest.mark.parametrize("name, encode", [
+    ("log.clf.GZ", lambda b: gzip.compress(b)),  # the suffix in capitals
+    ("log.clf", lambda b: gzip.compress(b)),  # a gzip stream without its suffix
+    ("log.clf.bz2", lambda b: bz2.compress(b)),
+    ("log.clf", lambda b: "\ufeff".encode() + b.replace(b"\n", b"\r\n")),  # Windows: byte-order mark, CR LF
+])
+def test_a_log_as_users_ship_it_imports_like_the_plain_file(tmp_path, name, encode):
+    """Known by its first bytes, not its name; a byte-order mark must not hide the first line."""
+    text = "\n".join(x for x in _room_clf(12).splitlines() if x.startswith("FLASER")) + "\n"  # a scan on line 1
+    plain = _write(tmp_path, text, "plain.clf")
+    (tmp_path / "v").mkdir()
+    src = tmp_path / "v" / name
+    src.write_bytes(encode(text.encode()))
+    assert _import(plain, tmp_path / "plain.mcap") == (0, [])
+    assert _import(src, tmp_path / "v.mcap") == (0, [])
+    want, got = _stamps_and_ranges(tmp_path / "plain.mcap"), _stamps_and_ranges(tmp_path / "v.mcap")
+    assert len(want[0]) == 12 and got[0] == want[0]
+    assert all(np.array_equal(a, b) for a, b in zip(got[1], want[1]))
+
+
+def test_damaged_bzip2_data_are_one_error(tmp_path):
+    data = bytearray(bz2.compress(_room_clf(40).encode()))
+    data[len(data) // 2] ^= 0x55
+    src = tmp_path / "flip.clf.bz2"
+    src.write_bytes(bytes(data))
+    code, lines = _import(src, tmp_path / "out.mcap")
+    assert code == 2 and "compressed data are damaged" in lines[0], lines
+
+
+def test_time_going_backwards_is_written_in_order_and_named_by_line(tmp_path):
+    lines = _room_clf(12).splitlines()  # lines 3..14 are scans at 100.0, 100.1, ... s
+    lines[6], lines[7] = lines[7], lines[6]  # file lines 7 and 8 swapped: line 8 goes back 0.1 s
+    src = _write(tmp_path, "\n".join(lines) + "\n")
+    code, out = _import(src, tmp_path / "out.mcap")
+    assert code == 0 and len(out) == 1 and "time goes backwards at line 8 (0.100 s" in out[0], out
+    stamps, _ = _stamps_and_ranges(tmp_path / "out.mcap")
+    assert stamps == [round((100.0 + 0.1 * k) * 1e9) for k in range(12)]
+
+
+def test_repeated_scans_are_counted_once(tmp_path):
+    lines = _room_clf(6).splitlines()
+    src = _write(tmp_path, "\n".join(lines + lines[2:]) + "\n")  # every scan twice
+    from helpers import run_cli_here
+
+    code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0 and "6 scans repeat an earlier scan's stamp" in err, err
+    assert _scans(tmp_path / "out.mcap") == 6 and "wrote" in stdout and ": 6 scans, 6 odometry poses" in stdout, stdout
+
+
+def _rawlaser_from_flaser(line: str, kind: str = "RAWLASER1") -> list[str]:
+    """An ODOM line and a RAWLASER line carrying what a FLASER line does (180 beams from -90 deg, 1 deg apart)."""
+    tok = line.split()
+    ranges, odom, t = tok[2:182], tok[185:188], tok[188]
+    return [" ".join(["ODOM", *odom, "0", "0", "0", t, "host", t]),
+            " ".join([kind, "0", f"{-math.pi / 2:.9f}", f"{math.pi:.9f}", f"{math.pi / 180:.9f}", "81.9", "0.01", "0",
+                      "180", *ranges, "0", t, "host", t])]
+
+
+def test_rawlaser1_with_odom_imports_as_the_flaser_lines_do(tmp_path):
+    """The same scans as RAWLASER1 + ODOM lines: the same stamps, beams and ranges on /scan, the same
+    laser offset (from PARAM), the odometry from ODOM."""
+    room = _room_clf(8).splitlines()
+    raw = room[:2] + [x for line in room[2:] for x in _rawlaser_from_flaser(line)]
+    flaser, rawlog = _write(tmp_path, "\n".join(room) + "\n", "f.clf"), _write(tmp_path, "\n".join(raw) + "\n", "r.clf")
+    a, b = parse_log(flaser), parse_log(rawlog)
+    assert len(b.scans) == 8 and len(b.odometry) == 8 and not b.bad_lines and not b.ignored
+    for s, r in zip(a.scans, b.scans):
+        assert r.stamp == s.stamp and r.laser_pose == s.laser_pose == (0.1, 0.0, 0.0) and r.topic == "/scan"
+        assert r.angle_min == pytest.approx(s.angle_min) and r.angle_increment == pytest.approx(s.angle_increment)
+        assert np.array_equal(r.ranges, s.ranges)
+    assert [o.pose for o in b.odometry] == [s.odom_pose for s in a.scans]
+    assert _import(rawlog, tmp_path / "r.mcap") == (0, []) and _scans(tmp_path / "r.mcap") == 8
+
+
+def test_rawlaser1_beside_robotlaser1_is_not_a_second_scan(tmp_path):
+    """The CARMEN logger writes a scan as ROBOTLASER1 and RAWLASER1: one scan each, the posed one kept."""
+    n, lines = 180, []
+    for k in range(5):
+        t = f"{300 + 0.1 * k:.3f}"
+        robot = (0.1 * k, 0.0, 0.0)
+        laser = (0.1 * k + 0.25, 0.0, 0.0)
+        lines.append(" ".join(["ROBOTLASER1", "0", "-1.570796", "3.141593", "0.017453", "50.0", "0.1", "0", str(n)]
+                              + ["3.0"] * n + ["0"] + [f"{v:.6f}" for v in laser + robot] + ["0"] * 5 + [t, "host", t]))
+        lines.append(_rawlaser_from_flaser(" ".join(["FLASER", "180"] + ["3.0"] * 180 + ["0"] * 6 + [t, "h", t]))[1])
+    p = parse_log(_write(tmp_path, "\n".join(lines) + "\n"))
+    assert len(p.scans) == 5 and all(s.laser_pose == pytest.approx((0.25, 0.0, 0.0)) for s in p.scans)
+    assert p.ignored == {"RAWLASER1": 5}
+
+
+def test_rawlaser1_without_odom_says_there_is_no_odometry(tmp_path):
+    from helpers import run_cli_here
+
+    lines = [_rawlaser_from_flaser(line)[1] for line in _room_clf(4).splitlines()[2:]]
+    src = _write(tmp_path, "\n".join(lines) + "\n")
+    code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
+    assert code == 0 and not err and _scans(tmp_path / "out.mcap") == 4
+    assert "4 scans, 0 odometry poses (from nowhere: the log has no ODOM lines" in stdout, stdout

@@ -22,7 +22,7 @@ from pathlib import Path
 from ..errors import LogError
 
 MCAP_PATTERNS = ("*.mcap",)
-CARMEN_PATTERNS = tuple(f"*.{ext}{comp}" for ext in ("clf", "log") for comp in ("", ".gz", ".xz"))
+CARMEN_PATTERNS = tuple(f"*.{ext}{comp}" for ext in ("clf", "log") for comp in ("", ".gz", ".xz", ".bz2"))
 OUTPUT_MARKER = "run.json"  # a folder holding it is a 'fmcwlog process' output
 
 

@@ -1,5 +1,5 @@
-"""Real 2-D laser logs: CARMEN (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``ODOM``, ``PARAM``) and the
-CMU Wean Hall course format (``O``/``L`` lines in centimetres), parsed into numpy records.
+"""Real 2-D laser logs: CARMEN (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``RAWLASER1``/``2``, ``ODOM``,
+``PARAM``) and the CMU Wean Hall course format (``O``/``L`` lines in centimetres), parsed into numpy records.
 
 Pure parsing, no MCAP: :mod:`fmcwlog.importer` writes the records as a log.
 
@@ -13,10 +13,16 @@ CARMEN conventions followed (``carmen/src/logger``):
 - ``ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r1..rn m [rem1..remm]
   laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv fsd ssd turn_axis ipc_timestamp host
   logger_timestamp``: the laser's pose relative to the robot is ``inv(robot) ⊕ laser``.
+- ``RAWLASER1 type start_angle fov resolution max_range accuracy remission_mode n r1..rn m [rem1..remm]
+  ipc_timestamp host logger_timestamp``: the front laser alone (``RAWLASER2`` the rear one), mounted as
+  ``FLASER`` (``RLASER``) from ``PARAM``; used only where no ``FLASER``/``ROBOTLASER1`` (``RLASER``) line
+  gives that laser, since the CARMEN logger writes the same scan as both. ``RAWLASER3``/``4`` are not read.
 - ``ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp``.
 - ``PARAM name value ipc_timestamp host logger_timestamp``.
 
-Times are the ``ipc_timestamp`` (s), which benchmark relations refer to. Ranges at or beyond the maximum
+Times are the ``ipc_timestamp`` (s), which benchmark relations refer to. A record older than the latest of
+its stream (a laser's, or odometry) is kept and its line noted in :attr:`ParsedLog.backwards`: the importer
+writes every stream in time order and warns, naming the line. Ranges at or beyond the maximum
 range are no returns. A malformed line is counted and reported by number, never fatal on its own; so is a
 line whose values are impossible: NaN anywhere, a negative or infinite time or one past 2038 (ROS 2 stamps
 count seconds in an int32), a negative range, a pose beyond 1000 km or a heading beyond 1000 rad, a beam
@@ -27,6 +33,7 @@ damage may be garbage too (gzip and xz check their CRC only at the end).
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import lzma
 import math
@@ -58,6 +65,7 @@ class ScanRecord:
     laser_pose: tuple[float, float, float]  # laser in the robot frame
     odom_pose: tuple[float, float, float] | None  # the robot's odometry pose at the scan, if the line has it
     topic: str = "/scan"
+    raw: bool = False  # from a RAWLASERn line: kept only where no FLASER/ROBOTLASER1 (RLASER) line gives the laser
 
 
 @dataclass
@@ -77,15 +85,23 @@ class ParsedLog:
     ignored: dict[str, int] = field(default_factory=dict)  # message types not used, with counts
     lines: int = 0  # lines read
     stopped: str | None = None  # why reading stopped before the end of the file (a compressed file cut off)
+    backwards: list[tuple[int, float]] = field(default_factory=list)  # (line number, s back): time went back
+
+
+# A compressed file is known by its first bytes, not its name: logs ship as .gz, .GZ, .xz or .bz2, and a
+# gzip stream saved as ``log.clf`` is common (a browser undoing nothing). Text is UTF-8 with an optional
+# byte-order mark (Windows editors write one; left in, it would hide the first line's message name).
+_MAGIC = ((b"\x1f\x8b", gzip.open), (b"\xfd7zXZ\x00", lzma.open), (b"BZh", bz2.open))
 
 
 def open_text(path: Path):
-    """Open a plain, ``.xz`` or ``.gz`` text file."""
-    if path.suffix == ".xz":
-        return lzma.open(path, "rt", errors="replace")
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt", errors="replace")
-    return open(path, errors="replace")
+    """Open a plain, xz, gzip or bzip2 text file (UTF-8, a byte-order mark dropped), known by its first bytes."""
+    with open(path, "rb") as fh:
+        head = fh.read(6)
+    for magic, opener in _MAGIC:
+        if head.startswith(magic):
+            return opener(path, "rt", encoding="utf-8-sig", errors="replace")
+    return open(path, encoding="utf-8-sig", errors="replace")
 
 
 class _Bad(ValueError):
@@ -161,7 +177,9 @@ def _flaser(tok: list[str], params: dict[str, str], rear: bool) -> ScanRecord:
                       "/rear_scan" if rear else "/scan")
 
 
-def _robotlaser1(tok: list[str]) -> ScanRecord:
+def _laser_fields(tok: list[str]) -> tuple[float, float, float, np.ndarray, list[str]]:
+    """``ROBOTLASER1``'s and ``RAWLASERn``'s common head: start angle, resolution (rad), maximum range (m),
+    the ranges (inf at or past the maximum) and the fields after the remissions."""
     start, fov, res, max_range = _floats(tok[2:6], "angles or range")
     if not (abs(start) <= 2 * math.pi and 0 < fov <= 2 * math.pi + 1e-6 and 0 < res <= fov and 0.1 <= max_range <= 1e4):
         raise _Bad(f"start angle {start:g}, field of view {fov:g}, resolution {res:g} rad or "
@@ -171,7 +189,12 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
         raise _Bad(f"expected {n} ranges, got {len(tok) - 9} fields")
     ranges = _ranges(tok[9:9 + n])
     m = _count(tok[9 + n], 0, "remission count")
-    rest = tok[10 + n + m:]
+    ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
+    return start, res, max_range, ranges, tok[10 + n + m:]
+
+
+def _robotlaser1(tok: list[str]) -> ScanRecord:
+    start, res, max_range, ranges, rest = _laser_fields(tok)
     if len(rest) < 14:
         raise _Bad(f"expected 14 fields after the remissions, got {len(rest)}")
     lx, ly, lth = _pose(rest[0:3], "laser pose")
@@ -179,8 +202,20 @@ def _robotlaser1(tok: list[str]) -> ScanRecord:
     stamp = _stamp(rest[11])
     mx, my, mth = (float(v) for v in between(np.array([rx, ry, rth]), np.array([lx, ly, lth])))
     mount = (mx, my, mth)
-    ranges = np.where(ranges >= max_range - 1e-6, np.inf, ranges)
     return ScanRecord(stamp, start, res, ranges, max_range, mount, (rx, ry, rth))
+
+
+def _rawlaser(tok: list[str], params: dict[str, str]) -> ScanRecord:
+    """``RAWLASER1`` (the front laser) or ``RAWLASER2`` (the rear one): the laser alone, no pose; its
+    mount from ``PARAM`` as for ``FLASER``/``RLASER``, the robot's motion from ``ODOM``."""
+    start, res, max_range, ranges, rest = _laser_fields(tok)
+    if len(rest) < 3:
+        raise _Bad(f"expected 3 fields after the remissions, got {len(rest)}")
+    stamp = _stamp(rest[0])
+    rear = tok[0] == "RAWLASER2"
+    offset = _param(params, f"robot_{'rear' if rear else 'front'}laser_offset", 0.0)
+    mount = (-offset, 0.0, math.pi) if rear else (offset, 0.0, 0.0)
+    return ScanRecord(stamp, start, res, ranges, max_range, mount, None, "/rear_scan" if rear else "/scan", raw=True)
 
 
 def _cmu_laser(tok: list[str]) -> ScanRecord:
@@ -224,12 +259,39 @@ def _carmen_line(tok: list[str], out: ParsedLog) -> None:
         out.scans.append(_flaser(tok, out.params, rear=kind == "RLASER"))
     elif kind == "ROBOTLASER1":
         out.scans.append(_robotlaser1(tok))
+    elif kind in ("RAWLASER1", "RAWLASER2"):
+        out.scans.append(_rawlaser(tok, out.params))
     elif kind == "ODOM":
         if len(tok) < 10:
             raise _Bad(f"ODOM has at least 10 fields, this one {len(tok)}")
         out.odometry.append(OdomRecord(_stamp(tok[7]), _pose(tok[1:4], "pose")))
     else:
         out.ignored[kind] = out.ignored.get(kind, 0) + 1
+
+
+def _check_order(out: ParsedLog, lineno: int, counts: tuple[int, int], latest: dict[str, float]) -> None:
+    """Note the line if the record it added is older than the latest of its stream (a laser's or odometry)."""
+    if len(out.scans) > counts[0]:
+        stream, t = out.scans[-1].topic, out.scans[-1].stamp
+    elif len(out.odometry) > counts[1]:
+        stream, t = "/odom", out.odometry[-1].stamp
+    else:
+        return
+    if t < latest.get(stream, -math.inf):
+        out.backwards.append((lineno, latest[stream] - t))
+    latest[stream] = max(t, latest.get(stream, -math.inf))
+
+
+def _drop_raw_duplicates(out: ParsedLog) -> None:
+    """A log with ``FLASER`` or ``ROBOTLASER1`` lines holds the same scans as ``RAWLASER1`` lines (the
+    CARMEN logger writes both); keep the ones with the robot's pose and count the raw ones as ignored."""
+    posed = {s.topic for s in out.scans if not s.raw}
+    dropped = [s for s in out.scans if s.raw and s.topic in posed]
+    for s in dropped:
+        kind = "RAWLASER2" if s.topic == "/rear_scan" else "RAWLASER1"
+        out.ignored[kind] = out.ignored.get(kind, 0) + 1
+    if dropped:
+        out.scans = [s for s in out.scans if not (s.raw and s.topic in posed)]
 
 
 def parse_log(path: str | Path) -> ParsedLog:
@@ -241,8 +303,10 @@ def parse_log(path: str | Path) -> ParsedLog:
     path = Path(path)
     out = ParsedLog(path, "carmen")
     data_lines = 0
+    latest: dict[str, float] = {}
+    fh = open_text(path)  # a file that cannot be opened is the caller's OSError, never 'damaged data'
     try:
-        with open_text(path) as fh:
+        with fh:
             for lineno, line in enumerate(fh, 1):
                 out.lines = lineno
                 tok = line.split()
@@ -251,14 +315,19 @@ def parse_log(path: str | Path) -> ParsedLog:
                 data_lines += 1
                 if data_lines == 1:
                     out.format = "cmu" if tok[0] in ("O", "L") else "carmen"
+                counts = (len(out.scans), len(out.odometry))
                 try:
                     (_cmu_line if out.format == "cmu" else _carmen_line)(tok, out)
+                    _check_order(out, lineno, counts, latest)
                 except (_Bad, IndexError, ValueError) as exc:
                     why = str(exc) if isinstance(exc, _Bad) else f"{tok[0]}: too few or malformed fields"
                     out.bad_lines.append((lineno, why))
     except EOFError:
         out.stopped = f"the compressed file ends early, after line {out.lines}"
-    except (lzma.LZMAError, gzip.BadGzipFile, zlib.error) as exc:
+    except (lzma.LZMAError, zlib.error, OSError) as exc:  # gzip's and bzip2's damaged data are OSErrors
+        if isinstance(exc, OSError) and not isinstance(fh.buffer, (gzip.GzipFile, bz2.BZ2File)):
+            raise  # a plain file's read error is the caller's to report
         where = f"after line {out.lines}" if out.lines else "from its start"
         raise CarmenImportError(f"{path}: its compressed data are damaged {where} ({exc})") from None
+    _drop_raw_duplicates(out)
     return out

@@ -1,6 +1,6 @@
 """``fmcwlog import``: real 2-D laser logs (CARMEN, CMU course format) as fmcwlog MCAP logs.
 
-A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` (``/rear_scan`` for ``RLASER``), odometry a
+A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` (``/rear_scan`` for ``RLASER``, ``RAWLASER2``), odometry a
 ``nav_msgs/msg/Odometry`` on ``/odom`` (frame ``odom``, child ``base_link``), stamped with the log's own
 times. Where the log has no odometry messages (the Intel subset), the odometry pose each laser line
 carries is used. The laser's pose on the robot goes into ``fmcwlog.calibration`` (``lidar_x``,
@@ -49,8 +49,9 @@ def _no_scans(parsed: ParsedLog) -> str:
         other = f", {sum(parsed.ignored.values())} of kinds not imported: {kinds}" if readable else ""
     first = f"; first malformed: line {parsed.bad_lines[0][0]}: {parsed.bad_lines[0][1]}" if parsed.bad_lines else ""
     stopped = f"; {parsed.stopped}" if parsed.stopped else ""
+    odometry = f", {len(parsed.odometry)} of odometry" if parsed.odometry else ""
     return (f"{parsed.path}: no laser scans found in {parsed.lines} lines "
-            f"({len(parsed.bad_lines)} malformed{other}){first}{stopped}")
+            f"({len(parsed.bad_lines)} malformed{odometry}{other}){first}{stopped}")
 
 
 def _calibration(scans: list[ScanRecord]) -> dict[str, str]:
@@ -74,6 +75,15 @@ def _import_record(parsed: ParsedLog, scans: int, odometry: int, source: str) ->
     return info
 
 
+def _warn_order(parsed: ParsedLog) -> None:
+    """Say where the log's time went backwards: its records are written in time order, which moves them."""
+    if parsed.backwards:
+        (line, back), n = parsed.backwards[0], len(parsed.backwards)
+        more = f" and {n - 1} more" if n > 1 else ""
+        logger.warning(f"{parsed.path}: time goes backwards at line {line} ({back:.3f} s before an earlier "
+                       f"record of its kind){more}; wrote every stream in time order")
+
+
 def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
     scans = [s for s in parsed.scans if s.topic == "/scan"] + [s for s in parsed.scans if s.topic != "/scan"]
     if not parsed.scans:
@@ -85,9 +95,13 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
         source = "odometry messages"
     else:
         odom = [(s.stamp, s.odom_pose) for s in parsed.scans if s.odom_pose is not None and s.topic == "/scan"]
-        source = "the odometry pose of each laser line"
+        source = ("the odometry pose of each laser line" if odom
+                  else "nowhere: the log has no ODOM lines and its laser lines no pose")
+    _warn_order(parsed)
     events = sorted([(s.stamp, 0, i) for i, s in enumerate(scans)] + [(t, 1, i) for i, (t, _) in enumerate(odom)])
     last: dict[str, int] = {}
+    written = {0: 0, 1: 0}
+    repeated = 0
     with LogWriter(out) as w:
         w.add_metadata(CALIBRATION_KEY, _calibration(scans))
         w.add_metadata(IMPORT_KEY, _import_record(parsed, len(scans), len(odom), source))
@@ -95,8 +109,10 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
             ns = _ns(t)
             topic = scans[i].topic if kind == 0 else "/odom"
             if last.get(topic) == ns:  # a repeated stamp: keep the first
+                repeated += kind == 0
                 continue
             last[topic] = ns
+            written[kind] += 1
             if kind == 0:
                 s = scans[i]
                 n = len(s.ranges)
@@ -109,4 +125,6 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
             else:
                 w.write("/odom", "nav_msgs/msg/Odometry",
                         odometry_message(ns, "odom", "base_link", np.asarray(odom[i][1], float), np.zeros(3)), ns)
-    return ImportSummary(out, len(scans), len(odom), source, parsed.bad_lines, events[-1][0] - events[0][0])
+    if repeated:
+        logger.warning(f"{parsed.path}: {repeated} scans repeat an earlier scan's stamp; kept the first of each")
+    return ImportSummary(out, written[0], written[1], source, parsed.bad_lines, events[-1][0] - events[0][0])

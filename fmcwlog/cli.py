@@ -520,6 +520,10 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
     if relations_rows(ev.result):
         console.info(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
+    scored = [r["relations"]["n"] for r in ev.result["methods"].values() if r.get("relations")]
+    if relations is not None and not any(scored):  # the wrong file for this log, or stamps that never match
+        console.warning(f"{relations}: none of its relations falls on this log's sweeps (each pose's stamp "
+                        "must be within 1 ms of a relation's); nothing was scored")
     cmp = ev.result["feature_comparison"]
     if cmp and cmp["reduction_pct"] is not None:
         console.info(f"average feature error over the {cmp['features']} feature(s) both maps measure: "

@@ -259,14 +259,14 @@ def test_a_worker_over_its_memory_cap_fails_alone_with_that_reason(fleet, tmp_pa
 
 
 def test_a_search_passes_by_hidden_entries_outputs_and_other_files(tmp_path):
-    for rel in ("x/run.mcap", "y/run.mcap", "y/z/run.mcap", "top.mcap", ".hidden/h.mcap", ".h.mcap",
+    for rel in ("x/run.mcap", "y/run.mcap", "y/z/RUN.MCAP", "top.mcap", ".hidden/h.mcap", ".h.mcap",
                 "done/processed.mcap", "out/k/processed.mcap", "note.txt"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_bytes(b"")
     (tmp_path / "done" / "run.json").write_text("{}")
     logs = find_logs([tmp_path], skip=tmp_path / "out")
-    assert [p.relative_to(tmp_path).as_posix() for p in logs] == ["top.mcap", "x/run.mcap", "y/run.mcap", "y/z/run.mcap"]
-    assert unique_names(logs) == ["top", "x-run", "y-run", "z-run"]
+    assert [p.relative_to(tmp_path).as_posix() for p in logs] == ["top.mcap", "x/run.mcap", "y/run.mcap", "y/z/RUN.MCAP"]
+    assert unique_names(logs) == ["top", "x-run", "y-run", "z-RUN"]  # a name's case is kept
     assert find_logs([tmp_path / "top.mcap", tmp_path]) == find_logs([tmp_path])  # each log once
     (tmp_path / "empty").mkdir()
     with pytest.raises(LogError, match="no logs found"):

@@ -101,6 +101,16 @@ def test_relations_with_a_nan(out, tmp_path):
     _report_fails(out, "r.relations", "line 2", "not finite", args=("--relations", str(rel)))
 
 
+def test_relations_of_another_log_are_said_to_score_nothing(out, tmp_path):
+    # stamps a day past the log's: a well-formed file for some other run
+    rel = tmp_path / "other.relations"
+    rel.write_text("86400.0 86401.0 0.1 0.0 0 0 0 0.01\n86401.0 86402.0 0.1 0.0 0 0 0 0.0\n")
+    code, _, err = run_cli_here("report", str(out), "--relations", str(rel))
+    assert code == 0
+    warning = [line for line in err.splitlines() if "other.relations" in line]
+    assert len(warning) == 1 and "none of its relations" in warning[0] and "Traceback" not in err
+
+
 @pytest.mark.parametrize("world, words", [
     ({"walls": "[[0, 0, 1, 0]]"}, ["fmcwlog.world", "'features'"]),
     ({"features": "[]"}, ["fmcwlog.world", "'walls'"]),

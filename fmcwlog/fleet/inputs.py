@@ -1,7 +1,8 @@
 """Which logs a batch covers, and the sub-folder of the output each one's results go to.
 
 A path on the command line is a log, or a folder searched (recursively, in sorted order)
-for logs by their file names (``*.mcap``; for ``import carmen`` the CARMEN names). What a
+for logs by their file names, whatever their case (``*.mcap``, ``RUN.MCAP``; for ``import
+carmen`` the CARMEN names, ``.clf.GZ`` too: logs copied off other systems keep theirs). What a
 search does not enter: hidden files and folders (``.name``, where fmcwlog's own temporary
 outputs live), the batch's output folder, and any folder holding a ``run.json`` (a
 ``fmcwlog process`` output: its ``processed.mcap`` is a result, not a log).
@@ -26,10 +27,15 @@ CARMEN_PATTERNS = tuple(f"*.{ext}{comp}" for ext in ("clf", "log") for comp in (
 OUTPUT_MARKER = "run.json"  # a folder holding it is a 'fmcwlog process' output
 
 
+def _matches(name: str, pattern: str) -> bool:
+    """``name`` matches the (lower-case) ``pattern`` whatever its case."""
+    return fnmatch.fnmatchcase(name.lower(), pattern)
+
+
 def strip_suffixes(name: str, patterns: Sequence[str]) -> str:
     """``name`` without the suffix its pattern matched (``run.clf.xz`` -> ``run``)."""
     for pat in sorted(patterns, key=len, reverse=True):
-        if fnmatch.fnmatch(name, pat) and pat.startswith("*"):
+        if _matches(name, pat) and pat.startswith("*"):
             return name[: len(name) - len(pat) + 1] or name
     return Path(name).stem
 
@@ -42,7 +48,7 @@ def _search(folder: Path, patterns: Sequence[str], skip: Path | None) -> Iterabl
             continue
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         for f in sorted(files):
-            if not f.startswith(".") and any(fnmatch.fnmatch(f, p) for p in patterns) and (here / f).is_file():
+            if not f.startswith(".") and any(_matches(f, p) for p in patterns) and (here / f).is_file():
                 yield here / f
 
 
@@ -90,14 +96,17 @@ def unique_names(logs: Sequence[Path], patterns: Sequence[str] = MCAP_PATTERNS) 
             names[i] = "-".join([*reversed(prefix), stems[i]])
     counts: dict[str, int] = {}
     for i in sorted(_clashes(names)):  # the same path components all the way up: number them
-        counts[names[i]] = counts.get(names[i], 0) + 1
-        if counts[names[i]] > 1:
-            names[i] = f"{names[i]}-{counts[names[i]]}"
+        key = names[i].lower()
+        counts[key] = counts.get(key, 0) + 1
+        if counts[key] > 1:
+            names[i] = f"{names[i]}-{counts[key]}"
     return names
 
 
 def _clashes(names: list[str]) -> list[int]:
+    """Indices of names shared with another, whatever their case (``run`` and ``RUN`` are one folder
+    on macOS's and Windows' file systems)."""
     seen: dict[str, int] = {}
     for n in names:
-        seen[n] = seen.get(n, 0) + 1
-    return [i for i, n in enumerate(names) if seen[n] > 1]
+        seen[n.lower()] = seen.get(n.lower(), 0) + 1
+    return [i for i, n in enumerate(names) if seen[n.lower()] > 1]

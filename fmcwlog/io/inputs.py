@@ -329,7 +329,8 @@ class _Stream:
 
 
 class LogInputs:
-    """The estimator's inputs from ``reader`` in file order: sweeps, and ticks or odometry as the
+    """The estimator's inputs from ``reader`` in time order (``log_time``, however the writer interleaved
+    the topics: :meth:`LogReader.raw_messages_by_time`): sweeps, and ticks or odometry as the
     motion prior; each message checked once, as it is decoded (module docstring).
 
     Iterate once. :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
@@ -368,7 +369,7 @@ class LogInputs:
 
     def __iter__(self) -> Iterator[SweepInput | TicksInput | OdomInput]:
         wanted = [t for t in (self.topics.scan, self.topics.ticks, self.topics.odom) if t]
-        for schema, channel, rec in self.reader.raw_messages(wanted):
+        for schema, channel, rec in self.reader.raw_messages_by_time(wanted):
             stream = self.scan if channel.topic == self.topics.scan else self.prior
             assert stream is not None
             try:

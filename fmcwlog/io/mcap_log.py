@@ -14,6 +14,7 @@ finished) up to its end, and report each damaged place with its byte offset.
 
 from __future__ import annotations
 
+import heapq
 import os
 import struct
 import warnings
@@ -545,6 +546,22 @@ class LogReader:
         indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
         """
         return self._records(None if topics is None else set(topics))
+
+    def raw_messages_by_time(self, topics: Sequence[str]) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """Undecoded messages on ``topics`` in ``log_time`` order across them, each topic in its own file order.
+
+        LOG_FORMAT.md leaves free how a writer interleaves topics (MCAP orders nothing), and one
+        that writes a topic at a time (every wheel tick, then every sweep) is as valid as one that
+        writes in time order; a reader that takes file order for time order would give the sweeps
+        a motion prior from the wrong time. So each topic is read by a sequential pass of its own
+        and the passes are merged by ``log_time`` (ties in the order of ``topics``). Memory stays
+        at one chunk a pass; each pass decompresses the file again: reading the sweeps and ticks
+        of the 120 s corridor took 1.15-1.29 s merged against 0.38-0.76 s in one pass, where
+        ``process`` takes 13-20 s. Within one topic file order is kept: a message earlier than the
+        one before it is the caller's to judge.
+        """
+        passes = [self._records({topic}) for topic in topics]
+        return heapq.merge(*passes, key=lambda record: record[2].log_time)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
         """Decoded messages on ``topics`` (all when None), in file order."""

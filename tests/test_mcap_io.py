@@ -161,3 +161,31 @@ def test_fixed_layout_batches_are_encoded_as_mcap_ros2_encodes_them():
     assert odometry_cdr_batch(np.zeros(0, np.int64), "map", "base_link", np.zeros((0, 85))) == []
     with pytest.raises(ValueError, match="int32"):
         tf_cdr_batch(np.array([2**31 * 10**9]), "map", "base_link", np.zeros((1, 7)))
+
+
+@pytest.mark.parametrize("message_encoding, schema_encoding, words", [
+    ("json", "ros2msg", "is encoded as 'json', expected 'cdr'"),
+    ("cdr", "ros2idl", "has its schema 'fmcwlog_msgs/msg/WheelTicks' as 'ros2idl', expected 'ros2msg'"),
+])
+def test_a_topic_in_an_encoding_other_than_the_contracts_is_one_error_naming_it(tmp_path, message_encoding,
+                                                                                 schema_encoding, words):
+    """LOG_FORMAT.md: CDR messages with ros2msg schemas. A topic otherwise (written here with plain
+    mcap) is refused naming the file, the topic and the encoding at fault (the schema's encoding was
+    reported as "encoded as 'cdr', expected 'cdr'")."""
+    from mcap.writer import Writer
+
+    from fmcwlog.io.mcap_log import LogReader
+
+    path = tmp_path / "other.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2", library="test")
+        schema = w.register_schema("fmcwlog_msgs/msg/WheelTicks", schema_encoding, b"int64 left\nint64 right\n")
+        channel = w.register_channel("/wheel/ticks", message_encoding, schema)
+        w.add_message(channel, log_time=1, publish_time=1, data=b"\0\1\0\0" + bytes(16))
+        w.finish()
+    reader = LogReader(path)
+    with pytest.raises(LogError) as info:
+        for schema, channel, message in reader.raw_messages():
+            reader.decode(schema, channel, message)
+    assert str(info.value) == f"{path}: topic /wheel/ticks {words}"

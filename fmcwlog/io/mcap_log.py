@@ -585,10 +585,11 @@ class LogReader:
             except Exception as exc:  # mcap_ros2 raises several types for a schema it cannot parse
                 raise LogError(f"{self.path}: topic {channel.topic}: its schema {schema.name!r} "
                                f"cannot be parsed ({exc})") from None
-            if dec is None:
-                raise LogError(
-                    f"{self.path}: topic {channel.topic} is encoded as {channel.message_encoding!r}, expected 'cdr'"
-                )
+            if dec is None:  # mcap_ros2 decodes CDR messages with ros2msg schemas only (LOG_FORMAT.md)
+                what = (f"is encoded as {channel.message_encoding!r}, expected 'cdr'"
+                        if channel.message_encoding != "cdr" else
+                        f"has its schema {schema.name!r} as {schema.encoding!r}, expected 'ros2msg'")
+                raise LogError(f"{self.path}: topic {channel.topic} {what}")
             self._decoders[channel.id] = dec
         try:
             msg = dec(message.data)

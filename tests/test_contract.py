@@ -198,3 +198,37 @@ def test_how_a_writer_interleaves_topics_does_not_change_the_estimates(processed
         out = tmp_path / f"out_{grouped.stem}"
         process(grouped, out, ProcessOptions())
         _same_estimates(out, processed["corridor_30s"])
+
+
+def _baseline_warnings(log: Path, out: Path) -> list[str]:
+    return process(log, out, ProcessOptions(methods=("baseline",), backend="none"), jobs=1).warnings
+
+
+def test_sweeps_without_point_times_are_said(crowd_log, tmp_path):
+    """LOG_FORMAT.md requires the field ``t``: a cloud without it cannot be deskewed, and its points
+    are taken at the sweep's stamp; that is said once, with the count of such sweeps (it was silent,
+    and on a 12 s crowd log the improved trajectory moved 3 m)."""
+    untimed = tmp_path / "untimed.mcap"
+
+    def drop_t(topic, i, msg):
+        if topic == "/fmcw/points":
+            msg.fields = [f for f in msg.fields if f.name != "t"]
+
+    copy_log(crowd_log, untimed, edit=drop_t)
+    sweeps = sum(1 for _ in decoded(untimed, ["/fmcw/points"]))
+    said = [w for w in _baseline_warnings(untimed, tmp_path / "out") if "no field 't'" in w]
+    assert said == [f"{sweeps} sweeps on /fmcw/points have no field 't' (each point's time after the stamp): their "
+                    "points were taken as measured at the sweep's stamp, not deskewed"]
+    assert not [w for w in _baseline_warnings(crowd_log, tmp_path / "ref") if "no field" in w]
+
+
+def test_a_calibration_record_without_the_mount_is_said_naming_the_keys(crowd_log, tmp_path):
+    """LOG_FORMAT.md lists lidar_x, lidar_y, lidar_yaw in ``fmcwlog.calibration``; a record without
+    some of them puts the lidar at base_link's origin, which is said, naming the log and the keys."""
+    record = _metadata(crowd_log)["fmcwlog.calibration"]
+    log = tmp_path / "no_mount.mcap"
+    copy_log(crowd_log, log, drop_metadata=("fmcwlog.calibration",),
+             extra_metadata={"fmcwlog.calibration": {k: v for k, v in record.items() if k not in ("lidar_x", "lidar_yaw")}})
+    said = [w for w in _baseline_warnings(log, tmp_path / "out") if "lidar" in w and "taken as 0" in w]
+    assert said == [f"{log}: fmcwlog.calibration has no lidar_x, lidar_yaw: taken as 0 (the lidar at base_link's "
+                    "origin, facing forward)"]

@@ -349,6 +349,7 @@ class LogInputs:
             raise LogError(f"{self.path}: wheel ticks on {topics.ticks} need the wheels' calibration")
         self._ticks = _TickGate(cal.wheels) if topics.ticks is not None and cal.wheels is not None else None
         self._poses = _PoseGate()
+        self.untimed_sweeps = 0  # PointCloud2 sweeps without the field t: taken at their stamp
 
     @property
     def skipped(self) -> dict[str, int]:
@@ -427,6 +428,8 @@ class LogInputs:
     def _read_sweep(self, m: Any) -> tuple[int, SweepInput]:
         if m.datatype.endswith("PointCloud2"):
             sweep = sweep_from_pointcloud(self.path, m.msg, self.limits)
+            if not any(f.name == "t" for f in m.msg.fields):
+                self.untimed_sweeps += 1
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
         return sweep.stamp_ns, sweep
@@ -505,6 +508,9 @@ class LogInputs:
                     out.append(text)
                 else:
                     out.append(f"skipped {text} (first: {stream.first_detail[kind]})")
+        if self.untimed_sweeps:  # LOG_FORMAT.md requires t; without it nothing can be deskewed
+            out.append(f"{self.untimed_sweeps} sweeps on {self.topics.scan} have no field 't' (each point's time "
+                       "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")
         gates = [(self._ticks, "wheel-tick counter"), (self._poses, "odometry")]
         for gate, what in gates:
             if gate is not None and gate.rebases:

@@ -458,6 +458,7 @@ class LogReader:
         self._factory = DecoderFactory()
         self._reported: set[int] = set()
         self._causes: list[str] = []
+        self._extensions_said = False
         try:
             self._scan = McapScan(self.path, self._report)
         except Damaged as exc:
@@ -538,6 +539,13 @@ class LogReader:
                     yield schemas.get(ch.schema_id), ch, rec
         if not self._scan.complete:
             self.contents.truncated = True
+        if self._scan.extensions and not self._extensions_said:
+            self._extensions_said = True
+            first = min(self._scan.extensions)
+            n = len(self._scan.extensions)
+            warnings.warn(f"{self.path}: skipped {n} record{'s' if n > 1 else ''} of extension opcodes "
+                          f"(0x80-0xFF, which the MCAP specification leaves to applications; the first: 0x"
+                          f"{self._scan.extensions[first]:02x} at byte {first})", stacklevel=2)
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """Undecoded messages on ``topics`` (all when None), in file order; :meth:`decode` decodes one.

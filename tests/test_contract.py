@@ -17,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 from conftest import SAMPLE_LOGS
 from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
 from mcap.reader import make_reader
 from mcap_ros2.writer import Writer
 
-from fmcwlog.api import ProcessOptions, process
+from fmcwlog.api import ProcessOptions, process, report
+from fmcwlog.errors import ReportError
 
 CORRIDOR = SAMPLE_LOGS / "corridor_30s.mcap"
 ESTIMATES = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm",
@@ -232,3 +234,29 @@ def test_a_calibration_record_without_the_mount_is_said_naming_the_keys(crowd_lo
     said = [w for w in _baseline_warnings(log, tmp_path / "out") if "lidar" in w and "taken as 0" in w]
     assert said == [f"{log}: fmcwlog.calibration has no lidar_x, lidar_yaw: taken as 0 (the lidar at base_link's "
                     "origin, facing forward)"]
+
+
+def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crowd_log, tmp_path):
+    """LOG_FORMAT.md: a message's log_time equals its header.stamp. A writer that logs receive times
+    (sweeps 80 ms late) gets a warning from process, which goes by header.stamp, and a report error
+    that says so (it said the log, whose sha256 run.json holds, 'does not belong' to its outputs)."""
+    late = tmp_path / "late.mcap"
+    with open(late, "wb") as fh:
+        w = Writer(fh)
+        schemas: dict[str, object] = {}
+        for name, values in _metadata(crowd_log).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(crowd_log):
+            if schema.name not in schemas:
+                schemas[schema.name] = w.register_msgdef(schema.name, schema.data.decode())
+            shift = 80_000_000 if channel.topic == "/fmcw/points" else 0
+            w.write_message(channel.topic, schemas[schema.name], msg, log_time=message.log_time + shift,
+                            publish_time=message.log_time + shift)
+        w.finish()
+    sweeps = sum(1 for _ in decoded(late, ["/fmcw/points"]))
+    out = tmp_path / "out"
+    said = [w for w in _baseline_warnings(late, out) if "log_time" in w]
+    assert len(said) == 1 and said[0].startswith(f"{sweeps} messages on /fmcw/points have a log_time other than "
+                                                 "their header.stamp")
+    with pytest.raises(ReportError, match="log_time of its /fmcw/points messages differs from their header.stamp"):
+        report(out)

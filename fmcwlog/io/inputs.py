@@ -326,6 +326,8 @@ class _Stream:
     held: tuple[int, Any] | None = None  # a message whose stamp jumped forward, until the next one says
     skipped: dict[str, int] = field(default_factory=dict)
     first_detail: dict[str, str] = field(default_factory=dict)
+    off_log_time: int = 0  # messages whose log_time is not their header.stamp
+    first_off_log_time: str = ""
 
 
 class LogInputs:
@@ -376,6 +378,10 @@ class LogInputs:
             try:
                 m = self.reader.decode(schema, channel, rec)
                 ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
+                if rec.log_time != ns:  # LOG_FORMAT.md: equal; estimation goes by header.stamp
+                    stream.off_log_time += 1
+                    stream.first_off_log_time = stream.first_off_log_time or \
+                        f"log_time {rec.log_time * 1e-9:.3f} s, header.stamp {ns * 1e-9:.3f} s"
             except UndecodableMessage as exc:
                 self._skip(stream, "undecodable", str(exc))
                 continue
@@ -508,6 +514,11 @@ class LogInputs:
                     out.append(text)
                 else:
                     out.append(f"skipped {text} (first: {stream.first_detail[kind]})")
+        for stream in (self.scan, self.prior):
+            if stream is not None and stream.off_log_time:
+                out.append(f"{stream.off_log_time} messages on {stream.topic} have a log_time other than their "
+                           f"header.stamp (first: {stream.first_off_log_time}), which LOG_FORMAT.md has equal: "
+                           "processed by header.stamp")
         if self.untimed_sweeps:  # LOG_FORMAT.md requires t; without it nothing can be deskewed
             out.append(f"{self.untimed_sweeps} sweeps on {self.topics.scan} have no field 't' (each point's time "
                        "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")

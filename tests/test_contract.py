@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from mcap_ros2.writer import Writer
 
 from fmcwlog.api import ProcessOptions, process, report
-from fmcwlog.errors import ReportError
+from fmcwlog.errors import LogError, ReportError
 
 CORRIDOR = SAMPLE_LOGS / "corridor_30s.mcap"
 ESTIMATES = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm",
@@ -260,3 +260,43 @@ def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crow
                                                  "their header.stamp")
     with pytest.raises(ReportError, match="log_time of its /fmcw/points messages differs from their header.stamp"):
         report(out)
+
+
+@pytest.mark.parametrize("type_name, words", [
+    ("other_msgs/msg/Encoders", "/wheel/ticks is other_msgs/msg/Encoders, not fmcwlog_msgs/msg/WheelTicks"),
+    ("fmcwlog_msgs/msg/WheelTicks", "/wheel/ticks is fmcwlog_msgs/msg/WheelTicks without the fields header, left and "
+                                    "right of fmcwlog_msgs/msg/WheelTicks"),
+])
+def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, tmp_path, type_name, words):
+    """LOG_FORMAT.md fixes /wheel/ticks as fmcwlog_msgs/msg/WheelTicks (int64 left, right). Encoder
+    counts of another type, or under that name with other fields, were a traceback (AttributeError)."""
+    log = tmp_path / "encoders.mcap"
+    with open(log, "wb") as fh:
+        w = Writer(fh)
+        schemas: dict[str, object] = {}
+        for name, values in _metadata(crowd_log).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(crowd_log):
+            name, text, out = schema.name, schema.data.decode(), msg
+            if channel.topic == "/wheel/ticks":
+                name = type_name
+                text = text.replace("int64 left", "int32 left_ticks").replace("int64 right", "int32 right_ticks")
+                out = {"header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec},
+                                  "frame_id": msg.header.frame_id}, "left_ticks": msg.left, "right_ticks": msg.right}
+            if name not in schemas:
+                schemas[name] = w.register_msgdef(name, text)
+            w.write_message(channel.topic, schemas[name], out, log_time=message.log_time, publish_time=message.log_time)
+        w.finish()
+    with pytest.raises(LogError) as info:
+        process(log, tmp_path / "out", ProcessOptions(methods=("baseline",), backend="none"), jobs=1)
+    expected = f"{log}: {words} (LOG_FORMAT.md)" if "without" in words else f"{log}: {words}"
+    assert str(info.value) == expected
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_odometry_topic_of_another_type_is_one_error_naming_the_type(crowd_log, tmp_path):
+    """``--odom-topic`` naming a topic that is no nav_msgs/msg/Odometry was a traceback (AttributeError)."""
+    with pytest.raises(LogError) as info:
+        process(crowd_log, tmp_path / "out", ProcessOptions(odom_topic="/ground_truth/point_labels"), jobs=1)
+    assert str(info.value) == (f"{crowd_log}: /ground_truth/point_labels is fmcwlog_msgs/msg/PointLabels, "
+                               "not nav_msgs/msg/Odometry")

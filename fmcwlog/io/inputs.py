@@ -442,6 +442,9 @@ class LogInputs:
 
     def _read_prior(self, m: Any) -> tuple[int, tuple[int, int] | np.ndarray]:
         """The stamp and the counts (ticks) or pose (odometry) of a motion-prior message."""
+        if self._ticks is not None and not all(hasattr(m.msg, f) for f in ("header", "left", "right")):
+            raise LogError(f"{self.path}: {m.topic} is {m.datatype} without the fields header, left and right of "
+                           "fmcwlog_msgs/msg/WheelTicks (LOG_FORMAT.md)")
         ns = _stamp(self.path, "motion prior", m.msg.header)
         if self._ticks is not None:
             return ns, (int(m.msg.left), int(m.msg.right))
@@ -571,6 +574,7 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
     if odom is not None:
         if odom not in topics:
             raise LogError(f"{path}: no topic {odom}{reader.damage_note()}")
+        _check_type(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
         return InputTopics(scan, None, odom)
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
@@ -578,4 +582,14 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
         return InputTopics(scan, None, "/odom")
     if ticks is not None and ticks not in topics:
         raise LogError(f"{path}: no topic {ticks}{reader.damage_note()}")
+    if ticks is not None:
+        _check_type(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
     return InputTopics(scan, ticks, None)
+
+
+def _check_type(reader: LogReader, topic: str, name: str, full: str) -> None:
+    """Refuse a motion-prior topic of another type than ``full`` (any package's ``name`` passes: the
+    fields are checked as the messages are read)."""
+    datatype = reader.topics[topic]
+    if datatype.rsplit("/", 1)[-1] != name:
+        raise LogError(f"{reader.path}: {topic} is {datatype or 'of no known type'}, not {full}")

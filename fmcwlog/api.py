@@ -351,12 +351,12 @@ def _calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | N
     """The calibration to process with: the file at ``path`` if given, else the log's record; and its source."""
     if path is not None:
         try:
-            return parse_calibration(read_calibration_file(path), need_wheels), str(path)
+            return parse_calibration(read_calibration_file(path), need_wheels, str(path)), str(path)
         except CalibrationError as exc:
             raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
     try:
         record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
-        return parse_calibration(record, need_wheels), f"log record {CALIBRATION_KEY}"
+        return parse_calibration(record, need_wheels, str(log)), f"log record {CALIBRATION_KEY}"
     except CalibrationError as exc:
         raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
 

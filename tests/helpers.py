@@ -25,9 +25,11 @@ def decoded(path: Path, topics=None):
         yield from reader.iter_decoded_messages(topics=topics)
 
 
-def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None, extra_metadata=None) -> None:
+def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None, extra_metadata=None,
+             order=None) -> None:
     """Re-encode a log message by message; ``edit(topic, index, msg)`` may change a message or
-    return False to drop it; ``extra_metadata`` records are added."""
+    return False to drop it; ``extra_metadata`` records are added; ``order(topic, log_time)``, if
+    given, is the key messages are written in (a stable sort of the log_time order)."""
     with open(src, "rb") as fh:
         meta = {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}
     counts: dict[str, int] = {}
@@ -39,7 +41,10 @@ def copy_log(src: Path, dst: Path, drop_topics=(), drop_metadata=(), edit=None, 
                 w.add_metadata(name, values)
         for name, values in (extra_metadata or {}).items():
             w.add_metadata(name, values)
-        for schema, channel, message, msg in decoded(src):
+        messages = decoded(src)
+        if order is not None:
+            messages = sorted(messages, key=lambda m: order(m[1].topic, m[2].log_time))
+        for schema, channel, message, msg in messages:
             if channel.topic in drop_topics:
                 continue
             i = counts.get(channel.topic, 0)

@@ -17,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 from conftest import SAMPLE_LOGS
 from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
 from mcap.reader import make_reader
 from mcap_ros2.writer import Writer
 
-from fmcwlog.api import ProcessOptions, process
+from fmcwlog.api import ProcessOptions, process, report
+from fmcwlog.errors import LogError, ReportError
 
 CORRIDOR = SAMPLE_LOGS / "corridor_30s.mcap"
 ESTIMATES = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm",
@@ -179,3 +181,122 @@ def test_laserscan_with_the_robots_own_odometry(tmp_path):
     assert errors["improved"] < 0.10, errors  # measured 4.9 cm
     assert errors["wheel_odometry"] > 2 * errors["improved"], errors  # measured 15.2 cm: its drift is corrected
     assert errors["baseline"] > 2 * errors["improved"], errors  # measured 36.7 cm
+
+
+def test_how_a_writer_interleaves_topics_does_not_change_the_estimates(processed, tmp_path):
+    """LOG_FORMAT.md leaves the order of topics in the file to the writer (MCAP orders nothing):
+    every wheel tick written before the first sweep, or every sweep before the first tick, must
+    give the estimates of the log written in time order. (Read in file order, the ticks-first log
+    gave the sweeps a motion prior from the log's end: the improved trajectory up to 2.2 m and the
+    baseline's 0.97 m from those of the time-ordered log, and the improved method stopped trusting
+    the wheel ticks.)"""
+    for first in ("/wheel/ticks", "/fmcw/points"):
+        grouped = tmp_path / f"{first.strip('/').replace('/', '_')}_first.mcap"
+        copy_log(CORRIDOR, grouped, order=lambda topic, log_time, first=first: (topic != first, log_time))
+        with open(grouped, "rb") as fh:
+            topics = [c.topic for _, c, _ in make_reader(fh).iter_messages(log_time_order=False)]
+        n = topics.count(first)
+        assert set(topics[:n]) == {first} and first not in topics[n:], "the writer did not group the topic"
+        out = tmp_path / f"out_{grouped.stem}"
+        process(grouped, out, ProcessOptions())
+        _same_estimates(out, processed["corridor_30s"])
+
+
+def _baseline_warnings(log: Path, out: Path) -> list[str]:
+    return process(log, out, ProcessOptions(methods=("baseline",), backend="none"), jobs=1).warnings
+
+
+def test_sweeps_without_point_times_are_said(crowd_log, tmp_path):
+    """LOG_FORMAT.md requires the field ``t``: a cloud without it cannot be deskewed, and its points
+    are taken at the sweep's stamp; that is said once, with the count of such sweeps (it was silent,
+    and on a 12 s crowd log the improved trajectory moved 3 m)."""
+    untimed = tmp_path / "untimed.mcap"
+
+    def drop_t(topic, i, msg):
+        if topic == "/fmcw/points":
+            msg.fields = [f for f in msg.fields if f.name != "t"]
+
+    copy_log(crowd_log, untimed, edit=drop_t)
+    sweeps = sum(1 for _ in decoded(untimed, ["/fmcw/points"]))
+    said = [w for w in _baseline_warnings(untimed, tmp_path / "out") if "no field 't'" in w]
+    assert said == [f"{sweeps} sweeps on /fmcw/points have no field 't' (each point's time after the stamp): their "
+                    "points were taken as measured at the sweep's stamp, not deskewed"]
+    assert not [w for w in _baseline_warnings(crowd_log, tmp_path / "ref") if "no field" in w]
+
+
+def test_a_calibration_record_without_the_mount_is_said_naming_the_keys(crowd_log, tmp_path):
+    """LOG_FORMAT.md lists lidar_x, lidar_y, lidar_yaw in ``fmcwlog.calibration``; a record without
+    some of them puts the lidar at base_link's origin, which is said, naming the log and the keys."""
+    record = _metadata(crowd_log)["fmcwlog.calibration"]
+    log = tmp_path / "no_mount.mcap"
+    copy_log(crowd_log, log, drop_metadata=("fmcwlog.calibration",),
+             extra_metadata={"fmcwlog.calibration": {k: v for k, v in record.items() if k not in ("lidar_x", "lidar_yaw")}})
+    said = [w for w in _baseline_warnings(log, tmp_path / "out") if "lidar" in w and "taken as 0" in w]
+    assert said == [f"{log}: fmcwlog.calibration has no lidar_x, lidar_yaw: taken as 0 (the lidar at base_link's "
+                    "origin, facing forward)"]
+
+
+def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crowd_log, tmp_path):
+    """LOG_FORMAT.md: a message's log_time equals its header.stamp. A writer that logs receive times
+    (sweeps 80 ms late) gets a warning from process, which goes by header.stamp, and a report error
+    that says so (it said the log, whose sha256 run.json holds, 'does not belong' to its outputs)."""
+    late = tmp_path / "late.mcap"
+    with open(late, "wb") as fh:
+        w = Writer(fh)
+        schemas: dict[str, object] = {}
+        for name, values in _metadata(crowd_log).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(crowd_log):
+            if schema.name not in schemas:
+                schemas[schema.name] = w.register_msgdef(schema.name, schema.data.decode())
+            shift = 80_000_000 if channel.topic == "/fmcw/points" else 0
+            w.write_message(channel.topic, schemas[schema.name], msg, log_time=message.log_time + shift,
+                            publish_time=message.log_time + shift)
+        w.finish()
+    sweeps = sum(1 for _ in decoded(late, ["/fmcw/points"]))
+    out = tmp_path / "out"
+    said = [w for w in _baseline_warnings(late, out) if "log_time" in w]
+    assert len(said) == 1 and said[0].startswith(f"{sweeps} messages on /fmcw/points have a log_time other than "
+                                                 "their header.stamp")
+    with pytest.raises(ReportError, match="log_time of its /fmcw/points messages differs from their header.stamp"):
+        report(out)
+
+
+@pytest.mark.parametrize("type_name, words", [
+    ("other_msgs/msg/Encoders", "/wheel/ticks is other_msgs/msg/Encoders, not fmcwlog_msgs/msg/WheelTicks"),
+    ("fmcwlog_msgs/msg/WheelTicks", "/wheel/ticks is fmcwlog_msgs/msg/WheelTicks without the fields header, left and "
+                                    "right of fmcwlog_msgs/msg/WheelTicks"),
+])
+def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, tmp_path, type_name, words):
+    """LOG_FORMAT.md fixes /wheel/ticks as fmcwlog_msgs/msg/WheelTicks (int64 left, right). Encoder
+    counts of another type, or under that name with other fields, were a traceback (AttributeError)."""
+    log = tmp_path / "encoders.mcap"
+    with open(log, "wb") as fh:
+        w = Writer(fh)
+        schemas: dict[str, object] = {}
+        for name, values in _metadata(crowd_log).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(crowd_log):
+            name, text, out = schema.name, schema.data.decode(), msg
+            if channel.topic == "/wheel/ticks":
+                name = type_name
+                text = text.replace("int64 left", "int32 left_ticks").replace("int64 right", "int32 right_ticks")
+                out = {"header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec},
+                                  "frame_id": msg.header.frame_id}, "left_ticks": msg.left, "right_ticks": msg.right}
+            if name not in schemas:
+                schemas[name] = w.register_msgdef(name, text)
+            w.write_message(channel.topic, schemas[name], out, log_time=message.log_time, publish_time=message.log_time)
+        w.finish()
+    with pytest.raises(LogError) as info:
+        process(log, tmp_path / "out", ProcessOptions(methods=("baseline",), backend="none"), jobs=1)
+    expected = f"{log}: {words} (LOG_FORMAT.md)" if "without" in words else f"{log}: {words}"
+    assert str(info.value) == expected
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_odometry_topic_of_another_type_is_one_error_naming_the_type(crowd_log, tmp_path):
+    """``--odom-topic`` naming a topic that is no nav_msgs/msg/Odometry was a traceback (AttributeError)."""
+    with pytest.raises(LogError) as info:
+        process(crowd_log, tmp_path / "out", ProcessOptions(odom_topic="/ground_truth/point_labels"), jobs=1)
+    assert str(info.value) == (f"{crowd_log}: /ground_truth/point_labels is fmcwlog_msgs/msg/PointLabels, "
+                               "not nav_msgs/msg/Odometry")

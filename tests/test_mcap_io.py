@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import struct
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from fmcwlog.errors import LogError
 from fmcwlog.io.mcap_log import LogReader
@@ -161,3 +164,73 @@ def test_fixed_layout_batches_are_encoded_as_mcap_ros2_encodes_them():
     assert odometry_cdr_batch(np.zeros(0, np.int64), "map", "base_link", np.zeros((0, 85))) == []
     with pytest.raises(ValueError, match="int32"):
         tf_cdr_batch(np.array([2**31 * 10**9]), "map", "base_link", np.zeros((1, 7)))
+
+
+@pytest.mark.parametrize("message_encoding, schema_encoding, words", [
+    ("json", "ros2msg", "is encoded as 'json', expected 'cdr'"),
+    ("cdr", "ros2idl", "has its schema 'fmcwlog_msgs/msg/WheelTicks' as 'ros2idl', expected 'ros2msg'"),
+])
+def test_a_topic_in_an_encoding_other_than_the_contracts_is_one_error_naming_it(tmp_path, message_encoding,
+                                                                                 schema_encoding, words):
+    """LOG_FORMAT.md: CDR messages with ros2msg schemas. A topic otherwise (written here with plain
+    mcap) is refused naming the file, the topic and the encoding at fault (the schema's encoding was
+    reported as "encoded as 'cdr', expected 'cdr'")."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "other.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2", library="test")
+        schema = w.register_schema("fmcwlog_msgs/msg/WheelTicks", schema_encoding, b"int64 left\nint64 right\n")
+        channel = w.register_channel("/wheel/ticks", message_encoding, schema)
+        w.add_message(channel, log_time=1, publish_time=1, data=b"\0\1\0\0" + bytes(16))
+        w.finish()
+    reader = LogReader(path)
+    with pytest.raises(LogError) as info:
+        for schema, channel, message in reader.raw_messages():
+            reader.decode(schema, channel, message)
+    assert str(info.value) == f"{path}: topic /wheel/ticks {words}"
+
+
+def _unindexed_log_with_a_record_spliced_in(path: Path, opcode: int) -> list[tuple[str, int, bytes]]:
+    """An unchunked log without summary (plain mcap) with a record of ``opcode`` after its header;
+    its messages as mcap's own reader reads them before the splice."""
+    from mcap.writer import IndexType, Writer
+
+    plain = path.with_suffix(".plain.mcap")
+    with open(plain, "wb") as fh:
+        w = Writer(fh, use_chunking=False, index_types=IndexType.NONE, repeat_channels=False, repeat_schemas=False,
+                   use_statistics=False, use_summary_offsets=False)
+        w.start(profile="ros2", library="test")
+        schema = w.register_schema("fmcwlog_msgs/msg/WheelTicks", "ros2msg", b"int64 left\nint64 right\n")
+        channel = w.register_channel("/wheel/ticks", "cdr", schema)
+        for i in range(5):
+            w.add_message(channel, log_time=i + 1, publish_time=i + 1, data=b"\0\1\0\0" + struct.pack("<qq", i, 2 * i))
+        w.finish()
+    with open(plain, "rb") as fh:
+        expected = [(c.topic, m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages(log_time_order=False)]
+    data = plain.read_bytes()
+    header_end = 8 + 9 + struct.unpack_from("<Q", data, 9)[0]
+    path.write_bytes(data[:header_end] + bytes([opcode]) + struct.pack("<Q", 6) + b"vendor" + data[header_end:])
+    return expected
+
+
+def test_records_of_extension_opcodes_are_skipped_with_a_note(tmp_path):
+    """The MCAP specification: "0x80-0xFF are reserved for application extensions". A writer's record
+    of such an opcode is skipped, with one warning naming the file and where (the log was 'nothing
+    readable: damaged'); an unknown opcode below 0x80 is still damage."""
+    path = tmp_path / "extension.mcap"
+    expected = _unindexed_log_with_a_record_spliced_in(path, 0x80)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = LogReader(path)
+        got = [(c.topic, m.log_time, m.data) for _, c, m in reader.raw_messages_by_time(["/wheel/ticks"])]
+    assert got == expected and not reader.contents.damage
+    assert [str(w.message) for w in caught] == [
+        f"{path}: skipped 1 record of extension opcodes (0x80-0xFF, which the MCAP specification leaves to "
+        f"applications; the first: 0x80 at byte {8 + 9 + struct.unpack_from('<Q', path.read_bytes(), 9)[0]})"]
+    reserved = tmp_path / "reserved.mcap"
+    _unindexed_log_with_a_record_spliced_in(reserved, 0x7F)
+    with warnings.catch_warnings(record=True), pytest.raises(LogError, match="unknown opcode 0x7f"):
+        warnings.simplefilter("always")
+        LogReader(reserved)

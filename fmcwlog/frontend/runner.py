@@ -1,4 +1,4 @@
-"""The loop over a log: its inputs, in file order, fed to the front ends side by side.
+"""The loop over a log: its inputs, in time order, fed to the front ends side by side.
 
 A sweep waits in a short queue until the motion prior (wheel ticks or an
 Odometry topic) covers its whole duration, then every method processes it and

@@ -115,12 +115,20 @@ def calibration_record(records: list[dict[str, str]], source: str) -> dict[str, 
     return first
 
 
-def parse_calibration(values: dict[str, str] | None, need_wheels: bool) -> Calibration:
+def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: str = "the calibration") -> Calibration:
     """Parse the record; the wheel keys are required only when ticks are the motion prior.
 
     A log without a calibration record (e.g. an imported laser log) gets the
-    lidar at the origin of base_link. Every value read must lie in its range (:data:`RANGES`).
+    lidar at the origin of base_link. So does a record without the mount's keys, with a
+    warning naming ``source`` and the keys: LOG_FORMAT.md lists them, and a writer that left
+    them out would otherwise have its lidar moved to the rear axle without a word (a 12 s crowd
+    log so rewritten: the baseline's trajectory 11 cm off). Every value read must lie in its
+    range (:data:`RANGES`).
     """
+    missing_mount = [k for k in MOUNT_KEYS if k not in values] if values else []
+    if missing_mount:
+        warnings.warn(f"{source}: {CALIBRATION_KEY} has no {', '.join(missing_mount)}: taken as 0 (the lidar "
+                      "at base_link's origin, facing forward)", stacklevel=2)
     values = values or {}
     if need_wheels:
         if not values:

@@ -326,10 +326,13 @@ class _Stream:
     held: tuple[int, Any] | None = None  # a message whose stamp jumped forward, until the next one says
     skipped: dict[str, int] = field(default_factory=dict)
     first_detail: dict[str, str] = field(default_factory=dict)
+    off_log_time: int = 0  # messages whose log_time is not their header.stamp
+    first_off_log_time: str = ""
 
 
 class LogInputs:
-    """The estimator's inputs from ``reader`` in file order: sweeps, and ticks or odometry as the
+    """The estimator's inputs from ``reader`` in time order (``log_time``, however the writer interleaved
+    the topics: :meth:`LogReader.raw_messages_by_time`): sweeps, and ticks or odometry as the
     motion prior; each message checked once, as it is decoded (module docstring).
 
     Iterate once. :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
@@ -348,6 +351,7 @@ class LogInputs:
             raise LogError(f"{self.path}: wheel ticks on {topics.ticks} need the wheels' calibration")
         self._ticks = _TickGate(cal.wheels) if topics.ticks is not None and cal.wheels is not None else None
         self._poses = _PoseGate()
+        self.untimed_sweeps = 0  # PointCloud2 sweeps without the field t: taken at their stamp
 
     @property
     def skipped(self) -> dict[str, int]:
@@ -368,12 +372,16 @@ class LogInputs:
 
     def __iter__(self) -> Iterator[SweepInput | TicksInput | OdomInput]:
         wanted = [t for t in (self.topics.scan, self.topics.ticks, self.topics.odom) if t]
-        for schema, channel, rec in self.reader.raw_messages(wanted):
+        for schema, channel, rec in self.reader.raw_messages_by_time(wanted):
             stream = self.scan if channel.topic == self.topics.scan else self.prior
             assert stream is not None
             try:
                 m = self.reader.decode(schema, channel, rec)
                 ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
+                if rec.log_time != ns:  # LOG_FORMAT.md: equal; estimation goes by header.stamp
+                    stream.off_log_time += 1
+                    stream.first_off_log_time = stream.first_off_log_time or \
+                        f"log_time {rec.log_time * 1e-9:.3f} s, header.stamp {ns * 1e-9:.3f} s"
             except UndecodableMessage as exc:
                 self._skip(stream, "undecodable", str(exc))
                 continue
@@ -426,12 +434,17 @@ class LogInputs:
     def _read_sweep(self, m: Any) -> tuple[int, SweepInput]:
         if m.datatype.endswith("PointCloud2"):
             sweep = sweep_from_pointcloud(self.path, m.msg, self.limits)
+            if not any(f.name == "t" for f in m.msg.fields):
+                self.untimed_sweeps += 1
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
         return sweep.stamp_ns, sweep
 
     def _read_prior(self, m: Any) -> tuple[int, tuple[int, int] | np.ndarray]:
         """The stamp and the counts (ticks) or pose (odometry) of a motion-prior message."""
+        if self._ticks is not None and not all(hasattr(m.msg, f) for f in ("header", "left", "right")):
+            raise LogError(f"{self.path}: {m.topic} is {m.datatype} without the fields header, left and right of "
+                           "fmcwlog_msgs/msg/WheelTicks (LOG_FORMAT.md)")
         ns = _stamp(self.path, "motion prior", m.msg.header)
         if self._ticks is not None:
             return ns, (int(m.msg.left), int(m.msg.right))
@@ -504,6 +517,14 @@ class LogInputs:
                     out.append(text)
                 else:
                     out.append(f"skipped {text} (first: {stream.first_detail[kind]})")
+        for stream in (self.scan, self.prior):
+            if stream is not None and stream.off_log_time:
+                out.append(f"{stream.off_log_time} messages on {stream.topic} have a log_time other than their "
+                           f"header.stamp (first: {stream.first_off_log_time}), which LOG_FORMAT.md has equal: "
+                           "processed by header.stamp")
+        if self.untimed_sweeps:  # LOG_FORMAT.md requires t; without it nothing can be deskewed
+            out.append(f"{self.untimed_sweeps} sweeps on {self.topics.scan} have no field 't' (each point's time "
+                       "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")
         gates = [(self._ticks, "wheel-tick counter"), (self._poses, "odometry")]
         for gate, what in gates:
             if gate is not None and gate.rebases:
@@ -553,6 +574,7 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
     if odom is not None:
         if odom not in topics:
             raise LogError(f"{path}: no topic {odom}{reader.damage_note()}")
+        _check_type(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
         return InputTopics(scan, None, odom)
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
@@ -560,4 +582,14 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
         return InputTopics(scan, None, "/odom")
     if ticks is not None and ticks not in topics:
         raise LogError(f"{path}: no topic {ticks}{reader.damage_note()}")
+    if ticks is not None:
+        _check_type(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
     return InputTopics(scan, ticks, None)
+
+
+def _check_type(reader: LogReader, topic: str, name: str, full: str) -> None:
+    """Refuse a motion-prior topic of another type than ``full`` (any package's ``name`` passes: the
+    fields are checked as the messages are read)."""
+    datatype = reader.topics[topic]
+    if datatype.rsplit("/", 1)[-1] != name:
+        raise LogError(f"{reader.path}: {topic} is {datatype or 'of no known type'}, not {full}")

@@ -14,6 +14,7 @@ finished) up to its end, and report each damaged place with its byte offset.
 
 from __future__ import annotations
 
+import heapq
 import os
 import struct
 import warnings
@@ -457,6 +458,7 @@ class LogReader:
         self._factory = DecoderFactory()
         self._reported: set[int] = set()
         self._causes: list[str] = []
+        self._extensions_said = False
         try:
             self._scan = McapScan(self.path, self._report)
         except Damaged as exc:
@@ -537,6 +539,13 @@ class LogReader:
                     yield schemas.get(ch.schema_id), ch, rec
         if not self._scan.complete:
             self.contents.truncated = True
+        if self._scan.extensions and not self._extensions_said:
+            self._extensions_said = True
+            first = min(self._scan.extensions)
+            n = len(self._scan.extensions)
+            warnings.warn(f"{self.path}: skipped {n} record{'s' if n > 1 else ''} of extension opcodes "
+                          f"(0x80-0xFF, which the MCAP specification leaves to applications; the first: 0x"
+                          f"{self._scan.extensions[first]:02x} at byte {first})", stacklevel=2)
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """Undecoded messages on ``topics`` (all when None), in file order; :meth:`decode` decodes one.
@@ -545,6 +554,22 @@ class LogReader:
         indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
         """
         return self._records(None if topics is None else set(topics))
+
+    def raw_messages_by_time(self, topics: Sequence[str]) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """Undecoded messages on ``topics`` in ``log_time`` order across them, each topic in its own file order.
+
+        LOG_FORMAT.md leaves free how a writer interleaves topics (MCAP orders nothing), and one
+        that writes a topic at a time (every wheel tick, then every sweep) is as valid as one that
+        writes in time order; a reader that takes file order for time order would give the sweeps
+        a motion prior from the wrong time. So each topic is read by a sequential pass of its own
+        and the passes are merged by ``log_time`` (ties in the order of ``topics``). Memory stays
+        at one chunk a pass; each pass decompresses the file again: reading the sweeps and ticks
+        of the 120 s corridor took 1.15-1.29 s merged against 0.38-0.76 s in one pass, where
+        ``process`` takes 13-20 s. Within one topic file order is kept: a message earlier than the
+        one before it is the caller's to judge.
+        """
+        passes = [self._records({topic}) for topic in topics]
+        return heapq.merge(*passes, key=lambda record: record[2].log_time)
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
         """Decoded messages on ``topics`` (all when None), in file order."""
@@ -568,10 +593,11 @@ class LogReader:
             except Exception as exc:  # mcap_ros2 raises several types for a schema it cannot parse
                 raise LogError(f"{self.path}: topic {channel.topic}: its schema {schema.name!r} "
                                f"cannot be parsed ({exc})") from None
-            if dec is None:
-                raise LogError(
-                    f"{self.path}: topic {channel.topic} is encoded as {channel.message_encoding!r}, expected 'cdr'"
-                )
+            if dec is None:  # mcap_ros2 decodes CDR messages with ros2msg schemas only (LOG_FORMAT.md)
+                what = (f"is encoded as {channel.message_encoding!r}, expected 'cdr'"
+                        if channel.message_encoding != "cdr" else
+                        f"has its schema {schema.name!r} as {schema.encoding!r}, expected 'ros2msg'")
+                raise LogError(f"{self.path}: topic {channel.topic} {what}")
             self._decoders[channel.id] = dec
         try:
             msg = dec(message.data)

@@ -56,6 +56,9 @@ MAGIC = b"\x89MCAP0\r\n"
 _PREFIX = 9  # a record's opcode (uint8) and body length (uint64)
 _FOOTER = _PREFIX + 20  # summary_start, summary_offset_start (uint64), summary_crc (uint32)
 _KNOWN = {int(op) for op in Opcode}
+# The specification: "0x80-0xFF are reserved for application extensions and user proposals", so a
+# writer may put such records in the data section; they are skipped. An unknown opcode below is damage.
+_EXTENSION = 0x80
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _MAX_CUT_CHUNK = 256 << 20  # bytes of a cut chunk decoded for its whole records (writers chunk at 1-4 MiB)
 
@@ -237,6 +240,7 @@ class McapScan:
         self.report = report
         self.size = path.stat().st_size
         self.complete = False
+        self.extensions: dict[int, int] = {}  # byte offset -> opcode of each extension record skipped
         with open(path, "rb") as fh:
             head = fh.read(len(MAGIC))
             if not head:
@@ -283,6 +287,8 @@ class McapScan:
                     if op == Opcode.DATA_END:
                         self.complete = True
                         return
+                    if op >= _EXTENSION:  # said by the caller: a damaged opcode may read as one too
+                        self.extensions[pos] = op
                     records = self._records(op, body)
                 except _Cut as cut:
                     yield from cut.records
@@ -315,7 +321,7 @@ class McapScan:
         if len(head) < _PREFIX:
             raise _Cut(f"the log ends early, at byte {self.size}, inside the header of the record at byte {pos}")
         op, length = struct.unpack_from("<BQ", head)
-        if op not in _KNOWN:
+        if op not in _KNOWN and op < _EXTENSION:
             raise Damaged(f"a record of unknown opcode 0x{op:02x}")
         if pos + _PREFIX + length > end:
             if self.footer_at is None:  # no footer: the file was cut off, not damaged

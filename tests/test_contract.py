@@ -25,6 +25,7 @@ from mcap_ros2.writer import Writer
 
 from fmcwlog.api import ProcessOptions, process, report
 from fmcwlog.errors import LogError, ReportError
+from fmcwlog.io.mcap_log import LogReader
 
 CORRIDOR = SAMPLE_LOGS / "corridor_30s.mcap"
 ESTIMATES = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm",
@@ -200,6 +201,28 @@ def test_how_a_writer_interleaves_topics_does_not_change_the_estimates(processed
         out = tmp_path / f"out_{grouped.stem}"
         process(grouped, out, ProcessOptions())
         _same_estimates(out, processed["corridor_30s"])
+
+
+@pytest.mark.parametrize("hold_bytes", [0, 50_000, None])
+def test_the_time_ordered_read_is_the_log_time_order_whether_it_reads_once_or_a_topic_at_a_time(tmp_path, hold_bytes):
+    """The reader's merge (one pass while its queues stay under ``hold_bytes``, then a pass per topic
+    resuming where the first left off) against plain mcap's messages sorted by (log_time, topic's
+    place in the request), stably: the same sequence for a log in time order and for grouped ones."""
+    wanted = ["/fmcw/points", "/wheel/ticks"]
+    for first in (None, "/wheel/ticks", "/fmcw/points"):
+        log = CORRIDOR
+        if first is not None:
+            log = tmp_path / f"{first.strip('/').replace('/', '_')}_first.mcap"
+            if not log.exists():
+                copy_log(CORRIDOR, log, order=lambda topic, log_time, first=first: (topic != first, log_time))
+        with open(log, "rb") as fh:
+            in_file = [(m.log_time, c.topic) for _, c, m in make_reader(fh).iter_messages(log_time_order=False)
+                       if c.topic in wanted]
+        expected = sorted(in_file, key=lambda x: (x[0], wanted.index(x[1])))
+        reader = LogReader(log)
+        kw = {} if hold_bytes is None else {"hold_bytes": hold_bytes}
+        got = [(m.log_time, c.topic) for _, c, m in reader.raw_messages_by_time(wanted, **kw)]
+        assert got == expected, (first, hold_bytes)
 
 
 def _baseline_warnings(log: Path, out: Path) -> list[str]:

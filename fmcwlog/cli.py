@@ -415,6 +415,8 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
         if p.finished > shown:
             bar.update(p.finished - shown, current_item=p)
             shown = p.finished
+            if isinstance(bar, _NoBar) and p.last is not None:  # a pipe or CI log: a line as each log ends
+                console.info(_outcome_line(p))
         else:  # a worker's sweeps: the same count of logs, new figures
             bar.current_item = p
             bar.render_progress()
@@ -442,6 +444,12 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
 
 class _SomeFailed(click.ClickException):
     exit_code = 1  # not 2: the command and its input were fine, some logs were not
+
+
+def _outcome_line(p) -> str:
+    o = p.last
+    what = f"failed: {o.reason}" if o.status == "failed" else f"{o.status}, {o.sweeps} sweeps in {o.wall_s:.1f} s"
+    return f"[{p.finished}/{p.total}] {o.name}: {what}"
 
 
 def _progress_line(p) -> str:

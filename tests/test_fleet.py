@@ -145,6 +145,25 @@ def test_a_folder_of_logs_gives_each_its_own_results_and_reports_the_bad_ones(fl
     _assert_bad_ones_reported(out, {n: r["reason"] for n, r in batch["logs"].items() if r["reason"]}, killed["pid"])
 
 
+def test_a_pipe_gets_a_line_as_each_log_ends(fleet, local_batch):
+    """Without a terminal there is no bar: a CI log or ``| tee`` would show nothing for the whole
+    batch (minutes, hours). Each log's end is one line, numbered, with what batch.json records."""
+    out, proc, _ = local_batch
+    batch = json.loads((out / "batch.json").read_text())["logs"]
+    lines = [ln for ln in proc.stdout.splitlines() if re.match(r"^\[\d+/\d+\] ", ln)]
+    assert [ln.split("]")[0] for ln in lines] == [f"[{i}/5" for i in range(1, 6)], proc.stdout
+    said = {re.match(r"^\[\d+/5\] ([^:]+): (\w+)", ln).groups() for ln in lines}
+    assert said == {(n, r["status"]) for n, r in batch.items()}
+    for ln in lines:
+        name = re.match(r"^\[\d+/5\] ([^:]+):", ln)[1]
+        if batch[name]["status"] == "done":
+            assert f"{batch[name]['sweeps']} sweeps in " in ln
+        else:
+            assert batch[name]["reason"] in ln
+    summary = next(i for i, ln in enumerate(proc.stdout.splitlines()) if ln.startswith("5 logs: "))
+    assert proc.stdout.splitlines().index(lines[-1]) < summary
+
+
 def test_running_it_again_skips_the_complete_logs(fleet, local_batch):
     out, _, _ = local_batch
     before = {n: (out / n / "run.json").stat() for n in fleet["good"]}

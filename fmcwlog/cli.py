@@ -233,6 +233,8 @@ Writes to OUT_DIR:
   <method>_map.pgm/.yaml/.png   occupancy grids (ROS map_server)
   processed.mcap   estimated odometry, maps, static/moving points (Foxglove)
   run.json         parameters, version, inputs, counts, warnings
+  with the back end (the default): <method>_frontend.tum, the front end's own trajectory
+  before the loop closures, and <method>_backend.json, the pose graph and its closures
 
 \b
 Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp],
@@ -558,14 +560,20 @@ def _report_fleet(out_dir: Path) -> None:
 @cli.command("run")
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
-@click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True)
+@click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True,
+              help="Built-in world (see 'fmcwlog record --help').")
 @click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (noise, slip).")
 @click.option("--force", is_flag=True, help="Replace OUT if 'fmcwlog run' made it (never a folder holding anything else).")
 def run_cmd(out_dir, scenario, duration, seed, force):
     """Record a built-in scenario, process it with both front ends and report, into one folder:
     OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html.
-    If any step fails, OUT is removed again (and what was there before put back)."""
+    If any step fails, OUT is removed again (and what was there before put back).
+
+    \b
+    e.g.  fmcwlog run                                   # 2 min of corridor -> fmcwlog-run/
+          fmcwlog run --scenario crowd --seed 3 -o crowd-run
+    """
     cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
     with replacing_folder(out_dir, force, "fmcwlog run") as folder:
         log = folder / "log.mcap"

@@ -517,9 +517,11 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 
 def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     from .evaluation.pages import (
+        DISAGREEMENT_HEADER,
         RELATIONS_HEADER,
         TRAJECTORY_HEADER,
         change_words,
+        disagreement_rows,
         relations_rows,
         terminal_table,
         trajectory_rows,
@@ -527,7 +529,13 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
 
     ev = api.report(out_dir, log, relations)
     console.info(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
-    console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+    if ev.gt is None and disagreement_rows(ev.result):  # a table of dashes would say nothing
+        ref = ev.result["disagreement"]["reference"]
+        console.info(f"no ground truth in {ev.log.name}: no errors; how far each trajectory is from the {ref} one "
+                     f"once SE(2)-aligned onto it (as evo_ape -a), a disagreement, not an error:")
+        console.info(terminal_table(DISAGREEMENT_HEADER, disagreement_rows(ev.result)))
+    else:
+        console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
     if relations_rows(ev.result):
         console.info(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
     cmp = ev.result["feature_comparison"]

@@ -351,3 +351,23 @@ def test_force_on_a_batch_never_removes_a_file_fmcwlog_did_not_write(fleet, tmp_
         [outcome] = summary.outcomes
         assert outcome.status == "failed" and str(mine.parent) in outcome.reason, outcome.reason
         assert mine.read_text() == "the user's own file\n"
+
+
+def test_report_without_ground_truth_prints_how_far_the_methods_disagree(fleet, tmp_path):
+    """A log with no ground truth: the console shows the methods' disagreement (as evo_ape -a of one
+    trajectory against the other computes it), not a table of dashes that says nothing of why."""
+    import shutil
+
+    folder = tmp_path / "nogt"
+    shutil.copytree(fleet["ref"] / "nogt", folder)
+    ran = CliRunner().invoke(cli, ["report", str(folder)])
+    assert ran.exit_code == 0, ran.output
+    assert "no ground truth in nogt.mcap" in ran.output
+    row = next(ln for ln in ran.output.splitlines() if ln.startswith("baseline "))
+    printed = float(row.split()[1])
+    evo_ape = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
+    res = subprocess.run([evo_ape, "tum", "improved.tum", "baseline.tum", "-a"], cwd=folder, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    rmse = float(next(line.split()[-1] for line in res.stdout.splitlines() if line.strip().startswith("rmse")))
+    assert printed == pytest.approx(rmse, abs=0.0006)  # printed to the millimetre

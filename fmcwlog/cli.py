@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 
 from . import __version__, api
-from .config import parse_set_option, read_config_file
+from .config import check_params, naming, parse_set_option, read_config_file
 from .errors import FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from .fleet.tasks import Limits
@@ -171,7 +171,8 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
         raise UserError("give --scenario or --world, not both")
     cfg = SimConfig()
     if config_file:
-        cfg = apply_overrides(cfg, read_config_file(config_file))
+        with naming(config_file):  # each of the file's values checked against its range, so that an error names it
+            cfg = check_params(apply_overrides(cfg, read_config_file(config_file)))
     flags: dict[str, dict] = {"run": {}, "robot": {}}
     if duration is not None:
         flags["run"]["duration"] = duration
@@ -304,9 +305,9 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
-    from .frontend.params import frontend_params_toml, load_frontend_params
+    from .frontend.params import frontend_params_toml
 
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = _frontend_params(config_file, set_items)
     if show_config:
         click.echo(frontend_params_toml(params), nl=False)
         return
@@ -391,9 +392,7 @@ the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
               help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
-    from .frontend.params import load_frontend_params
-
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = _frontend_params(config_file, set_items)
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
     for name, c in summary.check["values"].items():
@@ -405,6 +404,16 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.output}")
+def _frontend_params(config_file: Path | None, set_items: tuple[str, ...]):
+    """--config FILE, then each --set; an error in the file's own values names the file."""
+    from .frontend.params import load_frontend_params
+
+    file_values = read_config_file(config_file) if config_file else None
+    with naming(config_file):
+        load_frontend_params(file_values)
+    return load_frontend_params(file_values, parse_set_option(set_items))
+
+
 def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None,
                   limits: Limits, ray_address: str | None, retries: int) -> None:
     bar, shown = None, 0

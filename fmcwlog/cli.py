@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 
 from . import __version__, api
-from .config import parse_set_option, read_config_file
+from .config import check_params, naming, parse_set_option, read_config_file
 from .errors import FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from .fleet.tasks import Limits
@@ -171,7 +171,8 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
         raise UserError("give --scenario or --world, not both")
     cfg = SimConfig()
     if config_file:
-        cfg = apply_overrides(cfg, read_config_file(config_file))
+        with naming(config_file):  # each of the file's values checked against its range, so that an error names it
+            cfg = check_params(apply_overrides(cfg, read_config_file(config_file)))
     flags: dict[str, dict] = {"run": {}, "robot": {}}
     if duration is not None:
         flags["run"]["duration"] = duration
@@ -233,6 +234,8 @@ Writes to OUT_DIR:
   <method>_map.pgm/.yaml/.png   occupancy grids (ROS map_server)
   processed.mcap   estimated odometry, maps, static/moving points (Foxglove)
   run.json         parameters, version, inputs, counts, warnings
+  with the back end (the default): <method>_frontend.tum, the front end's own trajectory
+  before the loop closures, and <method>_backend.json, the pose graph and its closures
 
 \b
 Parameters: --config FILE (TOML/YAML/JSON with [frontend], [segmentation], [icp],
@@ -302,9 +305,9 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
-    from .frontend.params import frontend_params_toml, load_frontend_params
+    from .frontend.params import frontend_params_toml
 
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = _frontend_params(config_file, set_items)
     if show_config:
         click.echo(frontend_params_toml(params), nl=False)
         return
@@ -389,9 +392,7 @@ the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
               help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
-    from .frontend.params import load_frontend_params
-
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = _frontend_params(config_file, set_items)
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
     for name, c in summary.check["values"].items():
@@ -403,6 +404,16 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.output}")
+def _frontend_params(config_file: Path | None, set_items: tuple[str, ...]):
+    """--config FILE, then each --set; an error in the file's own values names the file."""
+    from .frontend.params import load_frontend_params
+
+    file_values = read_config_file(config_file) if config_file else None
+    with naming(config_file):
+        load_frontend_params(file_values)
+    return load_frontend_params(file_values, parse_set_option(set_items))
+
+
 def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None,
                   limits: Limits, ray_address: str | None, retries: int) -> None:
     bar, shown = None, 0
@@ -415,6 +426,8 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
         if p.finished > shown:
             bar.update(p.finished - shown, current_item=p)
             shown = p.finished
+            if isinstance(bar, _NoBar) and p.last is not None:  # a pipe or CI log: a line as each log ends
+                console.info(_outcome_line(p))
         else:  # a worker's sweeps: the same count of logs, new figures
             bar.current_item = p
             bar.render_progress()
@@ -442,6 +455,12 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
 
 class _SomeFailed(click.ClickException):
     exit_code = 1  # not 2: the command and its input were fine, some logs were not
+
+
+def _outcome_line(p) -> str:
+    o = p.last
+    what = f"failed: {o.reason}" if o.status == "failed" else f"{o.status}, {o.sweeps} sweeps in {o.wall_s:.1f} s"
+    return f"[{p.finished}/{p.total}] {o.name}: {what}"
 
 
 def _progress_line(p) -> str:
@@ -507,9 +526,11 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 
 def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     from .evaluation.pages import (
+        DISAGREEMENT_HEADER,
         RELATIONS_HEADER,
         TRAJECTORY_HEADER,
         change_words,
+        disagreement_rows,
         relations_rows,
         terminal_table,
         trajectory_rows,
@@ -517,7 +538,13 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
 
     ev = api.report(out_dir, log, relations)
     console.info(f"{out_dir}: {ev.result['sweeps']} sweeps of {ev.log.name}")
-    console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
+    if ev.gt is None and disagreement_rows(ev.result):  # a table of dashes would say nothing
+        ref = ev.result["disagreement"]["reference"]
+        console.info(f"no ground truth in {ev.log.name}: no errors; how far each trajectory is from the {ref} one "
+                     f"once SE(2)-aligned onto it (as evo_ape -a), a disagreement, not an error:")
+        console.info(terminal_table(DISAGREEMENT_HEADER, disagreement_rows(ev.result)))
+    else:
+        console.info(terminal_table(TRAJECTORY_HEADER[:8], [r[:8] for r in trajectory_rows(ev.result)]))
     if relations_rows(ev.result):
         console.info(terminal_table(RELATIONS_HEADER, relations_rows(ev.result)))
     scored = [r["relations"]["n"] for r in ev.result["methods"].values() if r.get("relations")]
@@ -554,14 +581,20 @@ def _report_fleet(out_dir: Path) -> None:
 @cli.command("run")
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
-@click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True)
+@click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True,
+              help="Built-in world (see 'fmcwlog record --help').")
 @click.option("--duration", type=float, default=120.0, show_default=True, help="Seconds to simulate.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (noise, slip).")
 @click.option("--force", is_flag=True, help="Replace OUT if 'fmcwlog run' made it (never a folder holding anything else).")
 def run_cmd(out_dir, scenario, duration, seed, force):
     """Record a built-in scenario, process it with both front ends and report, into one folder:
     OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and OUT/results/report.html.
-    If any step fails, OUT is removed again (and what was there before put back)."""
+    If any step fails, OUT is removed again (and what was there before put back).
+
+    \b
+    e.g.  fmcwlog run                                   # 2 min of corridor -> fmcwlog-run/
+          fmcwlog run --scenario crowd --seed 3 -o crowd-run
+    """
     cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
     with replacing_folder(out_dir, force, "fmcwlog run") as folder:
         log = folder / "log.mcap"

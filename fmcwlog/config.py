@@ -16,11 +16,13 @@ structure the readers take, so whatever ``--show-config`` prints, ``--config`` t
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import tomllib
 import typing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -193,6 +195,18 @@ def read_structured_file(path: str | Path, error: type[ValueError] = ConfigError
         raise error(f"{path}: malformed: {first}") from None
     except RecursionError:
         raise error(f"{path}: malformed: nested too deeply") from None
+
+
+@contextlib.contextmanager
+def naming(path: str | Path | None) -> Iterator[None]:
+    """A :class:`ConfigError` raised inside (an unknown key, a value out of range) names the file
+    ``path`` whose content it is about; a message that names it already is left as it is."""
+    try:
+        yield
+    except ConfigError as exc:
+        if path is None or str(exc).startswith(f"{path}:"):
+            raise
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def read_config_file(path: str | Path) -> dict[str, Any]:

@@ -116,3 +116,36 @@ def test_ctrl_c_leaves_a_valid_shorter_log(tmp_path):
     counts = {summary.channels[cid].topic: n for cid, n in stats.channel_message_counts.items()}
     assert 0 < counts["/fmcw/points"] < 6000
     assert counts["/wheel/ticks"] == 5 * counts["/fmcw/points"]
+
+
+def test_a_route_through_a_wall_is_refused_and_one_through_an_opening_is_not(tmp_path):
+    """A waypoint on the wrong side of a wall would have the robot drive through it, and the log would
+    still be written (points from inside the wall, a map with the robot's path across it). The route
+    from (2, 2) to (18, 2) crosses x = 10: through the wall (10, 0)-(10, 5), or through a 1 m gap in it."""
+    box = [[0, 0, 20, 0], [20, 0, 20, 5], [20, 5, 0, 5], [0, 5, 0, 0]]
+    route = "route: {waypoints: [[2, 2], [18, 2]], loop: false}\n"
+    solid = tmp_path / "solid.yaml"
+    solid.write_text(f"walls: {box + [[10, 0, 10, 5]]}\n{route}")
+    out = tmp_path / "x.mcap"
+    assert_one_line_error(run("record", "--world", str(solid), "-o", str(out)), "solid.yaml", "walls[4]", "(10.00, 2.00)")
+    assert not out.exists()
+    door = tmp_path / "door.yaml"
+    door.write_text(f"walls: {box + [[10, 0, 10, 1.5], [10, 2.5, 10, 5]]}\n{route}")
+    ok = run("record", "--world", str(door), "-o", str(out), "--duration", "2")
+    assert ok.returncode == 0, ok.stderr
+
+
+def test_the_builtin_routes_and_the_readme_world_stay_clear_of_their_walls():
+    import re
+
+    import yaml
+
+    from fmcwlog.sim import scenarios
+    from fmcwlog.sim.world import route_crossing, world_from_dict
+
+    for name, make in scenarios.SCENARIOS.items():
+        w = make()
+        assert route_crossing(w.walls, w.route.build()) is None, name
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = re.search(r"```yaml\n(name: my-floor.*?)```", readme, re.S)[1]
+    world_from_dict(yaml.safe_load(text), "README")  # raises if its route crossed a wall

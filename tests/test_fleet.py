@@ -145,6 +145,25 @@ def test_a_folder_of_logs_gives_each_its_own_results_and_reports_the_bad_ones(fl
     _assert_bad_ones_reported(out, {n: r["reason"] for n, r in batch["logs"].items() if r["reason"]}, killed["pid"])
 
 
+def test_a_pipe_gets_a_line_as_each_log_ends(fleet, local_batch):
+    """Without a terminal there is no bar: a CI log or ``| tee`` would show nothing for the whole
+    batch (minutes, hours). Each log's end is one line, numbered, with what batch.json records."""
+    out, proc, _ = local_batch
+    batch = json.loads((out / "batch.json").read_text())["logs"]
+    lines = [ln for ln in proc.stdout.splitlines() if re.match(r"^\[\d+/\d+\] ", ln)]
+    assert [ln.split("]")[0] for ln in lines] == [f"[{i}/5" for i in range(1, 6)], proc.stdout
+    said = {re.match(r"^\[\d+/5\] ([^:]+): (\w+)", ln).groups() for ln in lines}
+    assert said == {(n, r["status"]) for n, r in batch.items()}
+    for ln in lines:
+        name = re.match(r"^\[\d+/5\] ([^:]+):", ln)[1]
+        if batch[name]["status"] == "done":
+            assert f"{batch[name]['sweeps']} sweeps in " in ln
+        else:
+            assert batch[name]["reason"] in ln
+    summary = next(i for i, ln in enumerate(proc.stdout.splitlines()) if ln.startswith("5 logs: "))
+    assert proc.stdout.splitlines().index(lines[-1]) < summary
+
+
 def test_running_it_again_skips_the_complete_logs(fleet, local_batch):
     out, _, _ = local_batch
     before = {n: (out / n / "run.json").stat() for n in fleet["good"]}
@@ -332,3 +351,23 @@ def test_force_on_a_batch_never_removes_a_file_fmcwlog_did_not_write(fleet, tmp_
         [outcome] = summary.outcomes
         assert outcome.status == "failed" and str(mine.parent) in outcome.reason, outcome.reason
         assert mine.read_text() == "the user's own file\n"
+
+
+def test_report_without_ground_truth_prints_how_far_the_methods_disagree(fleet, tmp_path):
+    """A log with no ground truth: the console shows the methods' disagreement (as evo_ape -a of one
+    trajectory against the other computes it), not a table of dashes that says nothing of why."""
+    import shutil
+
+    folder = tmp_path / "nogt"
+    shutil.copytree(fleet["ref"] / "nogt", folder)
+    ran = CliRunner().invoke(cli, ["report", str(folder)])
+    assert ran.exit_code == 0, ran.output
+    assert "no ground truth in nogt.mcap" in ran.output
+    row = next(ln for ln in ran.output.splitlines() if ln.startswith("baseline "))
+    printed = float(row.split()[1])
+    evo_ape = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
+    res = subprocess.run([evo_ape, "tum", "improved.tum", "baseline.tum", "-a"], cwd=folder, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    rmse = float(next(line.split()[-1] for line in res.stdout.splitlines() if line.strip().startswith("rmse")))
+    assert printed == pytest.approx(rmse, abs=0.0006)  # printed to the millimetre

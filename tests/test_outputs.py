@@ -331,3 +331,24 @@ def test_writing_the_parquet_leaves_no_arrow_buffers_resident():
     out = subprocess.run([sys.executable, "-c", PARQUET_MEMORY], capture_output=True, text=True, check=True)
     before, after = map(float, out.stdout.split())
     assert after - before < 15, (before, after)
+
+
+def test_the_readmes_evo_traj_command_with_the_map_runs(processed, tmp_path):
+    """The README's `evo_traj tum out/improved.tum --ros_map_yaml out/improved_map.yaml -p --plot_mode xy`,
+    verbatim (headless): evo reads the map as map_server does. With evo's default 3-D plot mode
+    (the command without --plot_mode xy) evo refuses the map and exits 1."""
+    import os
+    import re
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    command = re.search(r"`(evo_traj tum out/improved\.tum --ros_map_yaml[^`]*)`", readme)[1].split()
+    evo_traj = shutil.which("evo_traj") or str(Path(sys.executable).parent / "evo_traj")
+    out = tmp_path / "out"
+    shutil.copytree(processed["corridor_30s"], out)
+    res = subprocess.run([evo_traj, *command[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "MPLBACKEND": "Agg"})
+    assert res.returncode == 0 and "[ERROR]" not in res.stdout + res.stderr, res.stdout + res.stderr

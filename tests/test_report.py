@@ -430,3 +430,25 @@ def test_the_methods_feature_errors_are_compared_over_the_features_both_measure(
     worse = _comparison({"baseline": {"features": feats([1.3, None])}, "improved": {"features": feats([1.4, 8.0])}})
     assert worse["features"] == 1 and "a 7.7 % increase" in _summary_line({"feature_comparison": worse})
     assert _comparison({"baseline": {"features": feats([None])}, "improved": {"features": feats([2.0])}}) is None
+
+
+def test_each_trajectory_of_a_default_run_has_its_own_colour_and_a_readable_label(processed):
+    """The five trajectories a default run writes share the report's legends: two lines of one
+    colour cannot be told apart (improved_frontend and baseline_frontend once hashed to the same one)."""
+    from matplotlib.colors import to_rgb
+
+    from fmcwlog.evaluation.evaluate import _trajectories_in
+    from fmcwlog.evaluation.plots import color, label
+
+    folder = processed["corridor_30s"]
+    names = [p.stem for p in folder.glob("*.tum") if p.name != "gt.tum"]
+    assert {"improved_frontend", "baseline_frontend", "improved", "baseline", "wheel_odometry"} <= set(names)
+    rgb = {m: np.array(to_rgb(color(m))) for m in [*names, "truth"]}
+    for a in rgb:
+        for b in rgb:
+            if a < b:  # well apart in RGB (0-1 per channel), not merely different hex strings
+                assert np.linalg.norm(rgb[a] - rgb[b]) > 0.2, (a, b, color(a), color(b))
+    labels = [label(m) for m in names]
+    assert len(set(labels)) == len(labels) and not any("_" in s for s in labels)
+    # each method's front end alone follows the trajectories it belongs with, in the methods' order
+    assert _trajectories_in(folder)[-2:] == ["improved_frontend", "baseline_frontend"]

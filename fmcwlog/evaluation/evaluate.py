@@ -60,7 +60,8 @@ from .published import PAPER, relations_for
 from .relations import read_relations, relations_error
 from .segmentation_score import segmentation_scores
 
-TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY)  # fmcwlog's own, in the order the report shows them
+# fmcwlog's own, in the order the report shows them: the front ends alone (written with a back end) last
+TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY, *(f"{m}_frontend" for m in METHOD_NAMES))
 GROUND_TRUTH_TUM = "gt.tum"  # written by the report beside the estimates; never an estimate itself
 RPE_DELTAS_M = (1.0, 10.0)
 _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",

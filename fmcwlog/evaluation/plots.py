@@ -29,8 +29,11 @@ import numpy as np
 from ..io.outputs import pgm_pixels, read_tum
 from .evaluate import Evaluation
 
-LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry"}
-COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#6e6e6e", "truth": "#000000"}
+LABELS = {"improved": "improved", "baseline": "baseline", "wheel_odometry": "wheel odometry",
+          "improved_frontend": "improved, front end alone", "baseline_frontend": "baseline, front end alone"}
+# a front end's own trajectory in a paler shade of its method's: related, and told apart from every other
+COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#6e6e6e", "truth": "#000000",
+          "improved_frontend": "#8fd18a", "baseline_frontend": "#f59ac3"}
 _OTHER_COLORS = ("#1f77b4", "#ff7f0e", "#9467bd", "#17becf", "#bcbd22")
 DPI = 100
 ERROR_CMAP = "turbo"  # dark at both ends, so low and high errors both stand out on white

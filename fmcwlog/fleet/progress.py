@@ -25,6 +25,7 @@ class Progress:
     finished_sweeps: int = 0
     finished_bytes: int = 0
     running: dict[str, tuple[int, int | None]] = field(default_factory=dict)  # name -> sweeps done, total
+    last: LogOutcome | None = None  # the log that ended most recently (for a line per log where no bar is drawn)
 
     def __post_init__(self) -> None:
         self._size = {t.name: t.size_bytes for t in self.tasks}
@@ -46,6 +47,7 @@ class Progress:
         if self.on_outcome is not None:
             self.on_outcome(outcome)
         self.running.pop(outcome.name, None)
+        self.last = outcome
         if outcome.status == "failed":
             self.failed += 1
         else:

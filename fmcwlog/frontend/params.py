@@ -132,7 +132,7 @@ def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:
         source = dict(source or {})
         if "params" in source and "fmcwlog_version" in source:  # a run.json
             if not isinstance(source["params"], dict):
-                raise ConfigError("run.json: 'params' must be a table of parameters")
+                raise ConfigError("a run.json's 'params' must be a table of parameters")
             source = dict(source["params"])
         own = source.pop("frontend", {})
         if not isinstance(own, dict):

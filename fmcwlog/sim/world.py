@@ -134,9 +134,38 @@ def world_from_dict(data: Any, source: str = "world") -> World:
             raise WorldError(f"{source}: {key} must be a list")
 
     route = _route(data["route"], source)
+    crossing = route_crossing(walls, route.build())
+    if crossing is not None:
+        j, (x, y) = crossing
+        raise WorldError(f"{source}: the route crosses walls[{j}] at ({x:.2f}, {y:.2f}): the robot would drive "
+                         f"through it (leave an opening there, or move the waypoints)")
     features = _features(data.get("features") or [], source)
     movers = [_mover(m, f"{source}: movers[{i}]") for i, m in enumerate(data.get("movers") or [])]
     return World(str(data.get("name", source)), walls, route, features, movers)
+
+
+def route_crossing(walls: np.ndarray, route: Route, step: float = 0.05) -> tuple[int, tuple[float, float]] | None:
+    """The first wall (index) the path of ``base_link`` crosses, and where (m, map frame); None if none.
+
+    The route is sampled every ``step`` metres over one lap (or its one pass) and each short chord
+    tested against every wall segment (passing exactly through a wall's end is not a crossing).
+    """
+    s = np.linspace(0.0, route.total_length, max(int(np.ceil(route.total_length / step)), 1) + 1)
+    x, y, _, _ = route.at(s)
+    p, q = np.stack([x[:-1], y[:-1]], 1)[:, None, :], np.stack([x[1:], y[1:]], 1)[:, None, :]  # (N, 1, 2)
+    a, b = walls[None, :, :2], walls[None, :, 2:]  # (1, M, 2)
+
+    def cross(o, u, v):  # z of (u - o) x (v - o)
+        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0])
+
+    d1, d2, d3, d4 = cross(a, b, p), cross(a, b, q), cross(p, q, a), cross(p, q, b)
+    # a chord ending on the wall's line counts (samples can fall exactly on it); one along it does not
+    hits = (d1 * d2 <= 0) & ((d1 != 0) | (d2 != 0)) & (d3 * d4 < 0)
+    if not hits.any():
+        return None
+    i, j = np.argwhere(hits)[0]
+    f = d1[i, j] / (d1[i, j] - d2[i, j])  # where along the chord it meets the wall's line
+    return int(j), (float(x[i] + f * (x[i + 1] - x[i])), float(y[i] + f * (y[i + 1] - y[i])))
 
 
 def _route(r: Any, source: str) -> RouteSpec:

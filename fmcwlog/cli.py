@@ -391,6 +391,7 @@ the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
 def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     from .frontend.params import load_frontend_params
 
+    check_output_file(output, force, (log, calibration_file, config_file))
     params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)

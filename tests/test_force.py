@@ -183,3 +183,23 @@ def test_import_force_never_overwrites_its_source(tmp_path):
     code, _, err = run_cli_here("import", "carmen", str(src), "-o", str(link), "--force")
     assert_one_line_error(code, err, "input")
     assert src.read_text() == text
+
+
+def test_calibrate_force_never_overwrites_its_inputs(tmp_path, log):
+    """``calibrate LOG -o LOG --force`` once replaced the log with a 1 kB YAML file; nor may it overwrite
+    the calibration file or the parameter file it reads, under any of their names."""
+    work = tmp_path / "w"
+    work.mkdir()
+    src = work / "s.mcap"
+    shutil.copyfile(log, src)
+    cal = work / "cal.yaml"
+    cal.write_text("lidar_x: 0.35\n")
+    cfg = work / "p.toml"
+    cfg.write_text("")
+    (work / "alias.mcap").symlink_to(src)
+    before = _snapshot(work)
+    for target in (src, work / "alias.mcap", cal, cfg):
+        code, _, err = run_cli_here("calibrate", str(src), "-o", str(target), "--calibration", str(cal),
+                                    "--config", str(cfg), "--force")
+        assert_one_line_error(code, err, str(target), "input")
+        assert _snapshot(work) == before

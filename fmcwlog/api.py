@@ -448,6 +448,9 @@ def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) ->
     if runner.beyond_prior:
         notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
                      "processed with the motion prior held at its last pose")
+    if runner.before_prior:
+        notes.append(f"{runner.before_prior} sweeps on {topics.scan} began before the first message on {topics.prior}: "
+                     "processed with the motion prior held at its first pose")
     return notes
 
 

@@ -359,6 +359,24 @@ def test_a_32_bit_tick_counter_wrap_is_unwrapped(short_logs, intact, tmp_path):
     assert warnings == ["unwrapped 2 32-bit wheel-tick counter wraps on /wheel/ticks"], warnings
 
 
+def test_counters_that_start_near_the_int64_limit_give_the_intact_estimates(short_logs, intact, tmp_path):
+    """Counts offset by 2**62: the estimates equal the intact log's (the prior holds counts from the
+    first reading on). Offset by 2**63 - 1000, the counter overflows to -2**63 and is a reset: once,
+    the rebased counts passed int64 and numpy's 'invalid value encountered in cast' reached the user
+    as warnings."""
+    def start_at(base):
+        def shift(i, msg):
+            msg.left = (msg.left + base + 2**63) % 2**64 - 2**63
+            msg.right = (msg.right + base + 2**63) % 2**64 - 2**63
+        return _ticks(shift)
+
+    est, warnings = process(edited(short_logs, tmp_path, start_at(2**62), "big.mcap"), tmp_path / "big")
+    assert est == intact["zstd"] and not warnings, warnings
+    est, warnings = process(edited(short_logs, tmp_path, start_at(2**63 - 1000), "over.mcap"), tmp_path / "over")
+    assert est is not None and not [w for w in warnings if "encountered" in w], warnings
+    assert any("taken as a new origin" in w for w in warnings), warnings
+
+
 def test_a_lone_tick_jump_is_skipped_and_a_counter_reset_is_a_new_origin(short_logs, intact, tmp_path):
     def jump(i, msg):
         if i == 60:

@@ -234,7 +234,10 @@ class _TickGate(_Gate):
         # ticks per metre of each wheel
         self.per_m = tuple(wheels.ticks_per_revolution / (2 * math.pi * r)
                            for r in (wheels.wheel_radius_left, wheels.wheel_radius_right))
-        self.offset = (0, 0)  # added to the counts read (python ints, as the int64 counts are)
+        # added to the counts read (python ints, as the int64 counts are); set at the first message to
+        # start the counts at 0: the prior integrates differences of counts held as int64 and float64,
+        # exact only below 2**53, and a counter that started near 2**63 overflowed int64 after a reset
+        self.offset: tuple[int, int] | None = None
         self.wraps = 0
 
     def _plausible(self, t0: float, c0: tuple[int, int], t1: float, c1: tuple[int, int]) -> bool:
@@ -242,6 +245,8 @@ class _TickGate(_Gate):
 
     def feed(self, t: float, left: int, right: int) -> tuple[int, int] | None:
         """The counts to integrate (unwrapped, rebased), or None to skip this message."""
+        if self.offset is None:
+            self.offset = (-left, -right)
         counts = (left + self.offset[0], right + self.offset[1])
         if self.last is None:
             return self._accept(t, counts)

@@ -53,7 +53,7 @@ from .io.atomic import (
     write_json,
     write_text,
 )
-from .io.calibration import Calibration, calibration_record, parse_calibration
+from .io.calibration import MOUNT_KEYS, Calibration, calibration_record, parse_calibration
 from .io.calibration_file import read_calibration_file, write_calibration_file
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
@@ -349,17 +349,34 @@ def _steps(steps: Iterator[SweepStep], log: Path) -> Iterator[SweepStep]:
 
 
 def _calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
-    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source."""
+    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source.
+
+    A calibration that gives some of the mount's keys but not all (a file or record that names the
+    wheels and leaves out ``lidar_x``) is warned of: the missing ones are taken as 0, which for a LiDAR
+    ahead of the axle is wrong without a word (a record with no mount at all is an imported laser
+    log's, at the origin by the format)."""
     if path is not None:
         try:
-            return parse_calibration(read_calibration_file(path), need_wheels), str(path)
+            values = read_calibration_file(path)
+            cal = parse_calibration(values, need_wheels)
         except CalibrationError as exc:
             raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+        _warn_missing_mount(values, str(path))
+        return cal, str(path)
     try:
         record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
-        return parse_calibration(record, need_wheels), f"log record {CALIBRATION_KEY}"
+        cal = parse_calibration(record, need_wheels)
     except CalibrationError as exc:
         raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+    _warn_missing_mount(record or {}, f"{log}: {CALIBRATION_KEY}")
+    return cal, f"log record {CALIBRATION_KEY}"
+
+
+def _warn_missing_mount(values: dict, source: str) -> None:
+    missing = [k for k in MOUNT_KEYS if k not in values]
+    if values and missing:
+        warnings.warn(f"{source} has no {', '.join(missing)}: taken as 0 (the LiDAR at base_link's origin, "
+                      "facing forward)", stacklevel=2)
 
 
 @dataclass

@@ -591,6 +591,20 @@ def test_a_calibration_value_out_of_physical_range_is_refused_naming_key_and_ran
     assert code == 2 and words in err, err
 
 
+def test_a_calibration_without_lidar_x_is_warned_of_and_taken_as_0(short_logs, tmp_path):
+    """A record with the wheels but no ``lidar_x`` once went silently with the LiDAR over the axle (the
+    log's is 0.35 m ahead). Now one warning names the key; the estimates are those of a record saying 0."""
+    def drop(records):
+        return [(n, {k: v for k, v in values.items() if k != "lidar_x"} if n == "fmcwlog.calibration" else values)
+                for n, values in records]
+    log = rewrite(short_logs["zstd"], tmp_path / "no_x.mcap", metadata=drop)
+    est, warnings = process(log, tmp_path / "out", "baseline")
+    said = f"{log}: fmcwlog.calibration has no lidar_x: taken as 0"
+    assert [w for w in warnings if w.startswith(said)], warnings
+    zero = _calibration(short_logs, tmp_path, lidar_x="0")
+    assert est == process(zero, tmp_path / "zero", "baseline")[0]
+
+
 def test_two_calibration_records_that_disagree_are_refused_naming_the_keys(short_logs, tmp_path):
     log = _calibration(short_logs, tmp_path, second={"wheel_radius_left": "0.12", "lidar_x": "0.4"})
     code, err = cli("process", str(log), "-o", str(tmp_path / "out"))

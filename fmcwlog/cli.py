@@ -7,9 +7,13 @@ partial output.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
 import sys
+import threading
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
@@ -633,15 +637,38 @@ def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
         raise _SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a job scheduler) ends a command as Ctrl-C does: its temporary
+    outputs removed, an earlier output put back. Python's default ends at once, leaving them behind."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main() -> None:
     try:
-        cli.main(standalone_mode=False, prog_name="fmcwlog")
+        with _sigterm_as_interrupt():
+            cli.main(standalone_mode=False, prog_name="fmcwlog")
     except click.exceptions.NoArgsIsHelpError as exc:  # bare 'fmcwlog' (or a bare group): its help, no error
         click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
         sys.exit(0)
-    except click.exceptions.Abort:
-        click.echo("fmcwlog: aborted", err=True)
-        sys.exit(130)
+    except click.exceptions.Abort as exc:
+        terminated = isinstance(exc.__cause__, _Terminated)
+        click.echo("fmcwlog: terminated" if terminated else "fmcwlog: aborted", err=True)
+        sys.exit(128 + signal.SIGTERM if terminated else 130)
     except click.ClickException as exc:
         click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)

@@ -203,3 +203,30 @@ def test_calibrate_force_never_overwrites_its_inputs(tmp_path, log):
                                     "--config", str(cfg), "--force")
         assert_one_line_error(code, err, str(target), "input")
         assert _snapshot(work) == before
+
+
+def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path, log):
+    """``kill`` (or ``timeout``, a job scheduler) mid-run: as Ctrl-C, exit status 143 with one line, the
+    earlier output as it was and no ``.out.partial-PID`` folder. Python's default SIGTERM once ended the
+    process on the spot, leaving the temporary folder behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    code, _, err = run_cli_here("-q", "process", str(log), "-o", str(out), "--jobs", "1")
+    assert code == 0, err
+    before = _snapshot(out)
+    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(SAMPLE_LOGS / "corridor_30s.mcap"),
+                             "-o", str(out), "--force"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not list(tmp_path.glob(".out.partial-*")) and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)  # into the sweeps (300 of them: several seconds)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 143, stderr
+    assert [x for x in stderr.splitlines() if x.strip()] == ["fmcwlog: terminated"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert _snapshot(out) == before

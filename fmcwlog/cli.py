@@ -604,7 +604,7 @@ def import_carmen_cmd(sources, output, force):
         return
     source = sources[0]
     if not source.is_file():
-        raise UserError(f"{source}: no such file")
+        raise UserError(f"{source}: {'no such file' if not source.exists() else 'not a regular file (a pipe or a device)'}")
     check_output_file(output, force, (source,))
     summary, fmt = api.import_carmen(source, output)
     console.info(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "

@@ -254,6 +254,17 @@ def test_an_undecodable_message_is_skipped_and_counted(short_logs, intact, tmp_p
     assert [w for w in warnings if w.startswith("skipped 1 messages on /fmcw/points that do not decode")], warnings
 
 
+def test_a_pipe_named_like_a_log_is_one_line_saying_what_it_is(tmp_path):
+    """A FIFO named ``log.mcap`` exists, yet the line once said 'no such file'."""
+    import os
+
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)
+    code, err = cli("process", str(fifo), "-o", str(tmp_path / "out"))
+    judged(code, err, fifo, tmp_path / "out")
+    assert code == 2 and "not a regular file" in err, err
+
+
 def test_the_real_entry_point_gives_one_line_for_a_damaged_log(short_logs, tmp_path):
     log = cut(short_logs["zstd"], 8 + 4, tmp_path)
     proc = run_cli("process", str(log), "-o", str(tmp_path / "out"))

@@ -20,7 +20,7 @@ import click
 
 from . import __version__, api
 from .config import parse_set_option, read_config_file
-from .errors import FmcwlogError
+from .errors import ConfigError, FmcwlogError
 from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from .fleet.tasks import Limits
 from .io.atomic import check_output_file, os_reason, replacing_folder
@@ -175,7 +175,8 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
         raise UserError("give --scenario or --world, not both")
     cfg = SimConfig()
     if config_file:
-        cfg = apply_overrides(cfg, read_config_file(config_file))
+        with _config_named(config_file):
+            cfg = apply_overrides(cfg, read_config_file(config_file)).validate()
     flags: dict[str, dict] = {"run": {}, "robot": {}}
     if duration is not None:
         flags["run"]["duration"] = duration
@@ -308,7 +309,7 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from .frontend.params import frontend_params_toml, load_frontend_params
 
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = load_frontend_params(_frontend_config(config_file), parse_set_option(set_items))
     if show_config:
         click.echo(frontend_params_toml(params), nl=False)
         return
@@ -396,7 +397,7 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     from .frontend.params import load_frontend_params
 
     check_output_file(output, force, (log, calibration_file, config_file))
-    params = load_frontend_params(read_config_file(config_file) if config_file else None, parse_set_option(set_items))
+    params = load_frontend_params(_frontend_config(config_file), parse_set_option(set_items))
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
     for name, c in summary.check["values"].items():
@@ -656,6 +657,28 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+@contextlib.contextmanager
+def _config_named(path: Path) -> Iterator[None]:
+    """A parameter file's error names the file (a value's error names only the parameter)."""
+    try:
+        yield
+    except ConfigError as exc:
+        text = str(exc)
+        raise ConfigError(text if text.startswith(f"{path}:") else f"{path}: {text}") from None
+
+
+def _frontend_config(path: Path | None) -> dict | None:
+    """The front-end parameter file's tables, checked alone so that an error in them names the file."""
+    from .frontend.params import load_frontend_params
+
+    if path is None:
+        return None
+    with _config_named(path):
+        values = read_config_file(path)
+        load_frontend_params(values)
+    return values
 
 
 def main() -> None:

@@ -228,3 +228,21 @@ def test_an_occupancy_grid_past_its_cell_budget_is_refused_before_allocating():
         grid.integrate(np.zeros(2), np.array([[1e6, 0.0]]))  # 1000 km away: 2e7 x 3e2 cells
     assert grid.width * grid.height <= 1_000_000  # the grid is as it was
     assert OccupancyParams().max_cells * 5 <= 2**28  # the default budget: arrays of at most ~256 MB
+
+
+@pytest.mark.parametrize("command, text, words", [
+    ("record", "[sensor]\nrange_sigma = -1\n", "sensor.range_sigma = -1 is out of range: [0, 10] m"),
+    ("record", "[sensor]\nrange_sigma = true\n", "sensor.range_sigma must be a number, got True"),
+    ("process", "[icp]\nhuber_delta = -1\n", "icp.huber_delta = -1 is out of range: (0, 1] m"),
+    ("calibrate", "[icp]\nhuber_delta = 'a'\n", "icp.huber_delta must be a number, got 'a'"),
+])
+def test_a_bad_value_in_a_parameter_file_names_the_file(tmp_path, command, text, words):
+    """A value's error named the parameter but not the file it came from (the same words as --set's)."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(text)
+    log = str(SAMPLE_LOGS / "corridor_30s.mcap")
+    args = {"record": ["record"], "process": ["process", log], "calibrate": ["calibrate", log]}[command]
+    out = tmp_path / ("o.yaml" if command == "calibrate" else "o.mcap" if command == "record" else "o")
+    code, _, err = run_cli_here(*args, "--config", str(cfg), "-o", str(out))
+    assert assert_one_line_error(code, err) == f"fmcwlog: error: {cfg}: {words}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]

@@ -265,6 +265,20 @@ def test_a_pipe_named_like_a_log_is_one_line_saying_what_it_is(tmp_path):
     assert code == 2 and "not a regular file" in err, err
 
 
+@pytest.mark.parametrize("option, topic, words", [
+    ("--odom-topic", "/wheel/ticks", "/wheel/ticks is fmcwlog_msgs/msg/WheelTicks, not a nav_msgs/msg/Odometry"),
+    ("--ticks-topic", "/fmcw/points", "/fmcw/points is sensor_msgs/msg/PointCloud2, not a fmcwlog_msgs/msg/WheelTicks"),
+    ("--odom-topic", "/ground_truth/odom", "/ground_truth/odom is ground truth, which estimation never reads"),
+])
+def test_a_motion_prior_topic_of_the_wrong_type_or_ground_truth_is_one_line(short_logs, tmp_path, option, topic, words):
+    """``--odom-topic /wheel/ticks`` was a traceback (AttributeError: no 'pose'); ``--ticks-topic /fmcw/points``
+    said 'no usable message'; ``--odom-topic /ground_truth/odom`` processed with the truth as the prior."""
+    log = short_logs["zstd"]
+    code, err = cli("process", str(log), "-o", str(tmp_path / "out"), option, topic)
+    judged(code, err, log, tmp_path / "out")
+    assert code == 2 and words in err, err
+
+
 def test_the_real_entry_point_gives_one_line_for_a_damaged_log(short_logs, tmp_path):
     log = cut(short_logs["zstd"], 8 + 4, tmp_path)
     proc = run_cli("process", str(log), "-o", str(tmp_path / "out"))

@@ -555,14 +555,27 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
         raise LogError(f"{path}: no topic {scan}{reader.damage_note()}")
     if not topics[scan].endswith(("PointCloud2", "LaserScan")):
         raise LogError(f"{path}: {scan} is {topics[scan]}, not a PointCloud2 or LaserScan")
+    if scan.startswith(GROUND_TRUTH_PREFIX):
+        raise LogError(f"{path}: {scan} is ground truth, which estimation never reads; name the robot's own topic")
     if odom is not None:
-        if odom not in topics:
-            raise LogError(f"{path}: no topic {odom}{reader.damage_note()}")
+        _check_named_topic(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
         return InputTopics(scan, None, odom)
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
     if ticks is None and topics.get("/odom", "").endswith("Odometry"):  # an imported or ROS log
         return InputTopics(scan, None, "/odom")
-    if ticks is not None and ticks not in topics:
-        raise LogError(f"{path}: no topic {ticks}{reader.damage_note()}")
+    if ticks is not None:
+        _check_named_topic(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
     return InputTopics(scan, ticks, None)
+
+
+def _check_named_topic(reader: LogReader, topic: str, type_suffix: str, type_name: str) -> None:
+    """A motion-prior topic must exist, be of its type, and not be ground truth (which estimation never
+    reads: ``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
+    topics, path = reader.topics, reader.path
+    if topic not in topics:
+        raise LogError(f"{path}: no topic {topic}{reader.damage_note()}")
+    if topic.startswith(GROUND_TRUTH_PREFIX):
+        raise LogError(f"{path}: {topic} is ground truth, which estimation never reads; name the robot's own topic")
+    if not topics[topic].endswith(type_suffix):
+        raise LogError(f"{path}: {topic} is {topics[topic]}, not a {type_name}")

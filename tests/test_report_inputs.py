@@ -108,6 +108,8 @@ def test_relations_with_a_nan(out, tmp_path):
     ({"features": '[{"id": 1, "name": "x", "a": [0, 0], "b": [1, NaN]}]', "walls": "[]"}, ["features[0].b", "finite"]),
     ({"features": "[{", "walls": "[]"}, ["fmcwlog.world", "not JSON"]),
     ({"features": "[]", "walls": "[[0, 0, 1]]"}, ["walls", "shape"]),
+    # once a traceback (ValueError: true lengths must be positive) from the feature errors
+    ({"features": '[{"id": 1, "name": "x", "a": [2, 3], "b": [2, 3]}]', "walls": "[]"}, ["features[0]", "same point"]),
 ])
 def test_world_record_that_breaks_the_format(tmp_path, world, words):
     log = _short_log(tmp_path / "w.mcap", drop_metadata=("fmcwlog.world",), extra_metadata={"fmcwlog.world": world})

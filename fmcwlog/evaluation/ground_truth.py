@@ -92,4 +92,6 @@ def _feature(f: object, where: str) -> dict:
     if not isinstance(f["id"], int) or isinstance(f["id"], bool) or not isinstance(f["name"], str):
         raise ReportError(f"{where}: id must be a whole number and name a string")
     a, b = (_finite(f[k], (2,), f"{where}.{k}") for k in ("a", "b"))
+    if not np.hypot(*(b - a)) > 0:  # the true length is |b - a|: errors relative to it need one
+        raise ReportError(f"{where}: a and b are the same point (a feature's length must be positive)")
     return {**f, "a": a.tolist(), "b": b.tolist()}

@@ -279,6 +279,28 @@ def test_a_motion_prior_topic_of_the_wrong_type_or_ground_truth_is_one_line(shor
     assert code == 2 and words in err, err
 
 
+def test_a_topic_whose_schema_is_not_ros2msg_is_one_line_saying_so(short_logs, tmp_path):
+    """A 'ros2idl' schema once gave 'is encoded as 'cdr', expected 'cdr'' (the message encoding named,
+    not the schema's that was at fault)."""
+    log = tmp_path / "idl.mcap"
+    with open(short_logs["zstd"], "rb") as fh, open(log, "wb") as out:
+        reader = make_reader(fh)
+        w = McapWriter(out)
+        w.start(profile="ros2", library="test")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, "ros2idl", schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, "cdr", schemas[schema.id])
+            w.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
+        w.finish()
+    code, err = cli("process", str(log), "-o", str(tmp_path / "out"))
+    judged(code, err, log, tmp_path / "out")
+    assert code == 2 and "'cdr' with a 'ros2idl' schema, expected 'cdr' with 'ros2msg'" in err, err
+
+
 def test_the_real_entry_point_gives_one_line_for_a_damaged_log(short_logs, tmp_path):
     log = cut(short_logs["zstd"], 8 + 4, tmp_path)
     proc = run_cli("process", str(log), "-o", str(tmp_path / "out"))

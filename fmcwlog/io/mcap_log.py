@@ -569,9 +569,10 @@ class LogReader:
             except Exception as exc:  # mcap_ros2 raises several types for a schema it cannot parse
                 raise LogError(f"{self.path}: topic {channel.topic}: its schema {schema.name!r} "
                                f"cannot be parsed ({exc})") from None
-            if dec is None:
+            if dec is None:  # mcap_ros2 decodes 'cdr' messages of 'ros2msg' schemas only
                 raise LogError(
-                    f"{self.path}: topic {channel.topic} is encoded as {channel.message_encoding!r}, expected 'cdr'"
+                    f"{self.path}: topic {channel.topic} is encoded as {channel.message_encoding!r} with a "
+                    f"{schema.encoding!r} schema, expected 'cdr' with 'ros2msg' (LOG_FORMAT.md)"
                 )
             self._decoders[channel.id] = dec
         try:

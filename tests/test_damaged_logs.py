@@ -287,6 +287,8 @@ def test_a_topic_whose_schema_is_not_ros2msg_is_one_line_saying_so(short_logs, t
         reader = make_reader(fh)
         w = McapWriter(out)
         w.start(profile="ros2", library="test")
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, dict(m.metadata))
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
         for schema, channel, message in reader.iter_messages(log_time_order=False):

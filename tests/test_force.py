@@ -230,3 +230,21 @@ def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path
     assert [x for x in stderr.splitlines() if x.strip()] == ["fmcwlog: terminated"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
     assert _snapshot(out) == before
+
+
+@pytest.mark.parametrize("command", ["record", "calibrate", "import"])
+def test_force_never_replaces_a_pipe_or_a_device(tmp_path, log, command):
+    """``-o /dev/null --force`` renamed a regular file over the device node (as root: the system's
+    /dev/null gone); a pipe stands in for it here (mkfifo needs no privileges)."""
+    import os
+    import stat
+
+    target = tmp_path / "pipe"
+    os.mkfifo(target)
+    clf = tmp_path / "l.clf"
+    clf.write_text(f"FLASER 180 {' '.join(['2.0'] * 180)} 1.0 2.0 0.5 1.0 2.0 0.5 100.6 h 100.6\n")
+    args = {"record": ["record", "--duration", "0.5"], "calibrate": ["calibrate", str(log)],
+            "import": ["import", "carmen", str(clf)]}[command]
+    code, _, err = run_cli_here(*args, "-o", str(target), "--force")
+    assert_one_line_error(code, err, str(target), "not a regular file")
+    assert stat.S_ISFIFO(target.lstat().st_mode)

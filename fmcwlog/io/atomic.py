@@ -188,6 +188,8 @@ def check_output_file(path: str | os.PathLike, force: bool, inputs: Iterable[str
             raise OutputError(f"{path}: is an input of this command; write the output elsewhere")
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; name the file to write")
+    if path.exists() and not path.is_file():  # the rename would put a file in place of /dev/null, for root
+        raise OutputError(f"{path}: is not a regular file (a device, a pipe or a socket); name a file to write")
     if (path.exists() or path.is_symlink()) and not force:
         raise OutputError(f"{path}: exists; use --force to overwrite it")
 

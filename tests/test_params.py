@@ -101,6 +101,9 @@ def test_every_numeric_parameter_refuses_nan_inf_and_values_past_its_ends(comman
     (["record", "--speed", "0"], "robot.speed = 0 is out of range: (0, 10] m/s"),
     (["record", "--set", "run.compression=gzip"], "run.compression = 'gzip' is not one of \"zstd\", \"lz4\", \"\""),
     (["record", "--set", "sensor.min_range=31"], "sensor.min_range = 31 m must be below sensor.max_range = 30 m"),
+    # once a log of no sweeps, exit 0; process then said it had no scan topic
+    (["record", "--duration", "0.05"], "run.duration = 0.05 s is shorter than one sweep (1 / sensor.scan_rate = 0.1 s): "
+                                       "the log would hold none"),
 ])
 def test_cases_of_the_issue_get_one_line_with_the_parameter_value_and_range(tmp_path, args, expected):
     code, out, err = run_cli_here(*args, "--show-config")

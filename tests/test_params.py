@@ -249,3 +249,15 @@ def test_a_bad_value_in_a_parameter_file_names_the_file(tmp_path, command, text,
     code, _, err = run_cli_here(*args, "--config", str(cfg), "-o", str(out))
     assert assert_one_line_error(code, err) == f"fmcwlog: error: {cfg}: {words}"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+@pytest.mark.parametrize("command", ["record", "process"])
+def test_an_output_name_too_long_for_its_temporary_is_one_line_naming_it(tmp_path, command):
+    """A 250-byte name is valid, but its temporary .NAME.partial-PID is not: the line named the temporary
+    ('file name too long'), after the work was done."""
+    name = "a" * 250 + (".mcap" if command == "record" else "")
+    args = {"record": ["record", "--duration", "0.5"], "process": ["process", str(SAMPLE_LOGS / "corridor_30s.mcap")]}
+    code, _, err = run_cli_here(*args[command], "-o", str(tmp_path / name))
+    assert assert_one_line_error(code, err, "the name is too long", "at most 238 bytes").startswith(
+        f"fmcwlog: error: {tmp_path / name}: ")
+    assert list(tmp_path.iterdir()) == []

@@ -45,6 +45,7 @@ from .io.atomic import (
     add_to_marker,
     atomic_batch,
     atomic_folder,
+    check_output_file,
     created_parents,
     json_text,
     os_reason,
@@ -348,7 +349,9 @@ def _steps(steps: Iterator[SweepStep], log: Path) -> Iterator[SweepStep]:
 
 
 def _calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
-    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source."""
+    """The calibration to process with: the file at ``path`` if given, else the log's record; and its source.
+
+    A calibration that leaves out some of the mount's keys is warned of by :func:`parse_calibration`."""
     if path is not None:
         try:
             return parse_calibration(read_calibration_file(path), need_wheels, str(path)), str(path)
@@ -383,8 +386,7 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
 
     opts = opts or ProcessOptions()
     log, output = Path(log), Path(output)
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; use --force to overwrite it")
+    check_output_file(output, force, (log, opts.calibration))  # --force never overwrites the log it reads
     if not output.parent.is_dir():
         raise OutputError(f"{output}: no folder {output.parent} to write it in")
     with warnings.catch_warnings(record=True) as caught:
@@ -408,7 +410,8 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
         kept = "" if name in adopted else "; kept the calibration's: it agrees within 3 standard deviations"
         lines.append(f"{name}: {c['estimate']:.6g} +- {c['sigma']:.2g} (was {c['calibration']:.6g}){kept}")
     lines += [f"{name}: kept the calibration's: {why}" for name, why in check["not_estimated"].items()]
-    write_calibration_file(output, values, lines)
+    with reported_write_errors(output):
+        write_calibration_file(output, values, lines)
     check = {**check, "values": first, "disagrees": sorted(n for n, c in first.items() if c["disagrees"]),
              "adopted": sorted(adopted), "passes": passes}
     return CalibrateSummary(output, check, [str(w.message) for w in caught] + notes)
@@ -447,6 +450,9 @@ def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) ->
     if runner.beyond_prior:
         notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
                      "processed with the motion prior held at its last pose")
+    if runner.before_prior:
+        notes.append(f"{runner.before_prior} sweeps on {topics.scan} began before the first message on {topics.prior}: "
+                     "processed with the motion prior held at its first pose")
     return notes
 
 

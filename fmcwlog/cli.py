@@ -7,9 +7,13 @@ partial output.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
 import sys
+import threading
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
@@ -392,6 +396,7 @@ the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
               help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
+    check_output_file(output, force, (log, calibration_file, config_file))  # --force never overwrites an input
     params = _frontend_params(config_file, set_items)
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
@@ -637,7 +642,7 @@ def import_carmen_cmd(sources, output, force):
         return
     source = sources[0]
     if not source.is_file():
-        raise UserError(f"{source}: no such file")
+        raise UserError(f"{source}: {'no such file' if not source.exists() else 'not a regular file (a pipe or a device)'}")
     check_output_file(output, force, (source,))
     summary, fmt = api.import_carmen(source, output)
     console.info(f"wrote {output}: {summary.scans} scans, {summary.odometry} odometry poses (from "
@@ -670,15 +675,38 @@ def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
         raise _SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a job scheduler) ends a command as Ctrl-C does: its temporary
+    outputs removed, an earlier output put back. Python's default ends at once, leaving them behind."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main() -> None:
     try:
-        cli.main(standalone_mode=False, prog_name="fmcwlog")
+        with _sigterm_as_interrupt():
+            cli.main(standalone_mode=False, prog_name="fmcwlog")
     except click.exceptions.NoArgsIsHelpError as exc:  # bare 'fmcwlog' (or a bare group): its help, no error
         click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
         sys.exit(0)
-    except click.exceptions.Abort:
-        click.echo("fmcwlog: aborted", err=True)
-        sys.exit(130)
+    except click.exceptions.Abort as exc:
+        terminated = isinstance(exc.__cause__, _Terminated)
+        click.echo("fmcwlog: terminated" if terminated else "fmcwlog: aborted", err=True)
+        sys.exit(128 + signal.SIGTERM if terminated else 130)
     except click.ClickException as exc:
         click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)

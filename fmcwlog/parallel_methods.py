@@ -347,6 +347,7 @@ def _read_all(conn: Connection, inbox: queue.Queue) -> None:
 def _child_main(task: ChildTask, out: Connection, schedule: Connection, own_ends: tuple) -> None:
     """The child process: runs the task, sends its messages, and ends quietly however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the command line's (fork copies it): a SIGTERM ends us
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     for conn in own_ends:  # the parent's ends, copied by fork: the pipes close when the parent dies
         conn.close()

@@ -329,7 +329,7 @@ def test_repeated_scans_are_counted_once(tmp_path):
     from helpers import run_cli_here
 
     code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
-    assert code == 0 and "6 scans repeat an earlier scan's stamp" in err, err
+    assert code == 0 and "skipped 6 scans whose stamp repeats" in err, err
     assert _scans(tmp_path / "out.mcap") == 6 and "wrote" in stdout and ": 6 scans, 6 odometry poses" in stdout, stdout
 
 
@@ -381,3 +381,22 @@ def test_rawlaser1_without_odom_says_there_is_no_odometry(tmp_path):
     code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(tmp_path / "out.mcap"))
     assert code == 0 and not err and _scans(tmp_path / "out.mcap") == 4
     assert "4 scans, 0 odometry poses (from nowhere: the log has no ODOM lines" in stdout, stdout
+def test_scans_with_a_repeated_stamp_are_counted_and_the_summary_says_what_was_written(tmp_path):
+    """Laser lines that repeat their stamp were once dropped without a word, the summary still counting
+    them ('12 scans' for a log of 1): now one warning per topic, and the counts are the log's (plain mcap)."""
+    from helpers import run_cli_here
+
+    lines = _room_clf(12).splitlines()
+    stamp = lines[2].split()[-1]  # every laser line at the first line's time
+    same = [" ".join(x.split()[:-3] + [stamp, "host", stamp]) if x.startswith("FLASER") else x for x in lines]
+    src = tmp_path / "same.clf"
+    src.write_text("\n".join(same) + "\n")
+    out = tmp_path / "same.mcap"
+    code, stdout, err = run_cli_here("import", "carmen", str(src), "-o", str(out))
+    assert code == 0, err
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    assert counts == {"/scan": 1, "/odom": 1}
+    assert f"{src}: skipped 11 scans whose stamp repeats the one before" in err, err
+    assert "1 scans, 1 odometry poses" in stdout, stdout

@@ -51,6 +51,8 @@ def test_bad_arguments_give_one_line_and_no_file(tmp_path, args, words):
         ("walls: [[0, 0, 5, 0]]\nroute: {waypoints: [[0, 0], [1, 0]], loop: false}\nmovers: [{kind: dog, path: [[0, 0], [1, 1]]}]\n",
          ["movers[0].kind"]),
         ("walls: [[0, 0, 5, 0]]\nroute: {waypoints: [[0, 0]]}\n", ["waypoints"]),
+        ("walls: [[0, 0, 5, 0]]\nroute: {waypoints: [[0, 1], [4, 1]], loop: false}\n"
+         "features: [{id: 1, name: x, a: [0, 0], b: [0, 0]}]\n", ["features[0]", "same point"]),
     ],
 )
 def test_malformed_world_file_names_the_file_and_the_problem(tmp_path, text, words):

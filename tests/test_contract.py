@@ -286,7 +286,7 @@ def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crow
 
 
 @pytest.mark.parametrize("type_name, words", [
-    ("other_msgs/msg/Encoders", "/wheel/ticks is other_msgs/msg/Encoders, not fmcwlog_msgs/msg/WheelTicks"),
+    ("other_msgs/msg/Encoders", "/wheel/ticks is other_msgs/msg/Encoders, not a fmcwlog_msgs/msg/WheelTicks"),
     ("fmcwlog_msgs/msg/WheelTicks", "/wheel/ticks is fmcwlog_msgs/msg/WheelTicks without the fields header, left and "
                                     "right of fmcwlog_msgs/msg/WheelTicks"),
 ])
@@ -320,6 +320,5 @@ def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, 
 def test_an_odometry_topic_of_another_type_is_one_error_naming_the_type(crowd_log, tmp_path):
     """``--odom-topic`` naming a topic that is no nav_msgs/msg/Odometry was a traceback (AttributeError)."""
     with pytest.raises(LogError) as info:
-        process(crowd_log, tmp_path / "out", ProcessOptions(odom_topic="/ground_truth/point_labels"), jobs=1)
-    assert str(info.value) == (f"{crowd_log}: /ground_truth/point_labels is fmcwlog_msgs/msg/PointLabels, "
-                               "not nav_msgs/msg/Odometry")
+        process(crowd_log, tmp_path / "out", ProcessOptions(odom_topic="/fmcw/points"), jobs=1)
+    assert str(info.value) == f"{crowd_log}: /fmcw/points is sensor_msgs/msg/PointCloud2, not a nav_msgs/msg/Odometry"

@@ -71,6 +71,10 @@ def process(log: Path, out: Path, method: str = "all") -> tuple[dict[str, str] |
     return est, [x[len("fmcwlog: warning: "):] for x in err.splitlines() if x.startswith("fmcwlog: warning: ")]
 
 
+def stamp_ns_of(msg) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
 def stamps(est: dict[str, str], name: str = "wheel_odometry.tum") -> list[str]:
     return [line.split()[0] for line in est[name].splitlines()]
 
@@ -250,6 +254,55 @@ def test_an_undecodable_message_is_skipped_and_counted(short_logs, intact, tmp_p
     assert [w for w in warnings if w.startswith("skipped 1 messages on /fmcw/points that do not decode")], warnings
 
 
+def test_a_pipe_named_like_a_log_is_one_line_saying_what_it_is(tmp_path):
+    """A FIFO named ``log.mcap`` exists, yet the line once said 'no such file'."""
+    import os
+
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)
+    code, err = cli("process", str(fifo), "-o", str(tmp_path / "out"))
+    judged(code, err, fifo, tmp_path / "out")
+    assert code == 2 and "not a regular file" in err, err
+
+
+@pytest.mark.parametrize("option, topic, words", [
+    ("--odom-topic", "/wheel/ticks", "/wheel/ticks is fmcwlog_msgs/msg/WheelTicks, not a nav_msgs/msg/Odometry"),
+    ("--ticks-topic", "/fmcw/points", "/fmcw/points is sensor_msgs/msg/PointCloud2, not a fmcwlog_msgs/msg/WheelTicks"),
+    ("--odom-topic", "/ground_truth/odom", "/ground_truth/odom is ground truth, which estimation never reads"),
+])
+def test_a_motion_prior_topic_of_the_wrong_type_or_ground_truth_is_one_line(short_logs, tmp_path, option, topic, words):
+    """``--odom-topic /wheel/ticks`` was a traceback (AttributeError: no 'pose'); ``--ticks-topic /fmcw/points``
+    said 'no usable message'; ``--odom-topic /ground_truth/odom`` processed with the truth as the prior."""
+    log = short_logs["zstd"]
+    code, err = cli("process", str(log), "-o", str(tmp_path / "out"), option, topic)
+    judged(code, err, log, tmp_path / "out")
+    assert code == 2 and words in err, err
+
+
+def test_a_topic_whose_schema_is_not_ros2msg_is_one_line_saying_so(short_logs, tmp_path):
+    """A 'ros2idl' schema once gave 'is encoded as 'cdr', expected 'cdr'' (the message encoding named,
+    not the schema's that was at fault)."""
+    log = tmp_path / "idl.mcap"
+    with open(short_logs["zstd"], "rb") as fh, open(log, "wb") as out:
+        reader = make_reader(fh)
+        w = McapWriter(out)
+        w.start(profile="ros2", library="test")
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, dict(m.metadata))
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, "ros2idl", schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, "cdr", schemas[schema.id])
+            w.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
+        w.finish()
+    code, err = cli("process", str(log), "-o", str(tmp_path / "out"))
+    judged(code, err, log, tmp_path / "out")
+    assert code == 2 and "'cdr' with a 'ros2idl' schema, expected 'cdr' with 'ros2msg'" in err, err
+
+
 def test_the_real_entry_point_gives_one_line_for_a_damaged_log(short_logs, tmp_path):
     log = cut(short_logs["zstd"], 8 + 4, tmp_path)
     proc = run_cli("process", str(log), "-o", str(tmp_path / "out"))
@@ -355,6 +408,24 @@ def test_a_32_bit_tick_counter_wrap_is_unwrapped(short_logs, intact, tmp_path):
     assert warnings == ["unwrapped 2 32-bit wheel-tick counter wraps on /wheel/ticks"], warnings
 
 
+def test_counters_that_start_near_the_int64_limit_give_the_intact_estimates(short_logs, intact, tmp_path):
+    """Counts offset by 2**62: the estimates equal the intact log's (the prior holds counts from the
+    first reading on). Offset by 2**63 - 1000, the counter overflows to -2**63 and is a reset: once,
+    the rebased counts passed int64 and numpy's 'invalid value encountered in cast' reached the user
+    as warnings."""
+    def start_at(base):
+        def shift(i, msg):
+            msg.left = (msg.left + base + 2**63) % 2**64 - 2**63
+            msg.right = (msg.right + base + 2**63) % 2**64 - 2**63
+        return _ticks(shift)
+
+    est, warnings = process(edited(short_logs, tmp_path, start_at(2**62), "big.mcap"), tmp_path / "big")
+    assert est == intact["zstd"] and not warnings, warnings
+    est, warnings = process(edited(short_logs, tmp_path, start_at(2**63 - 1000), "over.mcap"), tmp_path / "over")
+    assert est is not None and not [w for w in warnings if "encountered" in w], warnings
+    assert any("taken as a new origin" in w for w in warnings), warnings
+
+
 def test_a_lone_tick_jump_is_skipped_and_a_counter_reset_is_a_new_origin(short_logs, intact, tmp_path):
     def jump(i, msg):
         if i == 60:
@@ -432,6 +503,47 @@ def test_sweeps_wait_for_a_motion_prior_that_stopped_at_most_the_clock_gap(short
     assert max(queued) <= 7  # 0.5 s of sweeps at 10 Hz, and the one that arrived
     assert [w for w in warnings if w.startswith(held)], warnings
     assert est == waited and len(stamps(est)) == 30
+
+
+def test_sweeps_before_the_first_prior_message_are_counted(short_logs, tmp_path):
+    """Ticks start 1 s into the log (or their clock is a few seconds off): the sweeps before the first
+    tick were once processed silently with the prior held; now one warning counts them."""
+    from helpers import decoded
+
+    log = edited(short_logs, tmp_path, lambda topic, i, msg: False if topic == "/wheel/ticks" and i < 50 else None)
+    first_tick = min(stamp_ns_of(m) for _, _, _, m in decoded(log, ["/wheel/ticks"]))
+    before = sum(stamp_ns_of(m) < first_tick for _, _, _, m in decoded(log, ["/fmcw/points"]))
+    assert before == 10
+    _, warnings = process(log, tmp_path / "out", "baseline")
+    said = f"{before} sweeps on /fmcw/points began before the first message on /wheel/ticks"
+    assert [w for w in warnings if w.startswith(said)], warnings
+
+
+def test_a_cloud_without_point_times_gets_the_priors_motion_over_its_window(short_logs, tmp_path):
+    """A cloud with no ``t`` field (all points at the stamp) was processed as soon as the ticks reached
+    its stamp, so the prior over its 1 ms window was extrapolated to standstill and gated the Doppler
+    fit: the improved method's speed was 0 on 51 of 60 sweeps of a 6 s log. Now its speed follows the
+    simulator's true speed (measured within 0.013 m/s)."""
+    import pandas as pd
+    from helpers import decoded
+
+    def drop_t(msg):
+        keep = [f for f in msg.fields if f.name != "t"]
+        cols = np.frombuffer(bytes(msg.data), "<f4").reshape(-1, len(msg.fields))
+        msg.data = np.ascontiguousarray(cols[:, [msg.fields.index(f) for f in keep]]).tobytes()
+        for k, f in enumerate(keep):
+            f.offset = 4 * k
+        msg.fields, msg.point_step = keep, 4 * len(keep)
+        msg.row_step = msg.point_step * msg.width
+
+    log = edited(short_logs, tmp_path, _cloud(set(range(30)), drop_t))
+    est, warnings = process(log, tmp_path / "out", "improved")
+    assert est is not None and not warnings, warnings
+    truth = np.array([(m.log_time * 1e-9, msg.twist.twist.linear.x) for _, _, m, msg in decoded(log, ["/ground_truth/odom"])])
+    rows = pd.read_parquet(tmp_path / "out" / "trajectories.parquet").query("method == 'improved'")
+    assert len(rows) == 30
+    true_v = np.interp(rows.t.to_numpy(), truth[:, 0], truth[:, 1])
+    assert np.max(np.abs(rows.v.to_numpy() - true_v)) < 0.05
 
 
 # ----------------------------------------------------------------------------- LaserScan and Odometry
@@ -526,6 +638,20 @@ def test_a_calibration_value_out_of_physical_range_is_refused_naming_key_and_ran
     code, err = cli("process", str(log), "-o", str(tmp_path / "out"))
     judged(code, err, log, tmp_path / "out")
     assert code == 2 and words in err, err
+
+
+def test_a_calibration_without_lidar_x_is_warned_of_and_taken_as_0(short_logs, tmp_path):
+    """A record with the wheels but no ``lidar_x`` once went silently with the LiDAR over the axle (the
+    log's is 0.35 m ahead). Now one warning names the key; the estimates are those of a record saying 0."""
+    def drop(records):
+        return [(n, {k: v for k, v in values.items() if k != "lidar_x"} if n == "fmcwlog.calibration" else values)
+                for n, values in records]
+    log = rewrite(short_logs["zstd"], tmp_path / "no_x.mcap", metadata=drop)
+    est, warnings = process(log, tmp_path / "out", "baseline")
+    said = f"{log}: fmcwlog.calibration has no lidar_x: taken as 0"
+    assert [w for w in warnings if w.startswith(said)], warnings
+    zero = _calibration(short_logs, tmp_path, lidar_x="0")
+    assert est == process(zero, tmp_path / "zero", "baseline")[0]
 
 
 def test_two_calibration_records_that_disagree_are_refused_naming_the_keys(short_logs, tmp_path):

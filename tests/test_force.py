@@ -183,3 +183,68 @@ def test_import_force_never_overwrites_its_source(tmp_path):
     code, _, err = run_cli_here("import", "carmen", str(src), "-o", str(link), "--force")
     assert_one_line_error(code, err, "input")
     assert src.read_text() == text
+
+
+def test_calibrate_force_never_overwrites_its_inputs(tmp_path, log):
+    """``calibrate LOG -o LOG --force`` once replaced the log with a 1 kB YAML file; nor may it overwrite
+    the calibration file or the parameter file it reads, under any of their names."""
+    work = tmp_path / "w"
+    work.mkdir()
+    src = work / "s.mcap"
+    shutil.copyfile(log, src)
+    cal = work / "cal.yaml"
+    cal.write_text("lidar_x: 0.35\n")
+    cfg = work / "p.toml"
+    cfg.write_text("")
+    (work / "alias.mcap").symlink_to(src)
+    before = _snapshot(work)
+    for target in (src, work / "alias.mcap", cal, cfg):
+        code, _, err = run_cli_here("calibrate", str(src), "-o", str(target), "--calibration", str(cal),
+                                    "--config", str(cfg), "--force")
+        assert_one_line_error(code, err, str(target), "input")
+        assert _snapshot(work) == before
+
+
+def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path, log):
+    """``kill`` (or ``timeout``, a job scheduler) mid-run: as Ctrl-C, exit status 143 with one line, the
+    earlier output as it was and no ``.out.partial-PID`` folder. Python's default SIGTERM once ended the
+    process on the spot, leaving the temporary folder behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    code, _, err = run_cli_here("-q", "process", str(log), "-o", str(out), "--jobs", "1")
+    assert code == 0, err
+    before = _snapshot(out)
+    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(SAMPLE_LOGS / "corridor_30s.mcap"),
+                             "-o", str(out), "--force"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not list(tmp_path.glob(".out.partial-*")) and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)  # into the sweeps (300 of them: several seconds)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 143, stderr
+    assert [x for x in stderr.splitlines() if x.strip()] == ["fmcwlog: terminated"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert _snapshot(out) == before
+
+
+@pytest.mark.parametrize("command", ["record", "calibrate", "import"])
+def test_force_never_replaces_a_pipe_or_a_device(tmp_path, log, command):
+    """``-o /dev/null --force`` renamed a regular file over the device node (as root: the system's
+    /dev/null gone); a pipe stands in for it here (mkfifo needs no privileges)."""
+    import os
+    import stat
+
+    target = tmp_path / "pipe"
+    os.mkfifo(target)
+    clf = tmp_path / "l.clf"
+    clf.write_text(f"FLASER 180 {' '.join(['2.0'] * 180)} 1.0 2.0 0.5 1.0 2.0 0.5 100.6 h 100.6\n")
+    args = {"record": ["record", "--duration", "0.5"], "calibrate": ["calibrate", str(log)],
+            "import": ["import", "carmen", str(clf)]}[command]
+    code, _, err = run_cli_here(*args, "-o", str(target), "--force")
+    assert_one_line_error(code, err, str(target), "not a regular file")
+    assert stat.S_ISFIFO(target.lstat().st_mode)

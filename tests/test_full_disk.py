@@ -281,3 +281,19 @@ def test_run_on_a_full_disk_puts_the_earlier_run_back(tmp_path, disk):
     points = _fill_at_each_file(disk, root, ["-q", "run", "-o", str(root / "run"), "--duration", "1", "--force"],
                                 prepare, only={"mcap", "middle", "parquet", "html", MARKER})
     assert {"mcap", "html", "parquet"} <= set(points), points
+
+
+def test_calibrate_on_a_full_disk_names_the_file(tmp_path, disk):
+    """calibrate's one line once read 'fmcwlog: error: no space left on device', naming no file."""
+    log = _short_log(tmp_path / "s.mcap", sweeps=60)
+    root = tmp_path / "w"
+    root.mkdir()
+    out = root / "calib.yaml"
+    points = _fill_at_each_file(disk, root, ["-q", "calibrate", str(log), "-o", str(out)], lambda: _user_files(root))
+    assert "yaml" in points
+    disk.budget, disk.used = points["yaml"], 0
+    try:
+        code, _, err = run_cli_here("-q", "calibrate", str(log), "-o", str(out))
+    finally:
+        disk.budget = float("inf")
+    assert assert_one_line_error(code, err).startswith(f"fmcwlog: error: {out}: cannot write")

@@ -101,6 +101,9 @@ def test_every_numeric_parameter_refuses_nan_inf_and_values_past_its_ends(comman
     (["record", "--speed", "0"], "robot.speed = 0 is out of range: (0, 10] m/s"),
     (["record", "--set", "run.compression=gzip"], "run.compression = 'gzip' is not one of \"zstd\", \"lz4\", \"\""),
     (["record", "--set", "sensor.min_range=31"], "sensor.min_range = 31 m must be below sensor.max_range = 30 m"),
+    # once a log of no sweeps, exit 0; process then said it had no scan topic
+    (["record", "--duration", "0.05"], "run.duration = 0.05 s is shorter than one sweep (1 / sensor.scan_rate = 0.1 s): "
+                                       "the log would hold none"),
 ])
 def test_cases_of_the_issue_get_one_line_with_the_parameter_value_and_range(tmp_path, args, expected):
     code, out, err = run_cli_here(*args, "--show-config")
@@ -228,3 +231,33 @@ def test_an_occupancy_grid_past_its_cell_budget_is_refused_before_allocating():
         grid.integrate(np.zeros(2), np.array([[1e6, 0.0]]))  # 1000 km away: 2e7 x 3e2 cells
     assert grid.width * grid.height <= 1_000_000  # the grid is as it was
     assert OccupancyParams().max_cells * 5 <= 2**28  # the default budget: arrays of at most ~256 MB
+
+
+@pytest.mark.parametrize("command, text, words", [
+    ("record", "[sensor]\nrange_sigma = -1\n", "sensor.range_sigma = -1 is out of range: [0, 10] m"),
+    ("record", "[sensor]\nrange_sigma = true\n", "sensor.range_sigma must be a number, got True"),
+    ("process", "[icp]\nhuber_delta = -1\n", "icp.huber_delta = -1 is out of range: (0, 1] m"),
+    ("calibrate", "[icp]\nhuber_delta = 'a'\n", "icp.huber_delta must be a number, got 'a'"),
+])
+def test_a_bad_value_in_a_parameter_file_names_the_file(tmp_path, command, text, words):
+    """A value's error named the parameter but not the file it came from (the same words as --set's)."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(text)
+    log = str(SAMPLE_LOGS / "corridor_30s.mcap")
+    args = {"record": ["record"], "process": ["process", log], "calibrate": ["calibrate", log]}[command]
+    out = tmp_path / ("o.yaml" if command == "calibrate" else "o.mcap" if command == "record" else "o")
+    code, _, err = run_cli_here(*args, "--config", str(cfg), "-o", str(out))
+    assert assert_one_line_error(code, err) == f"fmcwlog: error: {cfg}: {words}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+@pytest.mark.parametrize("command", ["record", "process"])
+def test_an_output_name_too_long_for_its_temporary_is_one_line_naming_it(tmp_path, command):
+    """A 250-byte name is valid, but its temporary .NAME.partial-PID is not: the line named the temporary
+    ('file name too long'), after the work was done."""
+    name = "a" * 250 + (".mcap" if command == "record" else "")
+    args = {"record": ["record", "--duration", "0.5"], "process": ["process", str(SAMPLE_LOGS / "corridor_30s.mcap")]}
+    code, _, err = run_cli_here(*args[command], "-o", str(tmp_path / name))
+    assert assert_one_line_error(code, err, "the name is too long", "at most 238 bytes").startswith(
+        f"fmcwlog: error: {tmp_path / name}: ")
+    assert list(tmp_path.iterdir()) == []

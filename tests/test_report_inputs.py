@@ -118,6 +118,8 @@ def test_relations_of_another_log_are_said_to_score_nothing(out, tmp_path):
     ({"features": '[{"id": 1, "name": "x", "a": [0, 0], "b": [1, NaN]}]', "walls": "[]"}, ["features[0].b", "finite"]),
     ({"features": "[{", "walls": "[]"}, ["fmcwlog.world", "not JSON"]),
     ({"features": "[]", "walls": "[[0, 0, 1]]"}, ["walls", "shape"]),
+    # once a traceback (ValueError: true lengths must be positive) from the feature errors
+    ({"features": '[{"id": 1, "name": "x", "a": [2, 3], "b": [2, 3]}]', "walls": "[]"}, ["features[0]", "same point"]),
 ])
 def test_world_record_that_breaks_the_format(tmp_path, world, words):
     log = _short_log(tmp_path / "w.mcap", drop_metadata=("fmcwlog.world",), extra_metadata={"fmcwlog.world": world})
@@ -147,3 +149,69 @@ def test_a_log_of_another_seed_with_the_same_stamps_is_refused_naming_both(tmp_p
     code, _, err = run_cli_here("-q", "report", str(out), "--log", str(tmp_path / "moved.mcap"))
     assert code == 0, err
     assert "report.html" in json.loads((out / MARKER).read_text())["entries"]
+
+
+def _edit_odom(change):
+    def edit(topic, i, msg):
+        if topic == "/ground_truth/odom" and i < 40:  # ground truth is 50 Hz: the first 8 sweeps' span
+            return change(i, msg)
+        return False if i >= (8 if topic == "/fmcw/points" else 40) else None
+    return edit
+
+
+def _nan(i, msg):
+    if i == 3:
+        msg.pose.pose.position.x = float("nan")
+
+
+def _repeat(i, msg):
+    if i == 1:
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 1_700_000_000, 0  # the first message's stamp
+
+
+def _zero_quaternion(i, msg):
+    q = msg.pose.pose.orientation
+    q.x = q.y = q.z = q.w = 0.0
+
+
+@pytest.mark.parametrize("change, words", [
+    (_nan, ["message 4 at 1700000000.060000000 s", "pose is not finite"]),  # was: LinAlgError: SVD did not converge
+    (_repeat, ["message 2", "stamp does not increase"]),  # was: ValueError: t_ref must hold ... increasing stamps
+    (_zero_quaternion, ["message 1", "zero quaternion"]),  # was: scored, the truth's heading taken as 0
+])
+def test_damaged_ground_truth_is_one_line_naming_the_message(tmp_path, change, words):
+    log = tmp_path / "g.mcap"
+    copy_log(SAMPLE_LOGS / "corridor_30s.mcap", log, edit=_edit_odom(change))
+    _report_fails(_process(log, tmp_path / "out"), "g.mcap", "/ground_truth/odom", *words)
+
+
+def test_ground_truth_of_another_time_span_leaves_the_errors_empty_with_the_reason(tmp_path):
+    """The ground truth 100 s after the scans (a clock offset): a traceback once ('no estimate stamp inside
+    the reference's time span'); now the report is written, the errors empty, the reason beside them."""
+    def shift(i, msg):
+        msg.header.stamp.sec += 100
+    log = tmp_path / "g.mcap"
+    copy_log(SAMPLE_LOGS / "corridor_30s.mcap", log, edit=_edit_odom(shift))
+    out = _process(log, tmp_path / "out")
+    code, _, err = run_cli_here("-q", "report", str(out))
+    assert code == 0, err
+    improved = json.loads((out / "report.json").read_text())["methods"]["improved"]
+    assert improved["ate_rmse_m"] is None
+    assert any("no pose falls within the ground truth's time span" in n for n in improved["notes"]), improved["notes"]
+
+
+def test_point_labels_that_do_not_fit_the_sweeps_are_said_not_blamed_on_doppler(tmp_path):
+    """Labels cut to 10 per sweep: the note blamed Doppler ('Doppler was off'), which was on."""
+    def cut(topic, i, msg):
+        if topic == "/ground_truth/point_labels":
+            msg.moving = bytes(msg.moving)[:10]
+        return False if i >= (8 if topic in ("/fmcw/points", "/ground_truth/point_labels") else 40) else None
+    log = tmp_path / "l.mcap"
+    copy_log(SAMPLE_LOGS / "corridor_30s.mcap", log, edit=cut)
+    out = _process(log, tmp_path / "out")
+    code, _, err = run_cli_here("-q", "report", str(out))
+    assert code == 0, err
+    notes = json.loads((out / "report.json").read_text())["methods"]["improved"]["notes"]
+    assert "8 of 8 sweeps not scored for segmentation: 0 without a /ground_truth/point_labels message at their " \
+           "stamp, 8 whose labels are not one per point" in notes, notes
+    assert not [n for n in notes if "Doppler was off" in n], notes

@@ -333,6 +333,10 @@ def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev:
     """ATE (SE(2)- and first-pose-aligned) and RPE over 1 m and 10 m, as evo defines them."""
     if ev.gt_t is None or ev.gt is None or len(t) < 2:
         return
+    if not np.any((t >= ev.gt_t[0]) & (t <= ev.gt_t[-1])):
+        r["notes"].append(f"no pose falls within the ground truth's time span ({ev.gt_t[0]:.3f} to {ev.gt_t[-1]:.3f} s; "
+                          f"this trajectory: {t[0]:.3f} to {t[-1]:.3f} s): trajectory errors cannot be computed")
+        return
     idx, ref = interpolate_reference(t, ev.gt_t, ev.gt)
     a = ate(est[idx], ref, "se2")
     f = ate(est[idx], ref, "first")

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,13 +18,32 @@ from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, WORLD_KEY
 
 
 def read_ground_truth(reader: LogReader, topic: str = GT_ODOM_TOPIC) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth stamps (ns) and poses (N, 3) of ``base_link`` in ``map``."""
-    stamps, poses = [], []
+    """Ground-truth stamps (ns) and poses (N, 3) of ``base_link`` in ``map``.
+
+    A pose that is not finite, an orientation that is no rotation (a zero quaternion) or a stamp
+    that does not increase raises :class:`ReportError` naming the log and the message: scores
+    against a damaged truth would be wrong, and they were tracebacks (SVD did not converge).
+    """
+    stamps: list[int] = []
+    poses: list[np.ndarray] = []
     for m in reader.messages([topic]):
         pose, _ = odometry_pose_twist(m.msg)
-        stamps.append(stamp_ns(m.msg.header.stamp))
+        ns = stamp_ns(m.msg.header.stamp)
+        q = m.msg.pose.pose.orientation
+        problem = ("its pose is not finite" if not np.isfinite(pose).all()
+                   else "its orientation is a zero quaternion" if not math.hypot(q.x, q.y, q.z, q.w) > 1e-6
+                   else f"its stamp does not increase (after {_seconds(stamps[-1])} s)" if stamps and ns <= stamps[-1]
+                   else None)
+        if problem:
+            raise ReportError(f"{reader.path}: {topic} message {len(stamps) + 1} at {_seconds(ns)} s: {problem}; "
+                              "the ground truth is damaged")
+        stamps.append(ns)
         poses.append(pose)
     return np.asarray(stamps, dtype=np.int64), np.asarray(poses).reshape(-1, 3)
+
+
+def _seconds(ns: int) -> str:
+    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
 def read_point_labels(reader: LogReader, topic: str = GT_LABELS_TOPIC) -> dict[int, np.ndarray]:
@@ -92,4 +112,6 @@ def _feature(f: object, where: str) -> dict:
     if not isinstance(f["id"], int) or isinstance(f["id"], bool) or not isinstance(f["name"], str):
         raise ReportError(f"{where}: id must be a whole number and name a string")
     a, b = (_finite(f[k], (2,), f"{where}.{k}") for k in ("a", "b"))
+    if not np.hypot(*(b - a)) > 0:  # the true length is |b - a|: errors relative to it need one
+        raise ReportError(f"{where}: a and b are the same point (a feature's length must be positive)")
     return {**f, "a": a.tolist(), "b": b.tolist()}

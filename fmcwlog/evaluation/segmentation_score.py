@@ -19,19 +19,28 @@ def segmentation_scores(out_dir: Path, method: str, labels: dict[int, np.ndarray
         return None
     proc = out_dir / "processed.mcap"
     tp = fp = fn = 0
-    seen = 0
+    seen = verdicts = unlabelled = other_length = 0
     for msg in LogReader(proc).messages([f"/{method}/moving_labels"]):
+        verdicts += 1
         est = np.frombuffer(bytes(msg.msg.moving), np.uint8).astype(bool)
         ref = labels.get(msg.log_time_ns)
         if ref is None or ref.shape != est.shape:
+            unlabelled += ref is None
+            other_length += ref is not None
             continue
         ref = ref.astype(bool)
         tp += int(np.sum(est & ref))
         fp += int(np.sum(est & ~ref))
         fn += int(np.sum(~est & ref))
         seen += 1
-    if seen == 0:
+    if verdicts == 0:
         notes.append("no per-point moving verdicts in processed.mcap (Doppler was off): segmentation not scored")
+        return None
+    if seen < verdicts:  # the labels do not fit those sweeps: a damaged or foreign label topic
+        notes.append(f"{verdicts - seen} of {verdicts} sweeps not scored for segmentation: {unlabelled} without "
+                     f"a /ground_truth/point_labels message at their stamp, {other_length} whose labels are not "
+                     "one per point")
+    if seen == 0:
         return None
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None

@@ -14,7 +14,15 @@ queue is: a motion prior that stops mid-log (its clock checked at the start by
 the inputs) would hold every later sweep in the queue until the log ends, so a
 sweep waits at most :data:`fmcwlog.io.inputs.MAX_CLOCK_GAP_S` of log and is then
 processed with the prior held at its last pose. Sweeps that begin after the prior's
-last message are counted (a warning), whether they waited or came at the end of the log.
+last message are counted (a warning), whether they waited or came at the end of the log;
+so are sweeps that begin before its first message (a prior that starts late, or whose
+clock is offset from the scans' by less than that gap), for which it held its first pose.
+
+A sweep's prior spans ``[stamp, stamp + max(t, MIN_SPAN_S)]``, and the sweep waits until the
+prior covers that same window: a cloud without a ``t`` field (every point at the stamp) once
+went as soon as the prior reached its stamp, so the prior's motion over its 1 ms window was
+extrapolated, i.e. zero, and the Doppler fit, gated by it, failed on 39 of 60 sweeps of a 6 s
+corridor log (improved ATE 3.6 cm, 0.4 cm with ``t``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,8 @@ from ..io.inputs import MAX_CLOCK_GAP_S, InputTopics, OdomInput, SweepInput, Tic
 from .methods import METHODS, FrontEnd, PriorMotion, SweepResult
 from .motion_prior import PoseTrack
 from .params import FrontEndParams
+
+MIN_SPAN_S = 1e-3  # s: the shortest window a sweep's prior twist is taken over (a cloud without point times)
 
 
 @dataclass
@@ -67,6 +77,8 @@ class LogRunner:
         self.source = source
         self.sweeps = 0
         self.beyond_prior = 0  # sweeps that began after the prior's last message (it held its last pose)
+        self.before_prior = 0  # sweeps that began before the prior's first message (it held its first pose)
+        self._prior_first: float | None = None  # the prior's first stamp, s
         self.doppler: bool | None = None  # whether the last sweep carried Doppler
         self._pending: deque[SweepInput] = deque()
         self._sweep_span = 0.0  # the longest sweep seen, s
@@ -92,7 +104,7 @@ class LogRunner:
 
     def _ready(self, sweep: SweepInput) -> bool:
         """Whether the prior covers ``sweep``, or it has waited its longest."""
-        if self.prior is None or self.prior.latest_time >= sweep.stamp_ns * 1e-9 + self._sweep_span:
+        if self.prior is None or self.prior.latest_time >= sweep.stamp_ns * 1e-9 + max(self._sweep_span, MIN_SPAN_S):
             return True
         assert self._last_queued_ns is not None
         return (self._last_queued_ns - sweep.stamp_ns) * 1e-9 > MAX_CLOCK_GAP_S
@@ -125,6 +137,8 @@ class LogRunner:
 
     def _add_prior(self, item: TicksInput | OdomInput) -> None:
         assert self.prior is not None
+        if self._prior_first is None:
+            self._prior_first = item.stamp_ns * 1e-9
         try:
             if isinstance(item, TicksInput):
                 assert self.cal.wheels is not None  # parse_calibration requires them with a ticks topic
@@ -153,7 +167,9 @@ class LogRunner:
         ts = sweep.stamp_ns * 1e-9
         if self.prior is not None and len(self.prior) and ts > self.prior.latest_time:
             self.beyond_prior += 1
-        prior = self._prior_motion(ts, max(float(sweep.t.max()), 1e-3))
+        if self._prior_first is not None and ts < self._prior_first:
+            self.before_prior += 1
+        prior = self._prior_motion(ts, max(float(sweep.t.max()), MIN_SPAN_S))
         results = [fe.step(sweep, prior) for fe in self.fronts]
         wheel_pose = None
         if self.prior is not None and len(self.prior):

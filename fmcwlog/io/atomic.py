@@ -67,7 +67,15 @@ def _named(path: str | os.PathLike) -> Path:
         p = p.resolve()
     if not p.name:
         raise OutputError(f"{path}: cannot write an output in place of the file system's root")
+    room = _NAME_MAX - len(f".{p.name}.partial-{_PID_MAX}".encode()) + len(p.name.encode())
+    if len(p.name.encode(errors="surrogateescape")) > room:  # else a valid name fails on its temporary's
+        raise OutputError(f"{path}: the name is too long: it is written first as .NAME.partial-PID, which must "
+                          f"fit the file system's {_NAME_MAX}-byte limit; use a name of at most {room} bytes")
     return p
+
+
+_NAME_MAX = 255  # bytes in one path component (ext4, xfs, btrfs, tmpfs, NTFS, APFS)
+_PID_MAX = 4194304  # Linux's largest process id: the longest .partial-PID / .old-PID suffix
 
 
 def partial_path(path: str | os.PathLike) -> Path:
@@ -188,6 +196,8 @@ def check_output_file(path: str | os.PathLike, force: bool, inputs: Iterable[str
             raise OutputError(f"{path}: is an input of this command; write the output elsewhere")
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; name the file to write")
+    if path.exists() and not path.is_file():  # the rename would put a file in place of /dev/null, for root
+        raise OutputError(f"{path}: is not a regular file (a device, a pipe or a socket); name a file to write")
     if (path.exists() or path.is_symlink()) and not force:
         raise OutputError(f"{path}: exists; use --force to overwrite it")
 

@@ -98,21 +98,18 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
         source = ("the odometry pose of each laser line" if odom
                   else "nowhere: the log has no ODOM lines and its laser lines no pose")
     _warn_order(parsed)
-    events = sorted([(s.stamp, 0, i) for i, s in enumerate(scans)] + [(t, 1, i) for i, (t, _) in enumerate(odom)])
-    last: dict[str, int] = {}
-    written = {0: 0, 1: 0}
-    repeated = 0
+    events, repeated = _unique_stamps(sorted([(s.stamp, 0, i) for i, s in enumerate(scans)]
+                                             + [(t, 1, i) for i, (t, _) in enumerate(odom)]), scans)
+    for topic, n in repeated.items():
+        logger.warning(f"{parsed.path}: skipped {n} {'scans' if topic != '/odom' else 'odometry poses'} whose "
+                       f"stamp repeats the one before (kept the first; {topic})")
+    n_scans = sum(kind == 0 for _, kind, _ in events)
+    n_odom = len(events) - n_scans
     with LogWriter(out) as w:
         w.add_metadata(CALIBRATION_KEY, _calibration(scans))
-        w.add_metadata(IMPORT_KEY, _import_record(parsed, len(scans), len(odom), source))
+        w.add_metadata(IMPORT_KEY, _import_record(parsed, n_scans, n_odom, source))
         for t, kind, i in events:
             ns = _ns(t)
-            topic = scans[i].topic if kind == 0 else "/odom"
-            if last.get(topic) == ns:  # a repeated stamp: keep the first
-                repeated += kind == 0
-                continue
-            last[topic] = ns
-            written[kind] += 1
             if kind == 0:
                 s = scans[i]
                 n = len(s.ranges)
@@ -125,6 +122,20 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
             else:
                 w.write("/odom", "nav_msgs/msg/Odometry",
                         odometry_message(ns, "odom", "base_link", np.asarray(odom[i][1], float), np.zeros(3)), ns)
-    if repeated:
-        logger.warning(f"{parsed.path}: {repeated} scans repeat an earlier scan's stamp; kept the first of each")
-    return ImportSummary(out, written[0], written[1], source, parsed.bad_lines, events[-1][0] - events[0][0])
+    return ImportSummary(out, n_scans, n_odom, source, parsed.bad_lines, events[-1][0] - events[0][0])
+
+
+def _unique_stamps(events: list[tuple[float, int, int]], scans: list[ScanRecord]
+                   ) -> tuple[list[tuple[float, int, int]], dict[str, int]]:
+    """The events (stamp, kind, index) in stamp order with a repeated stamp on a topic left out (the
+    first kept: a topic's stamps must increase), and how many each topic lost."""
+    last: dict[str, int] = {}
+    kept, repeated = [], {}
+    for t, kind, i in events:
+        ns, topic = _ns(t), scans[i].topic if kind == 0 else "/odom"
+        if last.get(topic) == ns:
+            repeated[topic] = repeated.get(topic, 0) + 1
+            continue
+        last[topic] = ns
+        kept.append((t, kind, i))
+    return kept, repeated

@@ -234,7 +234,10 @@ class _TickGate(_Gate):
         # ticks per metre of each wheel
         self.per_m = tuple(wheels.ticks_per_revolution / (2 * math.pi * r)
                            for r in (wheels.wheel_radius_left, wheels.wheel_radius_right))
-        self.offset = (0, 0)  # added to the counts read (python ints, as the int64 counts are)
+        # added to the counts read (python ints, as the int64 counts are); set at the first message to
+        # start the counts at 0: the prior integrates differences of counts held as int64 and float64,
+        # exact only below 2**53, and a counter that started near 2**63 overflowed int64 after a reset
+        self.offset: tuple[int, int] | None = None
         self.wraps = 0
 
     def _plausible(self, t0: float, c0: tuple[int, int], t1: float, c1: tuple[int, int]) -> bool:
@@ -242,6 +245,8 @@ class _TickGate(_Gate):
 
     def feed(self, t: float, left: int, right: int) -> tuple[int, int] | None:
         """The counts to integrate (unwrapped, rebased), or None to skip this message."""
+        if self.offset is None:
+            self.offset = (-left, -right)
         counts = (left + self.offset[0], right + self.offset[1])
         if self.last is None:
             return self._accept(t, counts)
@@ -571,25 +576,27 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
         raise LogError(f"{path}: no topic {scan}{reader.damage_note()}")
     if not topics[scan].endswith(("PointCloud2", "LaserScan")):
         raise LogError(f"{path}: {scan} is {topics[scan]}, not a PointCloud2 or LaserScan")
+    if scan.startswith(GROUND_TRUTH_PREFIX):
+        raise LogError(f"{path}: {scan} is ground truth, which estimation never reads; name the robot's own topic")
     if odom is not None:
-        if odom not in topics:
-            raise LogError(f"{path}: no topic {odom}{reader.damage_note()}")
-        _check_type(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
+        _check_named_topic(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
         return InputTopics(scan, None, odom)
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
     if ticks is None and topics.get("/odom", "").endswith("Odometry"):  # an imported or ROS log
         return InputTopics(scan, None, "/odom")
-    if ticks is not None and ticks not in topics:
-        raise LogError(f"{path}: no topic {ticks}{reader.damage_note()}")
     if ticks is not None:
-        _check_type(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
+        _check_named_topic(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
     return InputTopics(scan, ticks, None)
 
 
-def _check_type(reader: LogReader, topic: str, name: str, full: str) -> None:
-    """Refuse a motion-prior topic of another type than ``full`` (any package's ``name`` passes: the
-    fields are checked as the messages are read)."""
-    datatype = reader.topics[topic]
-    if datatype.rsplit("/", 1)[-1] != name:
-        raise LogError(f"{reader.path}: {topic} is {datatype or 'of no known type'}, not {full}")
+def _check_named_topic(reader: LogReader, topic: str, type_suffix: str, type_name: str) -> None:
+    """A motion-prior topic must exist, be of its type, and not be ground truth (which estimation never
+    reads: ``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
+    topics, path = reader.topics, reader.path
+    if topic not in topics:
+        raise LogError(f"{path}: no topic {topic}{reader.damage_note()}")
+    if topic.startswith(GROUND_TRUTH_PREFIX):
+        raise LogError(f"{path}: {topic} is ground truth, which estimation never reads; name the robot's own topic")
+    if topics[topic].rsplit("/", 1)[-1] != type_suffix:  # any package's type of that name: its fields are checked as read
+        raise LogError(f"{path}: {topic} is {topics[topic] or 'of no known type'}, not a {type_name}")

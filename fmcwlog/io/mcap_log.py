@@ -457,7 +457,8 @@ class LogReader:
         if self.path.is_dir():
             raise LogError(f"{self.path}: is a folder, not a log file")
         if not self.path.is_file():
-            raise LogError(f"{self.path}: no such file")
+            what = "no such file" if not self.path.exists() else "not a regular file (a pipe or a device): a log must be seekable"
+            raise LogError(f"{self.path}: {what}")
         self.contents = LogContents()
         self._decoders: dict[int, Any] = {}
         self._factory = DecoderFactory()

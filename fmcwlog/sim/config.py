@@ -100,6 +100,9 @@ class SimConfig:
         if self.sensor.min_range >= self.sensor.max_range:
             raise ConfigError(f"sensor.min_range = {self.sensor.min_range:g} m must be below "
                               f"sensor.max_range = {self.sensor.max_range:g} m")
+        if int(self.run.duration * self.sensor.scan_rate + 1e-9) < 1:  # the recorder's count of sweeps
+            raise ConfigError(f"run.duration = {self.run.duration:g} s is shorter than one sweep "
+                              f"(1 / sensor.scan_rate = {1 / self.sensor.scan_rate:g} s): the log would hold none")
         return self
 
     def toml(self) -> str:

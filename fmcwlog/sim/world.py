@@ -23,6 +23,7 @@ ends that the scanner sees, so that its length can be measured in a map.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -202,6 +203,8 @@ def _features(entries: list, source: str) -> list[Feature]:
         name = f.get("name", f"feature {i + 1}")
         if not isinstance(name, str):
             raise WorldError(f"{where}.name must be a string")
+        if not math.hypot(float(b[0]) - float(a[0]), float(b[1]) - float(a[1])) > 0:
+            raise WorldError(f"{where}: a and b are the same point (a feature's length must be positive)")
         features.append(Feature(fid, name, (float(a[0]), float(a[1])), (float(b[0]), float(b[1]))))
     if len({f.id for f in features}) != len(features):
         raise WorldError(f"{source}: feature ids must be unique")

@@ -371,3 +371,22 @@ def test_report_without_ground_truth_prints_how_far_the_methods_disagree(fleet, 
     assert res.returncode == 0, res.stderr
     rmse = float(next(line.split()[-1] for line in res.stdout.splitlines() if line.strip().startswith("rmse")))
     assert printed == pytest.approx(rmse, abs=0.0006)  # printed to the millimetre
+
+
+def test_a_batch_stopped_before_any_log_ended_leaves_no_folder_of_its_own(fleet, tmp_path, monkeypatch):
+    """Ctrl-C before the first log ends: the output folder the batch made is removed (it held nothing),
+    a folder that was there before is kept, and nothing is left in it."""
+    from fmcwlog.fleet import batch
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "run_local", interrupted)
+    logs = [fleet["good"]["logs-a"]]
+    with pytest.raises(KeyboardInterrupt):
+        api.process_many(logs, tmp_path / "new" / "out", jobs=1)
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        api.process_many(logs, tmp_path / "mine", jobs=1)
+    assert (tmp_path / "mine").is_dir() and not any((tmp_path / "mine").iterdir())

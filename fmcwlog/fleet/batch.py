@@ -142,20 +142,28 @@ def process_many(paths: Sequence[str | os.PathLike], out_dir: str | os.PathLike,
     out_dir = Path(out_dir)
     executor = "ray" if use_ray else "local"
     tasks, known, names = plan(paths, out_dir, options, force, jobs or default_jobs())
+    created = [d for d in (out_dir, *out_dir.parents) if not d.exists()]  # deepest first
     out_dir.mkdir(parents=True, exist_ok=True)
-    record = _Record(out_dir, options, executor)
-    for o in known:
-        record.add(o)
-    progress = Progress(tasks, on_progress, on_outcome=record.add)
     started = time.monotonic()
-    if not tasks:
-        ran: list[LogOutcome] = []
-    elif use_ray:
-        from .ray_executor import run_on_ray
+    try:
+        record = _Record(out_dir, options, executor)
+        for o in known:
+            record.add(o)
+        progress = Progress(tasks, on_progress, on_outcome=record.add)
+        if not tasks:
+            ran: list[LogOutcome] = []
+        elif use_ray:
+            from .ray_executor import run_on_ray
 
-        ran = run_on_ray(tasks, limits, ray_address, jobs, retries, progress)
-    else:
-        ran = run_local(tasks, limits, min(jobs or default_jobs(), len(tasks)), progress)
+            ran = run_on_ray(tasks, limits, ray_address, jobs, retries, progress)
+        else:
+            ran = run_local(tasks, limits, min(jobs or default_jobs(), len(tasks)), progress)
+    except BaseException:  # Ctrl-C before any log ended: leave no empty folder of ours (a finished log's stays, to resume)
+        for folder in created:
+            if any(folder.iterdir()):
+                break
+            folder.rmdir()
+        raise
     wall = time.monotonic() - started
     by_name = {o.name: o for o in (*known, *ran)}
     order = {name: i for i, name in enumerate(names)}

@@ -248,3 +248,26 @@ def test_force_never_replaces_a_pipe_or_a_device(tmp_path, log, command):
     code, _, err = run_cli_here(*args, "-o", str(target), "--force")
     assert_one_line_error(code, err, str(target), "not a regular file")
     assert stat.S_ISFIFO(target.lstat().st_mode)
+
+
+def test_a_read_only_file_system_is_named_on_the_output_not_its_temporary(tmp_path, monkeypatch):
+    """On a read-only file system even removing a file that is not there fails (EROFS before the
+    lookup); the clean-up once raised that, and the line named '.run1.partial-PID' instead of run1.
+    Simulated as the kernel does: under tmp_path, a new folder or any unlink refused with EROFS."""
+    import errno
+    import os
+
+    real_mkdir, real_unlink = Path.mkdir, Path.unlink
+
+    def refuse(real):
+        def call(self, *args, **kwargs):
+            if str(self).startswith(str(tmp_path)) and not (real is real_mkdir and self.exists()):
+                raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+            return real(self, *args, **kwargs)
+        return call
+
+    monkeypatch.setattr(Path, "mkdir", refuse(real_mkdir))
+    monkeypatch.setattr(Path, "unlink", refuse(real_unlink))
+    code, _, err = run_cli_here("run", "--duration", "1", "-o", str(tmp_path / "run1"))
+    line = assert_one_line_error(code, err, str(tmp_path / "run1"), "read-only file system")
+    assert ".partial-" not in line

@@ -18,6 +18,7 @@ listed there, and never a folder that holds one of the command's inputs
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -168,7 +169,8 @@ def created_parents(path: str | os.PathLike) -> Iterator[None]:
         yield
     except BaseException:
         # a writer that fails while it opens (an MCAP header on a full disk) never gets to remove its file
-        partial_path(path).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # a read-only file system refuses even this: keep the first error
+            partial_path(path).unlink(missing_ok=True)
         for p in missing:  # deepest first; each is empty unless someone else wrote there meanwhile
             try:
                 p.rmdir()

@@ -300,7 +300,7 @@ def test_a_topic_whose_schema_is_not_ros2msg_is_one_line_saying_so(short_logs, t
         w.finish()
     code, err = cli("process", str(log), "-o", str(tmp_path / "out"))
     judged(code, err, log, tmp_path / "out")
-    assert code == 2 and "'cdr' with a 'ros2idl' schema, expected 'cdr' with 'ros2msg'" in err, err
+    assert code == 2 and "as 'ros2idl', expected 'ros2msg'" in err, err
 
 
 def test_the_real_entry_point_gives_one_line_for_a_damaged_log(short_logs, tmp_path):
@@ -538,7 +538,8 @@ def test_a_cloud_without_point_times_gets_the_priors_motion_over_its_window(shor
 
     log = edited(short_logs, tmp_path, _cloud(set(range(30)), drop_t))
     est, warnings = process(log, tmp_path / "out", "improved")
-    assert est is not None and not warnings, warnings
+    untimed = "30 sweeps on /fmcw/points have no field 't'"  # said (test_contract); nothing else is
+    assert est is not None and [w for w in warnings if not w.startswith(untimed)] == [] and len(warnings) == 1, warnings
     truth = np.array([(m.log_time * 1e-9, msg.twist.twist.linear.x) for _, _, m, msg in decoded(log, ["/ground_truth/odom"])])
     rows = pd.read_parquet(tmp_path / "out" / "trajectories.parquet").query("method == 'improved'")
     assert len(rows) == 30

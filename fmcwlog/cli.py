@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -684,16 +686,37 @@ def _terminate(signum: int, frame: object) -> None:
     raise _Terminated
 
 
+def _deliver_again(previous: Callable[[Any], object]) -> Callable[[Any], None]:
+    """An unraisable-exception hook that raises a swallowed interrupt's signal once more.
+
+    A signal handler's exception lands in whatever bytecode runs, and where that is a callback
+    Python cannot raise from (an import lock's, a ``__del__``) it is printed as 'Exception
+    ignored' and the command went on to finish, exit 0 and replace the output it was told to
+    stop writing (seen under load: SIGTERM mid-import). The signal is sent again from a timer
+    thread 10 ms later, when the main thread has left that callback (raised from here, its
+    handler would run inside the hook, and be ignored again); should it land in one again,
+    this repeats."""
+    def hook(unraisable: Any) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            signum = signal.SIGTERM if isinstance(unraisable.exc_value, _Terminated) else signal.SIGINT
+            threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
+        else:
+            previous(unraisable)
+    return hook
+
+
 @contextlib.contextmanager
 def _sigterm_as_interrupt() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGTERM, _terminate)
+    old, old_hook = signal.signal(signal.SIGTERM, _terminate), sys.unraisablehook
+    sys.unraisablehook = _deliver_again(old_hook)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, old)
+        sys.unraisablehook = old_hook
 
 
 def main() -> None:

@@ -271,3 +271,30 @@ def test_a_read_only_file_system_is_named_on_the_output_not_its_temporary(tmp_pa
     code, _, err = run_cli_here("run", "--duration", "1", "-o", str(tmp_path / "run1"))
     line = assert_one_line_error(code, err, str(tmp_path / "run1"), "read-only file system")
     assert ".partial-" not in line
+
+
+def test_an_interrupt_swallowed_where_it_landed_is_delivered_again(tmp_path):
+    """A signal handler's exception raised inside a callback Python cannot raise from (an import
+    lock's, a weakref's) is 'ignored', and SIGTERM mid-import once let a --force run finish and
+    replace the output (exit 0). The CLI's hook sends the signal again once the callback is left."""
+    import subprocess
+    import sys
+
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import time, weakref\n"
+        "from fmcwlog import cli\n"
+        "class X: pass\n"
+        "try:\n"
+        "    with cli._sigterm_as_interrupt():\n"
+        "        x = X()\n"
+        "        ref = weakref.ref(x, lambda r: cli._terminate(15, None))  # the handler, run in the callback\n"
+        "        del x\n"
+        "        t = time.time()\n"
+        "        while time.time() - t < 30:\n"
+        "            pass\n"
+        "    print('went on')\n"
+        "except cli._Terminated:\n"
+        "    print('terminated')\n")
+    ran = subprocess.run([sys.executable, str(probe)], capture_output=True, text=True, timeout=120)
+    assert (ran.returncode, ran.stdout, ran.stderr) == (0, "terminated\n", "")

@@ -181,6 +181,23 @@ def test_running_it_again_skips_the_complete_logs(fleet, local_batch):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
 
 
+def test_batch_json_lists_its_logs_by_name_whatever_order_they_ended_in(tmp_path):
+    """Workers end in the order their timing gives, and a resumed batch starts from the earlier
+    batch.json: the file must not carry either order (the same batch, the same file)."""
+    from fmcwlog.fleet.batch import _Record
+    from fmcwlog.fleet.tasks import LogOutcome
+
+    first = _Record(tmp_path, api.ProcessOptions(), "local")
+    for name in ("zeta", "alpha"):  # the short log ended first
+        first.add(LogOutcome(name, tmp_path / f"{name}.mcap", "done", sweeps=3))
+    again = _Record(tmp_path, api.ProcessOptions(), "local")  # the same command run again
+    again.add(LogOutcome("mid", tmp_path / "mid.mcap", "done"))
+    again.add(LogOutcome("alpha", tmp_path / "alpha.mcap", "skipped", reason="complete"))
+    text = (tmp_path / "batch.json").read_text()
+    assert list(json.loads(text)["logs"]) == ["alpha", "mid", "zeta"]
+    assert text.index('"alpha"') < text.index('"mid"') < text.index('"zeta"')
+
+
 def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     name, log = next(iter(fleet["good"].items()))
     ref, opts = fleet["ref"] / name, api.ProcessOptions()

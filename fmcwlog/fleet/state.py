@@ -110,8 +110,11 @@ def read_batch(out_root: Path) -> dict[str, Any]:
 
 
 def write_batch(out_root: Path, doc: dict[str, Any]) -> None:
+    """Write ``doc`` with its logs in name order: outcomes arrive as the workers end, and an
+    earlier batch.json kept the order of its own run, so the order they came in is the timing's,
+    not the batch's (the same batch would otherwise list its logs differently run to run)."""
     out_root.mkdir(parents=True, exist_ok=True)
-    write_json(out_root / BATCH_FILE, doc)
+    write_json(out_root / BATCH_FILE, {**doc, "logs": dict(sorted(doc["logs"].items()))})
 
 
 def is_batch_folder(out_dir: Path) -> bool:

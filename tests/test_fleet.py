@@ -213,6 +213,29 @@ def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     assert completeness(tmp_path / "absent", log, options_digest(opts))[0] is False
 
 
+CALIBRATION = {"wheel_radius_left": 0.1, "wheel_radius_right": 0.1, "track_width": 0.45, "ticks_per_revolution": 4096,
+               "lidar_x": 0.35, "lidar_y": 0.0, "lidar_yaw": 0.0}
+
+
+def test_a_calibration_file_edited_in_place_is_a_change_of_options(tmp_path):
+    """--calibration names a file: the results depend on its bytes, so a batch run again after
+    the file was edited redoes the log (it used to skip it: the digest held only the path),
+    and the same bytes at another path change nothing."""
+    log = _record(tmp_path / "logs" / "a.mcap", "corridor", 3.0, 0)
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("".join(f"{k}: {v}\n" for k, v in CALIBRATION.items()))
+    out = tmp_path / "out"
+    first = api.process_many([log], out, api.ProcessOptions(calibration=cal), jobs=1)
+    assert first.count("done") == 1
+    cal.write_text("".join(f"{k}: {0.40 if k == 'lidar_x' else v}\n" for k, v in CALIBRATION.items()))
+    again = api.process_many([log], out, api.ProcessOptions(calibration=cal), jobs=1)
+    assert again.count("done") == 1, [o.reason for o in again.outcomes]
+    assert json.loads((out / "a" / "run.json").read_text())["mount"][0] == 0.40
+    moved = tmp_path / "elsewhere.yaml"
+    moved.write_bytes(cal.read_bytes())
+    assert api.process_many([log], out, api.ProcessOptions(calibration=moved), jobs=1).count("skipped") == 1
+
+
 def test_the_fleet_page_has_a_row_per_log_and_flags_the_failed_ones(fleet, local_batch):
     out, _, _ = local_batch
     ran = CliRunner().invoke(cli, ["report", str(out)])  # in this process: the reports are the slow part

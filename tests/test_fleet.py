@@ -236,6 +236,24 @@ def test_a_calibration_file_edited_in_place_is_a_change_of_options(tmp_path):
     assert api.process_many([log], out, api.ProcessOptions(calibration=moved), jobs=1).count("skipped") == 1
 
 
+def test_a_log_renamed_by_a_newcomer_with_its_stem_is_resumed_not_doubled(tmp_path):
+    """day1/run.mcap's results are OUT/run until day2/run.mcap arrives; then the names are
+    day1-run and day2-run. The batch run again must hold what a fresh batch of both holds (it
+    redid day1 beside the old folder, and the fleet page counted that log twice)."""
+    first_log = _record(tmp_path / "logs" / "day1" / "run.mcap", "corridor", 3.0, 0)
+    out = tmp_path / "out"
+    assert api.process_many([tmp_path / "logs"], out, jobs=1).count("done") == 1
+    made = (out / "run" / "run.json").stat()
+    _record(tmp_path / "logs" / "day2" / "run.mcap", "corridor", 3.0, 1)
+    again = api.process_many([tmp_path / "logs"], out, jobs=1)
+    assert {o.name: o.status for o in again.outcomes} == {"day1-run": "skipped", "day2-run": "done"}
+    assert sorted(p.name for p in out.iterdir()) == ["batch.json", "day1-run", "day2-run"]
+    assert (out / "day1-run" / "run.json").stat().st_mtime_ns == made.st_mtime_ns  # the same results, moved
+    assert json.loads((out / "day1-run" / "run.json").read_text())["log"] == str(first_log.resolve())
+    assert sorted(json.loads((out / "batch.json").read_text())["logs"]) == ["day1-run", "day2-run"]
+    assert [r["name"] for r in api.report_fleet(out)["logs"]] == ["day1-run", "day2-run"]
+
+
 def test_the_fleet_page_has_a_row_per_log_and_flags_the_failed_ones(fleet, local_batch):
     out, _, _ = local_batch
     ran = CliRunner().invoke(cli, ["report", str(out)])  # in this process: the reports are the slow part

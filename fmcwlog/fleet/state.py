@@ -67,6 +67,45 @@ def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, s
     return True, "complete"
 
 
+def follow_renamed(out_root: Path, logs: list[Path], names: list[str]) -> list[tuple[Path, Path]]:
+    """Move the results of a log whose name changed since an earlier run to its new name.
+
+    A log's name is its stem until another log of the batch shares it (``run`` becomes
+    ``day1-run`` once ``day2/run.mcap`` arrives). Its earlier folder, an fmcwlog output whose
+    ``run.json`` names this very file, is renamed to the new name (and its batch.json entry
+    dropped), so that running the batch again resumes it instead of redoing it beside the old
+    folder: the batch then holds what a fresh one would, not the same log twice. Returns the
+    moves made (from, to)."""
+    if not out_root.is_dir():
+        return []
+    current = set(names)
+    earlier: dict[str, Path] = {}
+    for folder in sorted(out_root.iterdir()):
+        if folder.name in current or folder.name.startswith(".") or not is_fmcwlog_output(folder):
+            continue
+        try:
+            made_from = json.loads((folder / "run.json").read_text()).get("log")
+        except (OSError, json.JSONDecodeError, AttributeError):
+            continue
+        if isinstance(made_from, str):
+            earlier.setdefault(made_from, folder)
+    moves = []
+    for log, name in zip(logs, names):
+        old, new = earlier.get(str(log.resolve())), out_root / name
+        if old is not None and not new.exists():
+            try:
+                old.rename(new)
+            except OSError:  # left where it is: the log is done again under its new name, as before
+                continue
+            moves.append((old, new))
+    if moves:
+        doc = read_batch(out_root)
+        for old, _ in moves:
+            doc["logs"].pop(old.name, None)
+        write_batch(out_root, doc)
+    return moves
+
+
 def is_fmcwlog_output(out_dir: Path) -> bool:
     """An existing folder that ``fmcwlog process`` wrote (its marker says so), which it may replace
     (:func:`fmcwlog.io.atomic.check_output_folder` still refuses one holding anything else)."""

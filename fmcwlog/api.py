@@ -175,7 +175,9 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     fmcwlog made, but never one holding anything else or the log itself
     (:func:`fmcwlog.io.atomic.check_output_folder`). ``jobs``: 1 runs every method in this
     process; otherwise (None: where two or more CPUs are usable) the methods after the first
-    run in a child process (:mod:`fmcwlog.parallel_methods`). The outputs are the same bytes.
+    run in a child process (:mod:`fmcwlog.parallel_methods`). The outputs are the same bytes but
+    the timings (the parquet's ``ms``, ``run.json``'s ``wall_seconds``, ``ms_per_sweep_median`` and
+    the back ends' ``seconds``).
     """
     from .allocator import keep_freed_memory
     from .frontend.runner import LogRunner

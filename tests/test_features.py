@@ -14,6 +14,7 @@ Two kinds of maps of the ``corridor`` floor (the paper's nine features):
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -151,6 +152,9 @@ def test_a_feature_the_map_does_not_show_is_not_measured(tmp_path):
     rows = _measure(_rasterised(tmp_path / "no-niche", walls, np.zeros(3), poses), poses)
     assert rows[1]["measured_m"] is None and not rows[1]["measurable"]
     assert "end a: no wall evidence" in rows[1]["reason"] and "end b: no wall evidence" in rows[1]["reason"]
+    # a wall with no cells has no residual: null, as report.json's every unknown (JSON has no NaN)
+    assert [w["rms_m"] for w in rows[1]["end_a"]["walls"] if w["cells"] == 0] == [None]
+    json.dumps(rows, allow_nan=False)
     assert all(rows[i]["measured_m"] is not None for i in range(2, 10))
 
     doubled = np.vstack([WALLS, [[W + 0.3, 0.0, W + 0.3, 6.0]]])  # the east outer wall drawn twice near (W, 0)

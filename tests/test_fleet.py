@@ -181,6 +181,23 @@ def test_running_it_again_skips_the_complete_logs(fleet, local_batch):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
 
 
+def test_batch_json_lists_its_logs_by_name_whatever_order_they_ended_in(tmp_path):
+    """Workers end in the order their timing gives, and a resumed batch starts from the earlier
+    batch.json: the file must not carry either order (the same batch, the same file)."""
+    from fmcwlog.fleet.batch import _Record
+    from fmcwlog.fleet.tasks import LogOutcome
+
+    first = _Record(tmp_path, api.ProcessOptions(), "local")
+    for name in ("zeta", "alpha"):  # the short log ended first
+        first.add(LogOutcome(name, tmp_path / f"{name}.mcap", "done", sweeps=3))
+    again = _Record(tmp_path, api.ProcessOptions(), "local")  # the same command run again
+    again.add(LogOutcome("mid", tmp_path / "mid.mcap", "done"))
+    again.add(LogOutcome("alpha", tmp_path / "alpha.mcap", "skipped", reason="complete"))
+    text = (tmp_path / "batch.json").read_text()
+    assert list(json.loads(text)["logs"]) == ["alpha", "mid", "zeta"]
+    assert text.index('"alpha"') < text.index('"mid"') < text.index('"zeta"')
+
+
 def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     name, log = next(iter(fleet["good"].items()))
     ref, opts = fleet["ref"] / name, api.ProcessOptions()
@@ -194,6 +211,47 @@ def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     other = api.ProcessOptions(params=api.FrontEndParams(min_range=0.4))
     assert completeness(ref, log, options_digest(other)) == (False, "the options changed")
     assert completeness(tmp_path / "absent", log, options_digest(opts))[0] is False
+
+
+CALIBRATION = {"wheel_radius_left": 0.1, "wheel_radius_right": 0.1, "track_width": 0.45, "ticks_per_revolution": 4096,
+               "lidar_x": 0.35, "lidar_y": 0.0, "lidar_yaw": 0.0}
+
+
+def test_a_calibration_file_edited_in_place_is_a_change_of_options(tmp_path):
+    """--calibration names a file: the results depend on its bytes, so a batch run again after
+    the file was edited redoes the log (it used to skip it: the digest held only the path),
+    and the same bytes at another path change nothing."""
+    log = _record(tmp_path / "logs" / "a.mcap", "corridor", 3.0, 0)
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("".join(f"{k}: {v}\n" for k, v in CALIBRATION.items()))
+    out = tmp_path / "out"
+    first = api.process_many([log], out, api.ProcessOptions(calibration=cal), jobs=1)
+    assert first.count("done") == 1
+    cal.write_text("".join(f"{k}: {0.40 if k == 'lidar_x' else v}\n" for k, v in CALIBRATION.items()))
+    again = api.process_many([log], out, api.ProcessOptions(calibration=cal), jobs=1)
+    assert again.count("done") == 1, [o.reason for o in again.outcomes]
+    assert json.loads((out / "a" / "run.json").read_text())["mount"][0] == 0.40
+    moved = tmp_path / "elsewhere.yaml"
+    moved.write_bytes(cal.read_bytes())
+    assert api.process_many([log], out, api.ProcessOptions(calibration=moved), jobs=1).count("skipped") == 1
+
+
+def test_a_log_renamed_by_a_newcomer_with_its_stem_is_resumed_not_doubled(tmp_path):
+    """day1/run.mcap's results are OUT/run until day2/run.mcap arrives; then the names are
+    day1-run and day2-run. The batch run again must hold what a fresh batch of both holds (it
+    redid day1 beside the old folder, and the fleet page counted that log twice)."""
+    first_log = _record(tmp_path / "logs" / "day1" / "run.mcap", "corridor", 3.0, 0)
+    out = tmp_path / "out"
+    assert api.process_many([tmp_path / "logs"], out, jobs=1).count("done") == 1
+    made = (out / "run" / "run.json").stat()
+    _record(tmp_path / "logs" / "day2" / "run.mcap", "corridor", 3.0, 1)
+    again = api.process_many([tmp_path / "logs"], out, jobs=1)
+    assert {o.name: o.status for o in again.outcomes} == {"day1-run": "skipped", "day2-run": "done"}
+    assert sorted(p.name for p in out.iterdir()) == ["batch.json", "day1-run", "day2-run"]
+    assert (out / "day1-run" / "run.json").stat().st_mtime_ns == made.st_mtime_ns  # the same results, moved
+    assert json.loads((out / "day1-run" / "run.json").read_text())["log"] == str(first_log.resolve())
+    assert sorted(json.loads((out / "batch.json").read_text())["logs"]) == ["day1-run", "day2-run"]
+    assert [r["name"] for r in api.report_fleet(out)["logs"]] == ["day1-run", "day2-run"]
 
 
 def test_the_fleet_page_has_a_row_per_log_and_flags_the_failed_ones(fleet, local_batch):

@@ -53,7 +53,7 @@ A row (``report.json``: ``methods.<method>.features``)
     ``reason`` (why not, per end); ``end_a``/``end_b``: ``kind`` (corner, wall end),
     ``expected_xy`` (where the search was placed) and ``xy`` (what the map shows), both in
     ``<method>/odom`` (m), ``reason``, and per fitted wall its ``direction``, ``cells``
-    (inliers) and ``rms_m`` (perpendicular RMS residual); :mod:`.evaluate` adds
+    (inliers) and ``rms_m`` (perpendicular RMS residual; None without inliers); :mod:`.evaluate` adds
     ``abs_error_m`` and ``rel_error_pct``.
 
 The previous measure is dropped
@@ -183,8 +183,9 @@ def measure_end(cells: np.ndarray, point: np.ndarray, shape: EndShape, world_to_
     else:
         fits = [fit_wall(cells, expected, *arms[0], search)]
         xy, reason = wall_end(fits[0], expected, search)
-    out["walls"] = [{"direction": f.direction.tolist(), "cells": f.n, "rms_m": f.rms, "reason": f.reason}
-                    for f in fits]
+    # no cells, no residual: null (JSON has no NaN; a strict reader refuses the whole report)
+    out["walls"] = [{"direction": f.direction.tolist(), "cells": f.n, "rms_m": f.rms if np.isfinite(f.rms) else None,
+                     "reason": f.reason} for f in fits]
     out["xy"], out["reason"] = (None if xy is None else xy.tolist()), reason
     return out
 

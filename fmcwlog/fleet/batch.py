@@ -29,6 +29,7 @@ from .progress import Progress
 from .state import (
     BATCH_SCHEMA,
     completeness,
+    follow_renamed,
     is_fmcwlog_output,
     options_digest,
     read_batch,
@@ -92,6 +93,8 @@ def plan(paths: Sequence[str | os.PathLike], out_dir: Path, options: Any, force:
     removed = remove_stale_partials(out_dir, set(names))
     for p in removed:
         logger.info("removed %s, left by a worker that no longer runs", p)
+    for old, new in follow_renamed(out_dir, logs, names):
+        logger.info("moved %s to %s: another log now shares its name", old, new)
 
     def decide(item: tuple[Path, str]) -> LogTask | LogOutcome:
         log, name = item

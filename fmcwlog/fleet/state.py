@@ -35,9 +35,20 @@ BATCH_SCHEMA = "fmcwlog.batch/1"
 
 def options_digest(opts: ProcessOptions) -> str:
     """SHA-256 of everything that shapes the results: methods, topics, every parameter, the
-    publishing period and fmcwlog's version (new code may give different results)."""
+    publishing period, the calibration file's bytes (``--calibration``: a file edited in place
+    gives other results; the same bytes elsewhere, the same) and fmcwlog's version (new code
+    may give different results)."""
     doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
+    if opts.calibration is not None:
+        doc["calibration"] = _file_digest(Path(opts.calibration))
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    try:
+        return "sha256:" + file_sha256(path)
+    except OSError:  # unreadable: processing says so, naming the file; the digest only has to differ
+        return f"unreadable: {path}"
 
 
 def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, str]:
@@ -54,6 +65,45 @@ def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, s
     if run.get("log_size_bytes") != log.stat().st_size or run.get("log_sha256") != file_sha256(log):
         return False, "the log changed"
     return True, "complete"
+
+
+def follow_renamed(out_root: Path, logs: list[Path], names: list[str]) -> list[tuple[Path, Path]]:
+    """Move the results of a log whose name changed since an earlier run to its new name.
+
+    A log's name is its stem until another log of the batch shares it (``run`` becomes
+    ``day1-run`` once ``day2/run.mcap`` arrives). Its earlier folder, an fmcwlog output whose
+    ``run.json`` names this very file, is renamed to the new name (and its batch.json entry
+    dropped), so that running the batch again resumes it instead of redoing it beside the old
+    folder: the batch then holds what a fresh one would, not the same log twice. Returns the
+    moves made (from, to)."""
+    if not out_root.is_dir():
+        return []
+    current = set(names)
+    earlier: dict[str, Path] = {}
+    for folder in sorted(out_root.iterdir()):
+        if folder.name in current or folder.name.startswith(".") or not is_fmcwlog_output(folder):
+            continue
+        try:
+            made_from = json.loads((folder / "run.json").read_text()).get("log")
+        except (OSError, json.JSONDecodeError, AttributeError):
+            continue
+        if isinstance(made_from, str):
+            earlier.setdefault(made_from, folder)
+    moves = []
+    for log, name in zip(logs, names):
+        old, new = earlier.get(str(log.resolve())), out_root / name
+        if old is not None and not new.exists():
+            try:
+                old.rename(new)
+            except OSError:  # left where it is: the log is done again under its new name, as before
+                continue
+            moves.append((old, new))
+    if moves:
+        doc = read_batch(out_root)
+        for old, _ in moves:
+            doc["logs"].pop(old.name, None)
+        write_batch(out_root, doc)
+    return moves
 
 
 def is_fmcwlog_output(out_dir: Path) -> bool:
@@ -110,8 +160,11 @@ def read_batch(out_root: Path) -> dict[str, Any]:
 
 
 def write_batch(out_root: Path, doc: dict[str, Any]) -> None:
+    """Write ``doc`` with its logs in name order: outcomes arrive as the workers end, and an
+    earlier batch.json kept the order of its own run, so the order they came in is the timing's,
+    not the batch's (the same batch would otherwise list its logs differently run to run)."""
     out_root.mkdir(parents=True, exist_ok=True)
-    write_json(out_root / BATCH_FILE, doc)
+    write_json(out_root / BATCH_FILE, {**doc, "logs": dict(sorted(doc["logs"].items()))})
 
 
 def is_batch_folder(out_dir: Path) -> bool:

@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import ate_rmse, copy_log, ground_truth, record_small_ring, tum
 
 from fmcwlog.api import ProcessOptions, process
-
-from helpers import ate_rmse, copy_log, ground_truth, record_small_ring, tum
 
 COVERED = range(60, 65)  # half a second, on the straight before the corner
 

@@ -289,7 +289,10 @@ class FrontEnd(ABC):
 
         pose_cov = None
         searched = recovered = False
-        if self.map.tree is None or len(self.map) < p.icp.min_correspondences:
+        if self.map.tree is None or min(len(self.map), len(source)) < p.icp.min_correspondences:
+            # No map yet, or too few points left to match (the window covered, every return on a
+            # mover or inside the body mask): the ICP could not reach its minimum of pairs and the
+            # correlative search has nothing to place, so the motion prior stands for this sweep.
             pose, iterations, kept = motion.predicted, 0, 0
         else:
             res, searched, recovered = self._register_or_recover(source, motion, ts)
@@ -409,7 +412,11 @@ class ImprovedFrontEnd(FrontEnd):
         expected = None
         if prior_twist is not None and all(np.isfinite(prior_twist)):
             expected = self.design @ np.asarray(prior_twist, dtype=float)
-        ego = fit_sensor_velocity(sweep.xy, sweep.velocity, random_state=p.seed, prior=expected,
+        # returns inside the body mask are the robot itself (or a cover on the window): they move with
+        # the sensor, Doppler 0 whatever the motion, so they are no evidence of it
+        inside = (sweep.xy[:, 0] ** 2 + sweep.xy[:, 1] ** 2) < p.min_range**2
+        v_r = np.where(inside, np.nan, sweep.velocity) if inside.any() else sweep.velocity
+        ego = fit_sensor_velocity(sweep.xy, v_r, random_state=p.seed, prior=expected,
                                   prior_gate=p.doppler_prior_gate, bearings=bearings)
         self._raw_fit = ego.unconstrained or ego
         decision = self.checks.judge(sweep.stamp_ns * 1e-9, sweep.xy, ego, prior_twist)

@@ -8,8 +8,8 @@ writes one table, averaged over the seeds, as Markdown and JSON. Then it
 measures how `process` scales with the log's length.
 
     pip install -e '.[bench]'
-    python bench/suite.py              # 4 scenarios x 3 seeds x 2 min + scaling 1/5/20 min (~12 min)
-    python bench/suite.py --quick      # 4 scenarios x 1 seed x 20 s + scaling 0.25/0.5/1 min (< 2 min)
+    python bench/suite.py              # every scenario (6) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
+    python bench/suite.py --quick      # every scenario x 1 seed x 20 s + scaling 0.25/0.5/1 min (~1.5 min)
 
 Writes bench/results/suite.md and suite.json (or --out DIR).
 """

@@ -8,6 +8,7 @@ log itself: a recording of D seconds at the LiDAR's 10 Hz has 10·D sweeps.
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 import sys
@@ -44,3 +45,15 @@ def test_suite_scaling_counts_and_times_the_improved_sweeps_only(tmp_path):
     assert int(row.group(1)) == round(seconds * SCAN_RATE_HZ)
     median, p95 = float(row.group(2)), float(row.group(3))
     assert math.isfinite(median) and math.isfinite(p95) and 0 < median <= p95
+
+
+def test_backend_targets_without_the_shared_datasets_is_one_line(tmp_path):
+    # a checkout with no ../shared beside it: the script's own copy in such a tree
+    bench = tmp_path / "checkout" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "backend_targets.py").write_text((ROOT / "bench" / "backend_targets.py").read_text())
+    res = subprocess.run([sys.executable, str(bench / "backend_targets.py"), "--only", "intel"], capture_output=True,
+                         text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(tmp_path / "shared" / "datasets") in lines[0], res.stderr

@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_RATE_HZ = 10.0  # the simulated LiDAR's default (README, "What is simulated")
 
@@ -57,3 +59,15 @@ def test_backend_targets_without_the_shared_datasets_is_one_line(tmp_path):
     assert res.returncode != 0
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and str(tmp_path / "shared" / "datasets") in lines[0], res.stderr
+
+
+@pytest.mark.parametrize("script, args", [("feature_floor.py", ()), ("killian_log.py", ("--help",))])
+def test_bench_scripts_measure_their_own_checkout(tmp_path, script, args):
+    # an installed fmcwlog other than this checkout's (a venv's editable install of another tree)
+    fake = tmp_path / "elsewhere" / "fmcwlog"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('the installed fmcwlog, not this checkout')\n")
+    res = subprocess.run([sys.executable, str(ROOT / "bench" / script), *args], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(fake.parent)})
+    assert "not this checkout" not in res.stderr
+    assert "Traceback" not in res.stderr, res.stderr

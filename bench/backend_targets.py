@@ -76,6 +76,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", choices=["intel", *SCENARIO_SECONDS])
     args = ap.parse_args()
+    if args.only in (None, "intel") and not DATASETS.is_dir():
+        sys.exit(f"backend_targets: error: {DATASETS}: no such folder (the Intel subset is read from "
+                 "../shared/datasets beside this checkout); --only ring, corridor or long-corridor need none")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         if args.only in (None, "intel"):

@@ -29,7 +29,9 @@ log, out, method = sys.argv[1:4]
 t0 = time.perf_counter()
 process_log(log, out, ProcessOptions(methods=(method,)))
 wall = time.perf_counter() - t0
-ms = pq.read_table(out + "/trajectories.parquet").column("ms").to_numpy()
+table = pq.read_table(out + "/trajectories.parquet", columns=["method", "ms"])
+# the method's own rows: the file also holds wheel_odometry's, whose ms is null
+ms = table.column("ms").to_numpy(zero_copy_only=False)[table.column("method").to_numpy(zero_copy_only=False) == method]
 print(json.dumps({"sweeps": int(ms.size), "ms_median": float(np.median(ms)), "ms_p95": float(np.percentile(ms, 95)),
                   "wall_s": wall, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """

@@ -8,10 +8,14 @@ map (with and without a reused GMM), and the sum of the stages.
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's fmcwlog, not an installed one
 
 from fmcwlog.frontend.deskew import deskew, se2_exp
 from fmcwlog.frontend.egomotion import (

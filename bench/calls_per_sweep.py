@@ -3,7 +3,7 @@
 The front end is stages of numpy calls on sweep-sized arrays, so its floor is the number of calls
 times what one costs, whatever the arithmetic. The counts come from ``cProfile`` enabled only
 inside :meth:`fmcwlog.frontend.methods.FrontEnd.step` (counts, not times: the same on any machine
-for the same log and code); the per-call costs from ``timeit`` (best of 7) on 1,000-point arrays,
+for the same log and code); the per-call costs from ``timeit`` (the best of 300 windows of 100 calls) on 1,000-point arrays,
 a sweep's size. Compare the product with KISS-ICP's whole sweep (``bench/speed.py``).
 
     python bench/calls_per_sweep.py                     # 20 s crowd and 120 s corridor, both methods
@@ -57,7 +57,11 @@ def count_calls(log: str, method: str) -> dict:
 
 
 def numpy_call_costs() -> dict[str, float]:
-    """Microseconds a call, best of 7, on 1,000-point float64 arrays."""
+    """Microseconds a call, the best of 300 windows of 100 calls, on 1,000-point float64 arrays.
+
+    Short windows, many of them: on a shared machine the best of 7 windows of 20,000 calls (50 ms
+    each) was always stretched by the neighbours (np.add 2.4-3.0 us at load 6-7 on 2 cores), while
+    the best short window finds the uncontended cost (0.78 us in the same minute)."""
     import numpy as np
 
     rng = np.random.default_rng(0)
@@ -66,7 +70,7 @@ def numpy_call_costs() -> dict[str, float]:
     env = {"np": np, "a": a, "b": b, "idx": idx, "mask": mask}
     cases = {"np.add(a, b)": "np.add(a, b)", "np.take(a, idx)": "np.take(a, idx)",
              "a[mask]": "a[mask]", "a.sum()": "a.sum()"}
-    return {name: min(timeit.repeat(stmt, globals=env, number=20000, repeat=7)) / 20000 * 1e6
+    return {name: min(timeit.repeat(stmt, globals=env, number=100, repeat=300)) / 100 * 1e6
             for name, stmt in cases.items()}
 
 

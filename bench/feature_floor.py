@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's fmcwlog, not an installed one
+
 from fmcwlog.evaluation.features import feature_lengths
 from fmcwlog.evaluation.ground_truth import read_ground_truth, read_point_labels, read_world
 from fmcwlog.frontend.occupancy import OccupancyGrid

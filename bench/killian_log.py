@@ -32,10 +32,13 @@ from __future__ import annotations
 
 import argparse
 import lzma
+import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's fmcwlog, not an installed one
 
 from fmcwlog.api import import_carmen
 from fmcwlog.geometry import between, compose

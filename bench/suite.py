@@ -8,8 +8,8 @@ writes one table, averaged over the seeds, as Markdown and JSON. Then it
 measures how `process` scales with the log's length.
 
     pip install -e '.[bench]'
-    python bench/suite.py              # 4 scenarios x 3 seeds x 2 min + scaling 1/5/20 min (~12 min)
-    python bench/suite.py --quick      # 4 scenarios x 1 seed x 20 s + scaling 0.25/0.5/1 min (< 2 min)
+    python bench/suite.py              # every scenario (6) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
+    python bench/suite.py --quick      # every scenario x 1 seed x 20 s + scaling 0.25/0.5/1 min (~1.5 min)
 
 Writes bench/results/suite.md and suite.json (or --out DIR).
 """
@@ -117,7 +117,9 @@ def scaling(minutes: list[float], tmp: Path) -> list[dict]:
         wall = time.perf_counter() - t0
         import pyarrow.parquet as pq
 
-        ms = pq.read_table(out / "trajectories.parquet").column("ms").to_numpy()
+        table = pq.read_table(out / "trajectories.parquet", columns=["method", "ms"])
+        # the improved method's rows: the file also holds wheel_odometry's, whose ms is null
+        ms = table.column("ms").to_numpy(zero_copy_only=False)[table.column("method").to_numpy(zero_copy_only=False) == "improved"]
         rows.append({"minutes": m, "sweeps": int(ms.size), "ms_per_sweep_median": float(np.median(ms)),
                      "ms_per_sweep_p95": float(np.percentile(ms, 95)), "wall_s": wall, "peak_rss_mb": peak})
         print(f"  scaling {m:g} min: {rows[-1]['ms_per_sweep_median']:.2f} ms/sweep, {peak:.0f} MB", flush=True)

@@ -259,23 +259,32 @@ def test_a_calibration_record_without_the_mount_is_said_naming_the_keys(crowd_lo
                     "origin, facing forward)"]
 
 
+def _rewritten(src: Path, dst: Path, edit) -> Path:
+    """``src`` written again by mcap_ros2's writer (not fmcwlog's), its metadata as they were and each
+    message through ``edit(topic, schema_name, schema_text, msg, log_time)``, which returns the four
+    to write (publish_time = log_time)."""
+    with open(dst, "wb") as fh:
+        w = Writer(fh)
+        schemas: dict[str, object] = {}
+        for name, values in _metadata(src).items():
+            w.add_metadata(name, values)
+        for schema, channel, message, msg in decoded(src):
+            name, text, out, log_time = edit(channel.topic, schema.name, schema.data.decode(), msg, message.log_time)
+            if name not in schemas:
+                schemas[name] = w.register_msgdef(name, text)
+            w.write_message(channel.topic, schemas[name], out, log_time=log_time, publish_time=log_time)
+        w.finish()
+    return dst
+
+
 def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crowd_log, tmp_path):
     """LOG_FORMAT.md: a message's log_time equals its header.stamp. A writer that logs receive times
     (sweeps 80 ms late) gets a warning from process, which goes by header.stamp, and a report error
     that says so (it said the log, whose sha256 run.json holds, 'does not belong' to its outputs)."""
-    late = tmp_path / "late.mcap"
-    with open(late, "wb") as fh:
-        w = Writer(fh)
-        schemas: dict[str, object] = {}
-        for name, values in _metadata(crowd_log).items():
-            w.add_metadata(name, values)
-        for schema, channel, message, msg in decoded(crowd_log):
-            if schema.name not in schemas:
-                schemas[schema.name] = w.register_msgdef(schema.name, schema.data.decode())
-            shift = 80_000_000 if channel.topic == "/fmcw/points" else 0
-            w.write_message(channel.topic, schemas[schema.name], msg, log_time=message.log_time + shift,
-                            publish_time=message.log_time + shift)
-        w.finish()
+    def receive_times(topic, name, text, msg, log_time):
+        return name, text, msg, log_time + (80_000_000 if topic == "/fmcw/points" else 0)
+
+    late = _rewritten(crowd_log, tmp_path / "late.mcap", receive_times)
     sweeps = sum(1 for _ in decoded(late, ["/fmcw/points"]))
     out = tmp_path / "out"
     said = [w for w in _baseline_warnings(late, out) if "log_time" in w]
@@ -293,23 +302,15 @@ def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crow
 def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, tmp_path, type_name, words):
     """LOG_FORMAT.md fixes /wheel/ticks as fmcwlog_msgs/msg/WheelTicks (int64 left, right). Encoder
     counts of another type, or under that name with other fields, were a traceback (AttributeError)."""
-    log = tmp_path / "encoders.mcap"
-    with open(log, "wb") as fh:
-        w = Writer(fh)
-        schemas: dict[str, object] = {}
-        for name, values in _metadata(crowd_log).items():
-            w.add_metadata(name, values)
-        for schema, channel, message, msg in decoded(crowd_log):
-            name, text, out = schema.name, schema.data.decode(), msg
-            if channel.topic == "/wheel/ticks":
-                name = type_name
-                text = text.replace("int64 left", "int32 left_ticks").replace("int64 right", "int32 right_ticks")
-                out = {"header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec},
-                                  "frame_id": msg.header.frame_id}, "left_ticks": msg.left, "right_ticks": msg.right}
-            if name not in schemas:
-                schemas[name] = w.register_msgdef(name, text)
-            w.write_message(channel.topic, schemas[name], out, log_time=message.log_time, publish_time=message.log_time)
-        w.finish()
+    def encoders(topic, name, text, msg, log_time):
+        if topic != "/wheel/ticks":
+            return name, text, msg, log_time
+        text = text.replace("int64 left", "int32 left_ticks").replace("int64 right", "int32 right_ticks")
+        out = {"header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec},
+                          "frame_id": msg.header.frame_id}, "left_ticks": msg.left, "right_ticks": msg.right}
+        return type_name, text, out, log_time
+
+    log = _rewritten(crowd_log, tmp_path / "encoders.mcap", encoders)
     with pytest.raises(LogError) as info:
         process(log, tmp_path / "out", ProcessOptions(methods=("baseline",), backend="none"), jobs=1)
     expected = f"{log}: {words} (LOG_FORMAT.md)" if "without" in words else f"{log}: {words}"

@@ -491,10 +491,11 @@ def process_many(paths: Sequence[str | Path], out_dir: str | Path, opts: Process
                          on_progress)
 
 
-def report_fleet(out_dir: str | Path) -> dict[str, Any]:
+def report_fleet(out_dir: str | Path, on_log: Callable[[int, int, str], None] | None = None) -> dict[str, Any]:
     """:func:`report` every log folder of a batch (``process_many``'s ``out_dir``), then write
     fleet.json and fleet.html there; returns fleet.json's document
-    (:mod:`fmcwlog.evaluation.fleet`). A log whose report fails gets the reason in its row."""
+    (:mod:`fmcwlog.evaluation.fleet`). A log whose report fails gets the reason in its row.
+    ``on_log(done, total, name)`` is called as each log is reported (several seconds each)."""
     from .evaluation.fleet import FleetEntry, fleet_result, log_row, write_fleet
 
     out_dir = Path(out_dir)
@@ -504,7 +505,7 @@ def report_fleet(out_dir: str | Path) -> dict[str, Any]:
     names = set(batch["logs"]) | {p.name for p in out_dir.iterdir()
                                   if p.is_dir() and not p.name.startswith(".") and (p / "run.json").is_file()}
     rows = []
-    for name in sorted(names):
+    for i, name in enumerate(sorted(names), 1):
         folder = out_dir / name
         entry = FleetEntry(name, folder if (folder / "run.json").is_file() else None, batch["logs"].get(name, {}))
         ev, error = None, None
@@ -515,6 +516,8 @@ def report_fleet(out_dir: str | Path) -> dict[str, Any]:
                 error = str(exc)
         rows.append(log_row(entry, ev, error))
         logger.debug("%s: reported", name)
+        if on_log is not None:
+            on_log(i, len(names), name)
     result = fleet_result(out_dir, rows, batch)
     write_fleet(out_dir, result)
     return result

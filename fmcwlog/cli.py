@@ -570,7 +570,12 @@ def _report_fleet(out_dir: Path) -> None:
     from .evaluation.fleet import FLEET_HEADER, fleet_rows
     from .evaluation.pages import terminal_table
 
-    result = api.report_fleet(out_dir)
+    with _progress(None, "reporting") as bar:  # on a terminal; a batch's logs take several seconds each
+        def reported(done: int, total: int, name: str) -> None:
+            bar.length = total
+            bar.update(1, name)
+
+        result = api.report_fleet(out_dir, on_log=reported)
     t = result["totals"]
     console.info(f"{out_dir}: {t['logs']} logs, {t['done']} done, {t['failed']} failed, {t['sweeps']} sweeps, "
                  f"{t['duration_s'] / 60:.1f} min of log, {t['distance_m']:.0f} m")

@@ -251,7 +251,9 @@ def test_a_log_renamed_by_a_newcomer_with_its_stem_is_resumed_not_doubled(tmp_pa
     assert (out / "day1-run" / "run.json").stat().st_mtime_ns == made.st_mtime_ns  # the same results, moved
     assert json.loads((out / "day1-run" / "run.json").read_text())["log"] == str(first_log.resolve())
     assert sorted(json.loads((out / "batch.json").read_text())["logs"]) == ["day1-run", "day2-run"]
-    assert [r["name"] for r in api.report_fleet(out)["logs"]] == ["day1-run", "day2-run"]
+    seen: list[tuple[int, int, str]] = []
+    assert [r["name"] for r in api.report_fleet(out, on_log=lambda *a: seen.append(a))["logs"]] == ["day1-run", "day2-run"]
+    assert seen == [(1, 2, "day1-run"), (2, 2, "day2-run")]  # progress as each log is reported
 
 
 def test_the_fleet_page_has_a_row_per_log_and_flags_the_failed_ones(fleet, local_batch):

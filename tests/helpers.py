@@ -119,6 +119,13 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
 
 
+def run_python(source: str) -> tuple[int, str, str]:
+    """``source`` run by a fresh interpreter (exit status, stdout, stderr): for what a process does
+    from its start (its imports, its signal handlers), which this test process has long passed."""
+    ran = subprocess.run([sys.executable, "-c", source], capture_output=True, text=True, timeout=120)
+    return ran.returncode, ran.stdout, ran.stderr
+
+
 def run_cli_here(*args: str) -> tuple[int, str, str]:
     """``fmcwlog ARGS`` in this process (exit status, stdout, stderr): the real ``cli.main``, with its
     error handling, but without a new interpreter, so that tests can patch what it calls (a full

@@ -5,8 +5,10 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import textwrap
 
 from conftest import SAMPLE_LOGS
+from helpers import run_python
 
 
 def _fmcwlog(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -85,20 +87,19 @@ def test_a_bad_value_in_a_config_file_names_the_file(tmp_path):
     assert p.returncode == 2 and p.stderr.startswith("fmcwlog: error: segmentation.v_th = -1 is out of range")
 
 
-def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path):
+def test_ctrl_c_while_the_command_loads_is_one_line():
     """Ctrl-C in the first second, while the CLI's modules load, once ended in an import's traceback.
     The interrupt is raised where it would land: in the import of fmcwlog.cli."""
-    hook = tmp_path / "interrupt_import.py"
-    hook.write_text(
-        "import builtins, sys\n"
-        "real = builtins.__import__\n"
-        "def interrupting(name, globals=None, locals=None, fromlist=(), level=0):\n"
-        "    if name.endswith('cli') and (globals or {}).get('__name__', '').startswith('fmcwlog'):\n"
-        "        raise KeyboardInterrupt\n"
-        "    return real(name, globals, locals, fromlist, level)\n"
-        "builtins.__import__ = interrupting\n"
-        "sys.argv = ['fmcwlog', '--help']\n"
-        "from fmcwlog.__main__ import main\n"
-        "main()\n")
-    ran = subprocess.run([sys.executable, str(hook)], capture_output=True, text=True, timeout=120)
-    assert (ran.returncode, ran.stderr, ran.stdout) == (130, "fmcwlog: aborted\n", "")
+    code, out, err = run_python(textwrap.dedent("""
+        import builtins, sys
+        real = builtins.__import__
+        def interrupting(name, globals=None, locals=None, fromlist=(), level=0):
+            if name.endswith('cli') and (globals or {}).get('__name__', '').startswith('fmcwlog'):
+                raise KeyboardInterrupt
+            return real(name, globals, locals, fromlist, level)
+        builtins.__import__ = interrupting
+        sys.argv = ['fmcwlog', '--help']
+        from fmcwlog.__main__ import main
+        main()
+    """))
+    assert (code, err, out) == (130, "fmcwlog: aborted\n", "")

@@ -273,28 +273,27 @@ def test_a_read_only_file_system_is_named_on_the_output_not_its_temporary(tmp_pa
     assert ".partial-" not in line
 
 
-def test_an_interrupt_swallowed_where_it_landed_is_delivered_again(tmp_path):
+def test_an_interrupt_swallowed_where_it_landed_is_delivered_again():
     """A signal handler's exception raised inside a callback Python cannot raise from (an import
     lock's, a weakref's) is 'ignored', and SIGTERM mid-import once let a --force run finish and
     replace the output (exit 0). The CLI's hook sends the signal again once the callback is left."""
-    import subprocess
-    import sys
+    import textwrap
 
-    probe = tmp_path / "probe.py"
-    probe.write_text(
-        "import time, weakref\n"
-        "from fmcwlog import cli\n"
-        "class X: pass\n"
-        "try:\n"
-        "    with cli._sigterm_as_interrupt():\n"
-        "        x = X()\n"
-        "        ref = weakref.ref(x, lambda r: cli._terminate(15, None))  # the handler, run in the callback\n"
-        "        del x\n"
-        "        t = time.time()\n"
-        "        while time.time() - t < 30:\n"
-        "            pass\n"
-        "    print('went on')\n"
-        "except cli._Terminated:\n"
-        "    print('terminated')\n")
-    ran = subprocess.run([sys.executable, str(probe)], capture_output=True, text=True, timeout=120)
-    assert (ran.returncode, ran.stdout, ran.stderr) == (0, "terminated\n", "")
+    from helpers import run_python
+
+    assert run_python(textwrap.dedent("""
+        import time, weakref
+        from fmcwlog import cli
+        class X: pass
+        try:
+            with cli._sigterm_as_interrupt():
+                x = X()
+                ref = weakref.ref(x, lambda r: cli._terminate(15, None))  # the handler, run in the callback
+                del x
+                t = time.time()
+                while time.time() - t < 30:
+                    pass
+            print('went on')
+        except cli._Terminated:
+            print('terminated')
+    """)) == (0, "terminated\n", "")

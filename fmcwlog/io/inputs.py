@@ -572,31 +572,27 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
                 raise LogError(f"{path}: no usable scan topic (PointCloud2 or LaserScan; found: {found}); "
                                f"name one with --scan-topic{reader.damage_note()}")
             scan = scans[0]
-    if scan not in topics:
-        raise LogError(f"{path}: no topic {scan}{reader.damage_note()}")
-    if not topics[scan].endswith(("PointCloud2", "LaserScan")):
-        raise LogError(f"{path}: {scan} is {topics[scan]}, not a PointCloud2 or LaserScan")
-    if scan.startswith(GROUND_TRUTH_PREFIX):
-        raise LogError(f"{path}: {scan} is ground truth, which estimation never reads; name the robot's own topic")
+    _check_named_topic(reader, scan, ("PointCloud2", "LaserScan"), "PointCloud2 or LaserScan")
     if odom is not None:
-        _check_named_topic(reader, odom, "Odometry", "nav_msgs/msg/Odometry")
+        _check_named_topic(reader, odom, ("Odometry",), "nav_msgs/msg/Odometry")
         return InputTopics(scan, None, odom)
     if ticks is None and TICKS_TOPIC in topics:
         ticks = TICKS_TOPIC
     if ticks is None and topics.get("/odom", "").endswith("Odometry"):  # an imported or ROS log
         return InputTopics(scan, None, "/odom")
     if ticks is not None:
-        _check_named_topic(reader, ticks, "WheelTicks", "fmcwlog_msgs/msg/WheelTicks")
+        _check_named_topic(reader, ticks, ("WheelTicks",), "fmcwlog_msgs/msg/WheelTicks")
     return InputTopics(scan, ticks, None)
 
 
-def _check_named_topic(reader: LogReader, topic: str, type_suffix: str, type_name: str) -> None:
-    """A motion-prior topic must exist, be of its type, and not be ground truth (which estimation never
-    reads: ``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
+def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...], expected: str) -> None:
+    """An input topic (scan or motion prior) must exist, be of one of ``type_names`` (any package's:
+    the fields are checked as the messages are read) and not be ground truth, which estimation never
+    reads (``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
     topics, path = reader.topics, reader.path
     if topic not in topics:
         raise LogError(f"{path}: no topic {topic}{reader.damage_note()}")
     if topic.startswith(GROUND_TRUTH_PREFIX):
         raise LogError(f"{path}: {topic} is ground truth, which estimation never reads; name the robot's own topic")
-    if topics[topic].rsplit("/", 1)[-1] != type_suffix:  # any package's type of that name: its fields are checked as read
-        raise LogError(f"{path}: {topic} is {topics[topic] or 'of no known type'}, not a {type_name}")
+    if topics[topic].rsplit("/", 1)[-1] not in type_names:
+        raise LogError(f"{path}: {topic} is {topics[topic] or 'of no known type'}, not a {expected}")

@@ -96,7 +96,7 @@ if TYPE_CHECKING:
 
     from .backend import BackendResult
     from .frontend.methods import SweepResult
-    from .frontend.occupancy import OccupancyGrid
+    from .kernels.occupancy import OccupancyGrid
     from .frontend.params import FrontEndParams
     from .frontend.runner import SweepStep
     from .io.calibration import Calibration

@@ -1,6 +1,6 @@
 """The correlative search's branch and bound against an exhaustive search of the same lattice.
 
-The search (:mod:`fmcwlog.frontend.correlative`) prunes by bounds, caches children and scores
+The search (:mod:`fmcwlog.kernels.correlative`) prunes by bounds, caches children and scores
 candidates in batches; none of that may change what it finds. The reference here scores every
 pose of the lattice (every yaw sample, every fine offset in the window) straight from the fine
 likelihood grid, by 2-D indexing of each rotated point's cell, and takes the best, and the best
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmcwlog.frontend.correlative import CorrelativeParams, _rotations, correlative_match, grid_for, subsample
+from fmcwlog.kernels.correlative import CorrelativeParams, _rotations, correlative_match, grid_for, subsample
 from fmcwlog.geometry import inverse, transform_points, wrap_angle
 
 
@@ -78,7 +78,7 @@ def test_likelihood_grid_is_the_gaussian_of_the_distance_to_the_nearest_target_c
     index (an independent nearest-neighbour search), in a frame of zeros ``2·reach + 1`` wide."""
     from scipy.spatial import cKDTree
 
-    from fmcwlog.frontend.correlative import LikelihoodGrid
+    from fmcwlog.kernels.correlative import LikelihoodGrid
 
     rng = np.random.default_rng(7)
     targets = np.concatenate([_scene(rng)[::7], rng.uniform(-3, 3, (40, 2))])

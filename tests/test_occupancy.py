@@ -5,7 +5,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fmcwlog.frontend.occupancy import OccupancyGrid, OccupancyParams, Scan
+from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 
 RES = 0.05
 
@@ -212,7 +212,7 @@ def test_a_scan_shared_by_two_grids_is_cast_once_and_gives_each_its_own_cast(mon
     """The recent grid and the method's grid get the same Scan objects: each grid ends as it
     would casting every scan for itself (in its own extent, with its own earlier content and
     clamping), and each scan is ray-cast once, whichever grid is read first."""
-    import fmcwlog.frontend.occupancy as occupancy
+    import fmcwlog.kernels.occupancy as occupancy
 
     rng = np.random.default_rng(3)
     scans = []

@@ -22,11 +22,11 @@ from fmcwlog.backend.params import BackendParams
 from fmcwlog.backend.registration import LineICPParams
 from fmcwlog.config import check_params, parse_set_option, range_of
 from fmcwlog.errors import ConfigError, MapSizeError
-from fmcwlog.frontend.correlative import CorrelativeParams
+from fmcwlog.kernels.correlative import CorrelativeParams
 from fmcwlog.frontend.gmmsc import GMMSCParams
 from fmcwlog.frontend.icp import ICPParams
 from fmcwlog.frontend.keyframe_map import LocalMapParams
-from fmcwlog.frontend.occupancy import OccupancyGrid, OccupancyParams
+from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams
 from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
 from fmcwlog.frontend.recovery import RecoveryParams
 from fmcwlog.frontend.segmentation import SegmentationParams

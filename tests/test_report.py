@@ -26,7 +26,7 @@ from conftest import SAMPLE_LOGS
 from fmcwlog.evaluation.evaluate import evaluate
 from fmcwlog.evaluation.ground_truth import read_ground_truth
 from fmcwlog.evaluation.pages import write_report
-from fmcwlog.frontend.occupancy import OccupancyGrid
+from fmcwlog.kernels.occupancy import OccupancyGrid
 from fmcwlog.geometry import compose, interpolate_poses, inverse, transform_points
 from fmcwlog.io.mcap_log import LogReader, LogWriter
 from fmcwlog.io.messages import odometry_message, pointcloud_columns, pointcloud_message

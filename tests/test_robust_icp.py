@@ -6,8 +6,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from fmcwlog.frontend.icp import ICPParams, NearestPairs, find_correspondences, gauss_newton_step
-from fmcwlog.frontend.local_map import voxel_downsample
+from fmcwlog.frontend.icp import ICPParams, gauss_newton_step
+from fmcwlog.kernels.nearest import NearestPairs, find_correspondences
+from fmcwlog.kernels.voxel import voxel_downsample
 from fmcwlog.frontend.point_to_point_icp import closed_form_pose, register_point_to_point
 from fmcwlog.frontend.recovery import inlier_fraction
 from fmcwlog.frontend.robust_icp import huber_weights, median, register

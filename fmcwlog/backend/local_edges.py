@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..frontend.local_map import voxel_downsample
+from ..kernels.voxel import voxel_downsample
 from ..geometry import between, wrap_angle
 from .graph import Edge
 from .keyframes import Node, match_covariance

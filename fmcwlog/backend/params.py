@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..config import Checked, param
-from ..frontend.correlative import CorrelativeParams
+from ..kernels.correlative import CorrelativeParams
 from .registration import LineICPParams
 
 

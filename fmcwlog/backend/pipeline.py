@@ -17,13 +17,13 @@ their optimised poses.
 Cost (CPU time, 200 s ``ring`` log, seed 0, both methods, on a shared 2-core machine): ``add``
 took 18.0 s (20.2 s before the ICP was tuned, :mod:`.registration`), ``finish`` about 1 s each.
 Under a profiler, verification was about half of ``add`` and its correlative search
-(:mod:`fmcwlog.frontend.correlative`, branch and bound in Python) about 70 % of verification; the
+(:mod:`fmcwlog.kernels.correlative`, branch and bound in Python) about 70 % of verification; the
 local edges' ICP most of the rest; gtsam's re-optimisations 1.4 s. After the search and the ICP's
 passes were tuned (every output bit for bit the same; the front end's sweeps captured once and
 replayed through the old and new back ends alternately, min of 2-4 runs): ``add`` on that log
 17.5 → 12.5 s for both methods (baseline 11.3 → 6.8 s, its wide closure searches), on the 120 s
 ``corridor`` 6.1 → 5.3 s, where the local edges' nearest-point pairing
-(:class:`~fmcwlog.frontend.icp.NearestPairs`) is now the largest part (about a third).
+(:class:`~fmcwlog.kernels.nearest.NearestPairs`) is now the largest part (about a third).
 """
 
 from __future__ import annotations
@@ -35,11 +35,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..frontend.correlative import MAX_LEVELS, CorrelativeParams
-from ..frontend.local_map import voxel_downsample
-from ..frontend.occupancy import OccupancyGrid, OccupancyParams
+from ..kernels.correlative import MAX_LEVELS, CorrelativeParams
+from ..kernels.voxel import voxel_downsample
+from ..kernels.occupancy import OccupancyGrid, OccupancyParams
 from ..geometry import between, compose, inverse, transform_points
-from ..growing import GrowingArray
+from ..kernels.growing import GrowingArray
 from ..io.spill import PointStore
 from .candidates import closure_candidates
 from .graph import Edge, PoseGraph

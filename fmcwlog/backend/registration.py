@@ -15,7 +15,7 @@ Cost (measured on the 2,895 matches that the back ends of both methods ran on th
 log, seed 0; CPU time, the old and new code alternating in one process on a shared 2-core machine;
 every result bit for bit the same): the old code spent about 170 µs of each 250-300 µs iteration
 (some 480 source points) in a KD-tree query of every point. The front end's
-:class:`~fmcwlog.frontend.icp.NearestPairs` keeps each point's 6 nearest targets and asks the tree
+:class:`~fmcwlog.kernels.nearest.NearestPairs` keeps each point's 6 nearest targets and asks the tree
 again only for points that moved too far for them to still hold the nearest (exact; with the back
 end's own copy of the idea, k = 4, 6, 8, 10 cost 0.69, 0.61, 0.63, 0.67 of the tree's time for the
 pairing; sharing the front end's gave byte-identical outputs on crowd 20 s and ring 200 s). Each
@@ -37,7 +37,7 @@ from scipy.linalg.lapack import dgesv
 from scipy.spatial import cKDTree
 
 from ..config import Checked, param
-from ..frontend.icp import NearestPairs
+from ..kernels.nearest import NearestPairs
 from ..geometry import wrap_angle
 
 

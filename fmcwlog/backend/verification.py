@@ -1,6 +1,6 @@
 """Verification of a loop-closure candidate: scan-to-submap matching and three tests.
 
-1. A correlative search (:mod:`fmcwlog.frontend.correlative`) of the query node's points on a
+1. A correlative search (:mod:`fmcwlog.kernels.correlative`) of the query node's points on a
    likelihood grid of the candidate's submap, around the relative pose the current estimate
    gives; its best mean likelihood must reach ``min_score``.
 2. Point-to-line ICP from the search's best pose (:mod:`.registration`); at least
@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frontend.correlative import CorrelativeParams, correlative_match, grid_for
+from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for
 from ..geometry import transform_points, wrap_angle
 from .keyframes import match_covariance
 from .params import BackendParams

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import Checked, param
-from .correlative import CorrelativeParams, LikelihoodGrid, grid_for
-from .local_map import voxel_keys
+from ..kernels.correlative import CorrelativeParams, LikelihoodGrid, grid_for
+from ..kernels.voxel import voxel_keys
 
 
 @dataclass(frozen=True)

@@ -68,15 +68,15 @@ import numpy as np
 from ..geometry import between, compose, transform_points, wrap_angle
 from ..io.calibration import Calibration
 from ..io.inputs import SweepInput
-from .correlative import LikelihoodGrid, correlative_match
+from ..kernels.correlative import LikelihoodGrid, correlative_match
 from .deskew import deskew, se2_exp
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
-from .local_map import voxel_downsample
+from ..kernels.voxel import voxel_downsample
 from .names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY  # noqa: F401 (re-exported)
-from .occupancy import OccupancyGrid, OccupancyParams, Scan
+from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction

@@ -15,7 +15,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import transform_points, wrap_angle
-from .icp import ICPParams, ICPResult, NearestPairs, gauss_newton_step, step_is_small
+from ..kernels.nearest import NearestPairs
+from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
 
 
 def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .occupancy import OccupancyGrid, OccupancyParams, Scan, lattice_cells
+from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan, lattice_cells
 
 
 class RecentOccupancy:

@@ -19,8 +19,8 @@ from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import transform_points
-from .correlative import CorrelativeParams
-from .icp import NearestPairs
+from ..kernels.correlative import CorrelativeParams
+from ..kernels.nearest import NearestPairs
 
 
 @dataclass(frozen=True)

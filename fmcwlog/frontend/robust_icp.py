@@ -23,7 +23,8 @@ from scipy.spatial import cKDTree
 
 from ..geometry import wrap_angle
 from .gmmsc import DistanceMixture, gmmsc_weights
-from .icp import Correspondences, ICPParams, ICPResult, NearestPairs, gauss_newton_step, step_is_small
+from ..kernels.nearest import Correspondences, NearestPairs
+from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
 
 
 def huber_weights(r: np.ndarray, delta: float) -> np.ndarray:

@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import Checked, param
-from ..growing import GrowingArray
+from ..kernels.growing import GrowingArray
 from ..io.calibration import Calibration
 
 MOUNT_NAMES = ("lidar_x", "lidar_y", "lidar_yaw")
@@ -127,7 +127,7 @@ class CalibrationSamples:
     doppler rows: ``z_x, z_y`` (m/s, lidar frame), ``var_x, var_y`` ((m/s)²), ``φ_L, φ_R``
     (rad), ``τ`` (s) and the sweep's stamp (s). yaw rows: scan-matched heading change
     (rad), ``φ_L, φ_R`` (rad), the interval between the two sweeps (s) and the stamp (s).
-    Rows are float64 numpy rows (:class:`~fmcwlog.growing.GrowingArray`), not tuples of Python
+    Rows are float64 numpy rows (:class:`~fmcwlog.kernels.growing.GrowingArray`), not tuples of Python
     floats: 64 and 40 bytes a sweep where the tuples held ~500, the same float64 values.
     """
 

@@ -117,7 +117,7 @@ import numpy as np
 from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
 from .deskew import deskew
-from .occupancy import OccupancyGrid, Scan
+from ..kernels.occupancy import OccupancyGrid, Scan
 from .recent_grid import RecentOccupancy, local_max_log_odds
 from .segmentation import SegmentationParams, segment_clusters
 

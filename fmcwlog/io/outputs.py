@@ -39,7 +39,7 @@ import pyarrow.parquet as pq
 from ..allocator import release_freed_memory
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
-from ..growing import GrowingArray
+from ..kernels.growing import GrowingArray
 from .mcap_log import LogWriter, Pose7, Stamp, float32_cloud_cdr, odometry_cdr, path_cdr, stamp_pair, tf_cdr
 from .messages import (
     occupancy_grid_message,
@@ -53,7 +53,7 @@ from .topics import TF_STATIC_TOPIC, TF_TOPIC
 
 if TYPE_CHECKING:  # built by the front end; outputs only read them
     from ..frontend.methods import SweepResult
-    from ..frontend.occupancy import OccupancyGrid
+    from ..kernels.occupancy import OccupancyGrid
 
 
 def odom_frame(name: str) -> str:

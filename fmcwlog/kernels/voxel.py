@@ -1,0 +1,26 @@
+"""Voxel thinning: one point per square voxel, the first in the order given.
+
+Points ``xy`` (N, 2) in any frame, in metres; a voxel is the square cell ``floor(xy / size)``.
+Used to thin a sweep before registration and to keep one point per voxel in a map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def voxel_keys(xy: np.ndarray, size: float) -> np.ndarray:
+    """One int64 key per point naming its square voxel of side ``size`` (m)."""
+    ij = np.floor(xy / size).astype(np.int64)
+    return (ij[:, 0] << 32) ^ (ij[:, 1] & 0xFFFFFFFF)
+
+
+def voxel_downsample(xy: np.ndarray, size: float) -> np.ndarray:
+    """The first point (in order) of each occupied voxel: (M, 2) with M <= N, in the order given.
+
+    ``size`` <= 0 or an empty input returns ``xy`` itself.
+    """
+    if len(xy) == 0 or size <= 0:
+        return xy
+    _, first = np.unique(voxel_keys(xy, size), return_index=True)
+    return xy[np.sort(first)]

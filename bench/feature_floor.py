@@ -21,12 +21,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from fmcwlog.evaluation.features import feature_lengths
 from fmcwlog.evaluation.ground_truth import read_ground_truth, read_point_labels, read_world
-from fmcwlog.kernels.occupancy import OccupancyGrid
 from fmcwlog.geometry import compose, interpolate_poses, wrap_angle
 from fmcwlog.io.calibration import MOUNT_KEYS
 from fmcwlog.io.mcap_log import LogReader
 from fmcwlog.io.messages import pointcloud_columns
 from fmcwlog.io.outputs import write_grid, write_tum
+from fmcwlog.kernels.occupancy import OccupancyGrid
 
 
 def truth_map(log: Path, out: Path) -> None:

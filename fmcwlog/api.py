@@ -40,7 +40,6 @@ from .errors import (
 from .fleet.inputs import CARMEN_PATTERNS, find_logs, unique_names
 from .fleet.state import is_batch_folder, options_digest, read_batch
 from .fleet.tasks import Limits
-from .frontend.names import METHOD_NAMES, WHEEL_ODOMETRY
 from .io.atomic import (
     add_to_marker,
     atomic_batch,
@@ -53,12 +52,12 @@ from .io.atomic import (
     write_json,
     write_text,
 )
-from .io.calibration import Calibration, calibration_record, parse_calibration
+from .io.calibration import calibration_record, parse_calibration
 from .io.calibration_file import read_calibration_file, write_calibration_file
 from .io.carmen import parse_log
 from .io.carmen_import import ImportSummary, write_mcap
 from .io.digest import file_sha256
-from .io.inputs import InputTopics, LogInputs, choose_topics
+from .io.inputs import LogInputs, choose_topics
 from .io.mcap_log import LogReader
 from .io.topics import CALIBRATION_KEY
 from .sim.config import SimConfig
@@ -66,6 +65,7 @@ from .sim.recorder import RecordSummary
 from .sim.recorder import record as _record
 from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from .sim.world import World
+from .types import METHOD_NAMES, WHEEL_ODOMETRY, Calibration, InputTopics
 
 # The estimation stack (the stages, scipy.spatial, gtsam) and the evaluation and output
 # writers (pyarrow) are imported by the functions that use them: `fmcwlog record` and

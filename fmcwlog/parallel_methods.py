@@ -95,13 +95,11 @@ if TYPE_CHECKING:
     from multiprocessing.connection import Connection
 
     from .backend import BackendResult
-    from .frontend.methods import SweepResult
-    from .kernels.occupancy import OccupancyGrid
     from .frontend.params import FrontEndParams
     from .frontend.runner import SweepStep
-    from .io.calibration import Calibration
-    from .io.inputs import InputTopics
     from .io.outputs import ProcessOutputs
+    from .kernels.occupancy import OccupancyGrid
+    from .types import Calibration, InputTopics, SweepResult
 
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"  # numbers in the module docstring
 _JOIN_S = 5.0  # s to wait for a child that was told to end, or has ended, before it is killed

@@ -22,10 +22,10 @@ from fmcwlog.backend.local_edges import LocalMatcher
 from fmcwlog.backend.params import BackendParams
 from fmcwlog.backend.registration import LineICPParams, build_submap, register_point_to_line
 from fmcwlog.backend.verification import leave_free, verify
-from fmcwlog.kernels.correlative import CorrelativeParams, correlative_match, grid_for
-from fmcwlog.kernels.nearest import NearestPairs
 from fmcwlog.frontend.keyframe_map import KeyframeMap, LocalMapParams
 from fmcwlog.geometry import between, compose, inverse, transform_points, wrap_angle
+from fmcwlog.kernels.correlative import CorrelativeParams, correlative_match, grid_for
+from fmcwlog.kernels.nearest import NearestPairs
 
 
 def _walls(segments: list[tuple[float, float, float, float]], spacing: float = 0.03) -> np.ndarray:

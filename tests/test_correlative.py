@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmcwlog.kernels.correlative import CorrelativeParams, _rotations, correlative_match, grid_for, subsample
 from fmcwlog.geometry import inverse, transform_points, wrap_angle
+from fmcwlog.kernels.correlative import CorrelativeParams, _rotations, correlative_match, grid_for, subsample
 
 
 def _scene(rng: np.random.Generator) -> np.ndarray:

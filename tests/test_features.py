@@ -23,10 +23,10 @@ import pytest
 from fmcwlog.errors import ReportError
 from fmcwlog.evaluation.features import CORNER, WALL_END, end_shape, feature_lengths
 from fmcwlog.evaluation.map_geometry import fit_wall
-from fmcwlog.kernels.occupancy import OccupancyGrid
 from fmcwlog.geometry import compose, inverse, transform_points
 from fmcwlog.io.map_files import read_map_server
 from fmcwlog.io.outputs import write_grid, write_tum
+from fmcwlog.kernels.occupancy import OccupancyGrid
 from fmcwlog.sim.scenarios import H, W, corridor
 
 RES = 0.05

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from fmcwlog.frontend.motion_prior import PoseTrack
 from fmcwlog.frontend.odometry import body_increments, integrate_arc, integrate_arcs
 from fmcwlog.geometry import compose, interpolate_poses, wrap_angle
-from fmcwlog.io.calibration import WheelCalibration
+from fmcwlog.types import WheelCalibration
 
 
 def _track(stamps, left, right, cal) -> PoseTrack:

@@ -263,8 +263,8 @@ def test_rows_kept_in_numpy_give_the_columns_pyarrow_builds_from_the_same_values
     ``pa.array`` of the values, and a corrected pose replaces only its trajectory's rows."""
     import pyarrow as pa
 
-    from fmcwlog.kernels.growing import GrowingArray
     from fmcwlog.io.outputs import PARQUET_COLUMNS, TrajectoryRows
+    from fmcwlog.kernels.growing import GrowingArray
 
     rng = np.random.default_rng(4)
     rows, given = TrajectoryRows(), []

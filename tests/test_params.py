@@ -22,14 +22,14 @@ from fmcwlog.backend.params import BackendParams
 from fmcwlog.backend.registration import LineICPParams
 from fmcwlog.config import check_params, parse_set_option, range_of
 from fmcwlog.errors import ConfigError, MapSizeError
-from fmcwlog.kernels.correlative import CorrelativeParams
 from fmcwlog.frontend.gmmsc import GMMSCParams
 from fmcwlog.frontend.icp import ICPParams
 from fmcwlog.frontend.keyframe_map import LocalMapParams
-from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams
 from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
 from fmcwlog.frontend.recovery import RecoveryParams
 from fmcwlog.frontend.segmentation import SegmentationParams
+from fmcwlog.kernels.correlative import CorrelativeParams
+from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams
 from fmcwlog.sim.config import RobotConfig, RunConfig, SensorConfig, SimConfig
 
 USER_PARAMETERS = (FrontEndParams, SegmentationParams, ICPParams, GMMSCParams, LocalMapParams, RecoveryParams,

@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from fmcwlog.frontend.recent_grid import RecentOccupancy, local_max_log_odds
+from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 
 AROUND = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)]
 

@@ -26,11 +26,11 @@ from conftest import SAMPLE_LOGS
 from fmcwlog.evaluation.evaluate import evaluate
 from fmcwlog.evaluation.ground_truth import read_ground_truth
 from fmcwlog.evaluation.pages import write_report
-from fmcwlog.kernels.occupancy import OccupancyGrid
 from fmcwlog.geometry import compose, interpolate_poses, inverse, transform_points
 from fmcwlog.io.mcap_log import LogReader, LogWriter
 from fmcwlog.io.messages import odometry_message, pointcloud_columns, pointcloud_message
 from fmcwlog.io.outputs import write_grid, write_tum
+from fmcwlog.kernels.occupancy import OccupancyGrid
 
 LOG = SAMPLE_LOGS / "corridor_30s.mcap"
 TRUE_LENGTHS = [2.344, 6.775, 6.686, 1.064, 8.094, 1.029, 7.901, 26.681, 25.534]

@@ -7,12 +7,12 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from fmcwlog.frontend.icp import ICPParams, gauss_newton_step
-from fmcwlog.kernels.nearest import NearestPairs, find_correspondences
-from fmcwlog.kernels.voxel import voxel_downsample
 from fmcwlog.frontend.point_to_point_icp import closed_form_pose, register_point_to_point
 from fmcwlog.frontend.recovery import inlier_fraction
 from fmcwlog.frontend.robust_icp import huber_weights, median, register
 from fmcwlog.geometry import inverse, transform_points, wrap_angle
+from fmcwlog.kernels.nearest import NearestPairs, find_correspondences
+from fmcwlog.kernels.voxel import voxel_downsample
 
 # a 10 x 6 m room, an L-shaped interior wall and a cabinet (segments x0, y0, x1, y1)
 SEGMENTS = np.array(

@@ -19,10 +19,10 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.kernels.occupancy import OccupancyGrid, Scan
 from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
 from fmcwlog.frontend.segmentation import SegmentationParams, segment_moving
 from fmcwlog.frontend.tracking import MoverTracker, TrackingParams
+from fmcwlog.kernels.occupancy import OccupancyGrid, Scan
 from fmcwlog.sim.chassis import BodyState
 from fmcwlog.sim.config import SensorConfig
 from fmcwlog.sim.lidar import FmcwLidar

@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kernels.voxel import voxel_downsample
 from ..geometry import between, wrap_angle
+from ..kernels.voxel import voxel_downsample
 from .graph import Edge
 from .keyframes import Node, match_covariance
 from .params import BackendParams

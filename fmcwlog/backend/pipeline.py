@@ -35,12 +35,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..kernels.correlative import MAX_LEVELS, CorrelativeParams
-from ..kernels.voxel import voxel_downsample
-from ..kernels.occupancy import OccupancyGrid, OccupancyParams
 from ..geometry import between, compose, inverse, transform_points
-from ..kernels.growing import GrowingArray
 from ..io.spill import PointStore
+from ..kernels.correlative import MAX_LEVELS, CorrelativeParams
+from ..kernels.growing import GrowingArray
+from ..kernels.occupancy import OccupancyGrid, OccupancyParams
+from ..kernels.voxel import voxel_downsample
 from .candidates import closure_candidates
 from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
@@ -49,7 +49,7 @@ from .params import BackendParams
 from .verification import verify
 
 if TYPE_CHECKING:
-    from ..frontend.methods import SweepResult
+    from ..types import SweepResult
 
 QUERY_VOXEL = 0.1  # m: the query node's points are thinned to this for verification
 SUBMAP_VOXEL = 0.05  # m: and the submap's

@@ -37,8 +37,8 @@ from scipy.linalg.lapack import dgesv
 from scipy.spatial import cKDTree
 
 from ..config import Checked, param
-from ..kernels.nearest import NearestPairs
 from ..geometry import wrap_angle
+from ..kernels.nearest import NearestPairs
 
 
 @dataclass(frozen=True)

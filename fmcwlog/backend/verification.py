@@ -49,8 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for
 from ..geometry import transform_points, wrap_angle
+from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for
 from .keyframes import match_covariance
 from .params import BackendParams
 from .registration import build_submap, register_point_to_line

@@ -41,11 +41,11 @@ import pyarrow.parquet as pq
 
 from .. import __version__
 from ..errors import LogError, ReportError
-from ..frontend.names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
 from ..io.digest import file_sha256
 from ..io.mcap_log import LogReader
 from ..io.outputs import read_tum
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, SIM_KEY, WORLD_KEY
+from ..types import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
 from .along_path import Disagreement, RPESeries, disagreement, heading_errors, rpe_series
 from .features import feature_lengths
 from .ground_truth import read_ground_truth, read_point_labels, read_world

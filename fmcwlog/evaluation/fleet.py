@@ -46,9 +46,9 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from ..frontend.methods import WHEEL_ODOMETRY, BaselineFrontEnd, ImprovedFrontEnd
 from ..io.atomic import json_text, write_text
 from ..io.outputs import read_tum
+from ..types import BASELINE, IMPROVED, WHEEL_ODOMETRY
 from .evaluate import Evaluation
 from .metrics import ate
 
@@ -56,7 +56,7 @@ FLEET_SCHEMA = "fmcwlog.fleet/1"
 FLAG_FRACTION = 0.10  # the worst tenth of a ranking is flagged (at least one log)...
 OUTLIER_RATIO = 2.0  # ...when it is also at least twice the ranking's median: the worst of good logs is good
 STARVED_FRACTION = 0.01  # more than 1 % of sweeps without enough ICP pairs
-_IMPROVED, _BASELINE = ImprovedFrontEnd.name, BaselineFrontEnd.name
+_IMPROVED, _BASELINE = IMPROVED, BASELINE
 
 
 @dataclass

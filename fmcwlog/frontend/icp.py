@@ -15,10 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
-from ..geometry import transform_points, wrap_angle
+from ..geometry import wrap_angle
 from ..kernels.nearest import NearestPairs
 from .gmmsc import DistanceMixture, GMMSCParams
 

@@ -66,17 +66,15 @@ from typing import ClassVar
 import numpy as np
 
 from ..geometry import between, compose, transform_points, wrap_angle
-from ..io.calibration import Calibration
-from ..io.inputs import SweepInput
 from ..kernels.correlative import LikelihoodGrid, correlative_match
+from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
+from ..kernels.voxel import voxel_downsample
+from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import deskew, se2_exp
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
-from ..kernels.voxel import voxel_downsample
-from .names import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY  # noqa: F401 (re-exported)
-from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
@@ -153,43 +151,6 @@ class MotionEstimate:
     segmented: bool = False
     twist_covariance: np.ndarray | None = None
     fused: FusedTwist | None = None
-
-
-@dataclass
-class SweepResult:
-    """What one method made of one sweep.
-
-    pose: base_link in the method's own frame (``<method>/odom``) at the sweep's stamp.
-    twist: ``(v, ω)`` of base_link over the sweep (m/s, rad/s), as used to deskew it.
-    twist_covariance: (2, 2) of ``twist`` where it was measured (Doppler), else None.
-    pose_covariance: (3, 3) over (x, y, yaw) of the scan-to-map registration (m², rad²):
-        how well this sweep is pinned to the method's map, not the drift accumulated since
-        the start; None where no registration ran (the first sweeps).
-    static_map_xy, static_velocity: the points it kept (map frame, deskewed) and their
-        radial Doppler velocity (m/s; None without Doppler).
-    moving_map_xy, moving_velocity: the same for the points it judged moving.
-    moving_mask: (N,) over the sweep's points; ``segmented`` says whether it is a verdict.
-    """
-
-    method: str
-    stamp_ns: int
-    pose: np.ndarray
-    twist: tuple[float, float]
-    twist_covariance: np.ndarray | None
-    pose_covariance: np.ndarray | None
-    iterations: int
-    correspondences: int
-    moving_points: int
-    ms: float
-    static_map_xy: np.ndarray
-    static_velocity: np.ndarray | None
-    moving_map_xy: np.ndarray
-    moving_velocity: np.ndarray | None
-    moving_mask: np.ndarray
-    segmented: bool
-    keyframe: bool
-    searched: bool = False  # the ICP's fit was poor, so a correlative search ran (:mod:`.recovery`)
-    recovered: bool = False  # ... and its match replaced the ICP's from the prior
 
 
 class FrontEnd(ABC):

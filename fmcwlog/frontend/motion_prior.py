@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import between, interpolate_poses
-from ..io.calibration import WheelCalibration
+from ..types import WheelCalibration
 from .odometry import body_increments, integrate_arc
 
 

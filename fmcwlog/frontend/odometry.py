@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..geometry import wrap_angle
-from ..io.calibration import WheelCalibration
+from ..types import WheelCalibration
 from .deskew import sinc_of_float
 
 

@@ -22,8 +22,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import wrap_angle
-from .gmmsc import DistanceMixture, gmmsc_weights
 from ..kernels.nearest import Correspondences, NearestPairs
+from .gmmsc import DistanceMixture, gmmsc_weights
 from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
 
 

@@ -36,9 +36,8 @@ import numpy as np
 
 from ..errors import LogError
 from ..geometry import compose, inverse
-from ..io.calibration import Calibration
-from ..io.inputs import MAX_CLOCK_GAP_S, InputTopics, OdomInput, SweepInput, TicksInput
-from .methods import METHODS, FrontEnd, PriorMotion, SweepResult
+from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
+from .methods import METHODS, FrontEnd, PriorMotion
 from .motion_prior import PoseTrack
 from .params import FrontEndParams
 

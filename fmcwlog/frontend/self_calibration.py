@@ -53,7 +53,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..kernels.growing import GrowingArray
-from ..io.calibration import Calibration
+from ..types import Calibration
 
 MOUNT_NAMES = ("lidar_x", "lidar_y", "lidar_yaw")
 WHEEL_NAMES = ("wheel_radius_left", "wheel_radius_right", "track_width")

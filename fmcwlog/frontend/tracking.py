@@ -116,8 +116,8 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
-from .deskew import deskew
 from ..kernels.occupancy import OccupancyGrid, Scan
+from .deskew import deskew
 from .recent_grid import RecentOccupancy, local_max_log_odds
 from .segmentation import SegmentationParams, segment_clusters
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
 
 from ..errors import CalibrationError
+from ..types import Calibration, WheelCalibration
 from .topics import CALIBRATION_KEY
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
@@ -34,37 +34,6 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "max_range": (0.1, 10_000.0, "m"),
     "scan_rate": (0.0, 1000.0, "Hz"),  # 0: not known (fmcwlog import writes it so)
 }
-
-
-@dataclass(frozen=True)
-class WheelCalibration:
-    """Rear-axle calibration.
-
-    wheel_radius_left, wheel_radius_right: rolling radii ``r_L``, ``r_R`` (m).
-    track_width: distance ``b`` between the rear wheels' contact points (m), eq. 10.
-    ticks_per_revolution: encoder pulses per wheel revolution ``k`` (eq. 9).
-    """
-
-    wheel_radius_left: float
-    wheel_radius_right: float
-    track_width: float
-    ticks_per_revolution: int
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """What processing knows of the robot: wheels (None if not given) and the lidar mounting.
-
-    max_range: the sensor's rated range (m), scan_rate: sweeps per second (Hz); None where the
-    record does not give them (``scan_rate`` 0 counts as not given).
-    """
-
-    wheels: WheelCalibration | None
-    mount: tuple[float, float, float]  # lidar pose in base_link: m, m, rad
-    doppler_resolution: float | None  # m/s
-    range_sigma: float | None  # m
-    max_range: float | None = None  # m
-    scan_rate: float | None = None  # Hz
 
 
 def _number(values: dict[str, str], key: str) -> float:

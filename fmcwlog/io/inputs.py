@@ -48,39 +48,14 @@ import numpy as np
 
 from ..errors import LogError
 from ..geometry import compose, inverse
-from .calibration import Calibration, WheelCalibration
+from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, TicksInput, WheelCalibration
 from .mcap_log import LogReader, UndecodableMessage
 from .messages import POINTFIELD_DTYPES, odometry_pose_twist, pointcloud_columns, stamp_ns
 from .topics import GROUND_TRUTH_PREFIX, POINTS_TOPIC, TICKS_TOPIC
 
 MAX_SPEED = 100.0  # m/s
-MAX_CLOCK_GAP_S = 60.0  # s: the scan and motion-prior clocks may differ by driver start-up, not more
 MAX_ODOM_POSITION = 1e8  # m
 _WRAP = 1 << 32
-
-
-@dataclass
-class SweepInput:
-    """One sweep in the sensor frame: points where the sensor saw them at their own time."""
-
-    stamp_ns: int  # first beam
-    xy: np.ndarray  # (N, 2) m, frame lidar
-    t: np.ndarray  # (N,) s after stamp_ns
-    velocity: np.ndarray | None  # (N,) m/s radial Doppler, None without Doppler
-    intensity: np.ndarray | None
-
-
-@dataclass
-class TicksInput:
-    stamp_ns: int
-    left: int
-    right: int
-
-
-@dataclass
-class OdomInput:
-    stamp_ns: int
-    pose: np.ndarray  # (3,) x, y, yaw in the odometry frame
 
 
 @dataclass(frozen=True)
@@ -538,19 +513,6 @@ class LogInputs:
         if self._ticks is not None and self._ticks.wraps:
             out.append(f"unwrapped {self._ticks.wraps} 32-bit wheel-tick counter wraps on {self.topics.ticks}")
         return out
-
-
-@dataclass(frozen=True)
-class InputTopics:
-    """The topics one run reads: a scan topic and at most one motion-prior topic."""
-
-    scan: str
-    ticks: str | None
-    odom: str | None
-
-    @property
-    def prior(self) -> str | None:
-        return self.ticks or self.odom
 
 
 def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None = None,

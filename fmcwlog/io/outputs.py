@@ -52,8 +52,8 @@ from .messages import (
 from .topics import TF_STATIC_TOPIC, TF_TOPIC
 
 if TYPE_CHECKING:  # built by the front end; outputs only read them
-    from ..frontend.methods import SweepResult
     from ..kernels.occupancy import OccupancyGrid
+    from ..types import SweepResult
 
 
 def odom_frame(name: str) -> str:

@@ -51,3 +51,9 @@ class MethodProcessError(FmcwlogError):
 
 class MapSizeError(FmcwlogError, ValueError):
     """An occupancy grid would exceed its cell budget (points far off, or a resolution too fine)."""
+
+
+def os_reason(exc: OSError) -> str:
+    """``No space left on device`` -> ``no space left on device``: the end of a one-line message."""
+    text = exc.strerror or str(exc) or type(exc).__name__
+    return text[:1].lower() + text[1:]

@@ -27,7 +27,7 @@ sweep. A child that dies without its results (killed, out of memory, crashed) is
 :class:`~fmcwlog.errors.MethodProcessError`. The parent ends the child on every way out
 (done, an error, Ctrl-C: the child ignores SIGINT and is killed by the parent), and a child
 whose parent dies is ended by the system (Linux) or by its next write to the closed pipe. The
-child writes no file but the back end's unnamed temporary point store (:mod:`fmcwlog.io.spill`):
+child writes no file but the back end's unnamed temporary point store (:mod:`fmcwlog.backend.point_store`):
 the output folder's atomicity is the parent's, as before.
 
 One process instead (``jobs=1``, ``fmcwlog process --jobs 1``): one CPU usable, one method

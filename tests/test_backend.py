@@ -426,7 +426,7 @@ def test_nodes_points_moved_to_disk_come_back_the_same_and_change_no_result(corr
 
 
 def test_a_point_store_gives_back_the_bytes_it_was_given_and_takes_only_float32_pairs():
-    from fmcwlog.io.spill import PointStore
+    from fmcwlog.backend.point_store import PointStore
 
     rng = np.random.default_rng(3)
     store = PointStore()
@@ -445,8 +445,8 @@ def test_a_point_store_that_cannot_write_says_so_in_one_line(monkeypatch, tmp_pa
     import errno
     import tempfile
 
+    from fmcwlog.backend.point_store import PointStore
     from fmcwlog.errors import OutputError
-    from fmcwlog.io.spill import PointStore
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")

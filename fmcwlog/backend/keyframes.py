@@ -3,7 +3,7 @@ and the odometry edge between two consecutive ones.
 
 A node keeps what the front end made of its sweep: the pose in ``<method>/odom`` at the sweep's
 stamp, the deskewed static points in base_link (full density: the final map is rebuilt from
-them; in a temporary file once no local edge reads them, :class:`~fmcwlog.io.spill.PointStore`,
+them; in a temporary file once no local edge reads them, :class:`~fmcwlog.backend.point_store.PointStore`,
 so that memory does not grow with the log), and the registration's covariance (``σ² H⁻¹`` of
 the scan-to-map ICP, in the map frame).
 """
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import between, rot2
-from ..io.spill import PointStore
 from .params import BackendParams
+from .point_store import PointStore
 
 
 class Node:

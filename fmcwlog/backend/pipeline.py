@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..geometry import between, compose, inverse, transform_points
-from ..io.spill import PointStore
 from ..kernels.correlative import MAX_LEVELS, CorrelativeParams
 from ..kernels.growing import GrowingArray
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams
@@ -46,6 +45,7 @@ from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
 from .local_edges import LocalMatcher
 from .params import BackendParams
+from .point_store import PointStore
 from .verification import verify
 
 if TYPE_CHECKING:
@@ -179,7 +179,7 @@ class PoseGraphBackend:
         self._spill(node.index - max(self.p.local_links, 1))
 
     def _spill(self, index: int) -> None:
-        """Node ``index``'s points out of memory (:class:`~fmcwlog.io.spill.PointStore`): no later
+        """Node ``index``'s points out of memory (:class:`~fmcwlog.backend.point_store.PointStore`): no later
         local edge reads them; a closure's submap and the final map read them back, the same
         float32 values. They were the one per-node cost that grew with the log (~4 kB a node)."""
         if index >= 0:

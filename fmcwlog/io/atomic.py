@@ -33,15 +33,9 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..errors import OutputError
+from ..errors import OutputError, os_reason
 
 MARKER = ".fmcwlog-output"  # JSON: {"made_by", "fmcwlog_version", "entries": [names fmcwlog wrote here]}
-
-
-def os_reason(exc: OSError) -> str:
-    """``No space left on device`` -> ``no space left on device``: the end of a one-line message."""
-    text = exc.strerror or str(exc) or type(exc).__name__
-    return text[:1].lower() + text[1:]
 
 
 # a write refused for want of room or permission to grow: the output, not the input, is at fault

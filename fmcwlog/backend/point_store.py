@@ -13,8 +13,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from ..errors import OutputError
-from .atomic import os_reason
+from ..errors import OutputError, os_reason
 
 
 @contextmanager

@@ -22,13 +22,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path.cwd()))
 
-from fmcwlog.api import _calibration  # noqa: E402
 from fmcwlog.config import parse_set_option  # noqa: E402
 from fmcwlog.frontend import methods  # noqa: E402
-from fmcwlog.frontend.params import load_frontend_params  # noqa: E402
-from fmcwlog.frontend.runner import LogRunner  # noqa: E402
+from fmcwlog.io.calibration import load_calibration  # noqa: E402
 from fmcwlog.io.inputs import LogInputs, choose_topics  # noqa: E402
 from fmcwlog.io.mcap_log import LogReader  # noqa: E402
+from fmcwlog.pipeline.params import load_params  # noqa: E402
+from fmcwlog.pipeline.runner import LogRunner  # noqa: E402
 
 
 def timed(cls: type, name: str, into: list[float]) -> None:
@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("logs", nargs="+", type=Path)
     ap.add_argument("--set", dest="sets", action="append", default=[], help="SECTION.NAME=VALUE, as for process")
     args = ap.parse_args()
-    params = load_frontend_params(parse_set_option(tuple(args.sets)))
+    params = load_params(parse_set_option(tuple(args.sets)))
     total: list[float] = []
     stages: list[float] = []
     segment: list[float] = []
@@ -64,7 +64,7 @@ def main() -> None:
         segment.clear()
         reader = LogReader(log)
         topics = choose_topics(reader, None, None, None)
-        cal, _ = _calibration(reader, log, topics.ticks is not None, None)
+        cal, _ = load_calibration(reader, log, topics.ticks is not None, None)
         runner = LogRunner(["improved"], params, cal, topics, log)
         for _ in runner.run(LogInputs(reader, topics, cal)):
             pass

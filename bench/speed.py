@@ -5,7 +5,7 @@ with BLAS/OpenMP pinned to one thread:
 
 - ``process --method improved`` and ``--method baseline``: median and p95 ms per sweep;
 - ``process`` with both methods and every output: the wall time of a whole run, the second method
-  in a process of its own where two cores are usable (:mod:`fmcwlog.parallel_methods`); its CPU
+  in a process of its own where two cores are usable (:mod:`fmcwlog.pipeline.method_process`); its CPU
   time counts both processes (``RUSAGE_CHILDREN``), its peak memory is the two peaks added;
 - KISS-ICP 1.3 (``bench/kiss_icp_peer.py``, ``max_num_threads = 1``): ms per sweep and the wall
   time of its whole run (reading the log and registering every sweep);
@@ -62,7 +62,7 @@ def timed_step(self, sweep, prior):  # CPU time of a sweep beside the wall time 
     cpu[self.name].append((time.process_time() - c0) * 1e3)
     return r
 FrontEnd.step = timed_step
-def children_cpu():  # the process that runs the second method (fmcwlog.parallel_methods), once ended
+def children_cpu():  # the process that runs the second method (fmcwlog.pipeline.method_process), once ended
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
 t0, c0, k0 = time.perf_counter(), time.process_time(), children_cpu()

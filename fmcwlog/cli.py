@@ -311,7 +311,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
-    from .frontend.params import frontend_params_toml
+    from .pipeline.params import params_toml as frontend_params_toml
 
     params = _frontend_params(config_file, set_items)
     if show_config:
@@ -413,7 +413,7 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     console.info(f"wrote {summary.output}")
 def _frontend_params(config_file: Path | None, set_items: tuple[str, ...]):
     """--config FILE, then each --set; an error in the file's own values names the file."""
-    from .frontend.params import load_frontend_params
+    from .pipeline.params import load_params as load_frontend_params
 
     file_values = read_config_file(config_file) if config_file else None
     with naming(config_file):

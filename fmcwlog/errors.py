@@ -45,7 +45,7 @@ class OutputError(FmcwlogError):
 
 
 class MethodProcessError(FmcwlogError):
-    """The process running some of the methods (:mod:`fmcwlog.parallel_methods`) ended without its
+    """The process running some of the methods (:mod:`fmcwlog.pipeline.method_process`) ended without its
     results: killed, out of memory or crashed; the message says how, and that ``--jobs 1`` avoids it."""
 
 

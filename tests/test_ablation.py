@@ -22,7 +22,7 @@ from conftest import SAMPLE_LOGS
 from helpers import ate_rmse, ground_truth, tum
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.frontend.params import load_frontend_params
+from fmcwlog.pipeline.params import load_params
 
 
 @cache
@@ -34,7 +34,7 @@ def _improved_ate(log: Path, out: Path, switches: tuple[tuple[str, object], ...]
             tables.setdefault(head, {})[name] = value
         else:
             tables[head] = value
-    process(log, out, ProcessOptions(methods=("improved",), params=load_frontend_params(tables)), force=True)
+    process(log, out, ProcessOptions(methods=("improved",), params=load_params(tables)), force=True)
     return ate_rmse(tum(out / "improved.tum"), ground_truth(log))
 
 

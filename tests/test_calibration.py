@@ -200,13 +200,13 @@ def _drive_samples(omega, true: dict[str, float], seconds: float = 20.0, seed: i
 
 
 def _check(samples, track_width: float):
-    from fmcwlog.frontend.params import FrontEndParams
     from fmcwlog.frontend.self_calibration import calibration_report, estimate_calibration
+    from fmcwlog.pipeline.params import ProcessParams
     from fmcwlog.types import Calibration, WheelCalibration
 
     cal = Calibration(wheels=WheelCalibration(0.1, 0.1, track_width, 4096), mount=(0.35, 0.0, 0.0),
                       doppler_resolution=0.1, range_sigma=0.02)
-    prm = FrontEndParams().self_calibration
+    prm = ProcessParams().self_calibration
     return calibration_report(estimate_calibration(samples, cal, prm), cal, prm, None)
 
 

@@ -481,7 +481,7 @@ def test_sweeps_wait_for_a_motion_prior_that_stopped_at_most_the_clock_gap(short
     """Ticks stop after 1 s of 3: the later sweeps are processed with the prior held at its last pose
     once they have waited the gap (0.5 s here, 60 s by default), not all at the end of the log, and
     the estimates are those of waiting to the end."""
-    import fmcwlog.frontend.runner as runner
+    import fmcwlog.pipeline.runner as runner
 
     log = edited(short_logs, tmp_path, lambda topic, i, msg: False if topic == "/wheel/ticks" and i >= 50 else None)
     waited, warnings = process(log, tmp_path / "waited", "baseline")

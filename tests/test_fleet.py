@@ -208,7 +208,7 @@ def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     changed[len(changed) // 2] ^= 1  # same size, one bit
     moved.write_bytes(bytes(changed))
     assert completeness(ref, moved, options_digest(opts)) == (False, "the log changed")
-    other = api.ProcessOptions(params=api.FrontEndParams(min_range=0.4))
+    other = api.ProcessOptions(params=api.ProcessParams(min_range=0.4))
     assert completeness(ref, log, options_digest(other)) == (False, "the options changed")
     assert completeness(tmp_path / "absent", log, options_digest(opts))[0] is False
 

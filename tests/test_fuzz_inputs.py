@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.config import range_of
-from fmcwlog.frontend.params import FrontEndParams
+from fmcwlog.pipeline.params import ProcessParams
 from fmcwlog.sim.config import RobotConfig, RunConfig, SensorConfig
 
 settings.register_profile("fmcwlog-fuzz", derandomize=True, database=None, deadline=None, print_blob=True,
@@ -33,7 +33,7 @@ FUZZ = settings.get_profile("fmcwlog-fuzz")
 
 
 # every real parameter, as --set names it: the front end's own keys in [frontend]
-LEAVES = {"process": [(n if "." in n else f"frontend.{n}", k, range_of(f)) for n, f, k in param_leaves(FrontEndParams)],
+LEAVES = {"process": [(n if "." in n else f"frontend.{n}", k, range_of(f)) for n, f, k in param_leaves(ProcessParams)],
           "record": [(f"{s}.{n}", k, r) for s, c in (("sensor", SensorConfig), ("robot", RobotConfig), ("run", RunConfig))
                      for n, f, k in param_leaves(c) for r in (range_of(f),)]}
 PARAM_NAMES = sorted({n.rsplit(".", 1)[-1] for leaves in LEAVES.values() for n, _, _ in leaves})

@@ -1,23 +1,48 @@
-"""The layers hold by construction: estimation cannot reach ground truth or the simulator.
+"""The layers hold by construction: one-way imports, no cycle, estimation walled off from files and ground truth.
 
-The imports of every module are read from its source (not by importing it) and followed
-transitively inside the package. Estimation (``fmcwlog.frontend``, and the inputs it reads)
-may reach neither ``fmcwlog.evaluation`` (where the only ground-truth readers are) nor
-``fmcwlog.sim`` (which knows the true wheel radii and the world); and no module outside
-evaluation and the simulator names a ground-truth topic or record.
+The imports of every module are read from its source (not by importing it), at module level and
+inside functions alike (``TYPE_CHECKING`` ones too), and followed transitively inside the package.
+
+- The layers, lowest first (``LAYERS``): a module imports only from its own layer or a lower
+  one, and the front end and the back end, side by side, never import each other.
+- No import cycle among the package's modules.
+- Estimation (the front end, the back end, the kernels and types they share) reaches no file
+  format (``fmcwlog.io``), no evaluation (where the only ground-truth readers are) and no
+  simulator (which knows the true wheel radii and the world); no module outside evaluation and
+  the simulator names a ground-truth topic or record.
+- The fleet imports the pipeline, never the library façade ``fmcwlog.api``.
+- Importing the front end loads no MCAP reader, no plotting and no gtsam (a fresh interpreter).
 """
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "fmcwlog"
-ESTIMATION = ("fmcwlog.frontend", "fmcwlog.backend", "fmcwlog.io.inputs", "fmcwlog.io.calibration")
-FORBIDDEN = ("fmcwlog.evaluation", "fmcwlog.sim")
 GROUND_TRUTH_NAMES = {"GT_ODOM_TOPIC", "GT_LABELS_TOPIC", "WORLD_KEY", "SIM_KEY"}  # the prefix may be named: to skip them
+
+# lowest first; a module may import its own layer and those before it
+LAYERS: list[tuple[str, ...]] = [
+    ("fmcwlog", "fmcwlog.errors", "fmcwlog.config", "fmcwlog.geometry", "fmcwlog.allocator"),
+    ("fmcwlog.types",),
+    ("fmcwlog.kernels",),
+    ("fmcwlog.frontend", "fmcwlog.backend"),  # side by side: neither imports the other
+    ("fmcwlog.io",),
+    ("fmcwlog.pipeline",),
+    ("fmcwlog.fleet",),
+    ("fmcwlog.evaluation",),
+    ("fmcwlog.sim",),
+    ("fmcwlog.api",),
+    ("fmcwlog.cli", "fmcwlog.__main__"),
+]
+ESTIMATION = ("fmcwlog.frontend", "fmcwlog.backend", "fmcwlog.kernels", "fmcwlog.types")
+OFF_LIMITS_TO_ESTIMATION = ("fmcwlog.io", "fmcwlog.evaluation", "fmcwlog.sim", "fmcwlog.pipeline", "fmcwlog.fleet",
+                            "fmcwlog.api", "fmcwlog.cli")
 
 
 def _module_name(path: Path) -> str:
@@ -29,7 +54,7 @@ MODULES = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
 
 
 def _imports(name: str) -> set[str]:
-    """Package modules ``name`` imports (absolute or relative), including TYPE_CHECKING ones."""
+    """Package modules ``name`` imports (absolute or relative, anywhere in the file)."""
     path = MODULES[name]
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
@@ -44,8 +69,13 @@ def _imports(name: str) -> set[str]:
             targets = [base] + [f"{base}.{a.name}" for a in node.names]
         else:
             continue
-        found |= {t for t in targets if t in MODULES}
+        found |= {t for t in targets if t in MODULES and t != name}
     return found
+
+
+def _parents(name: str) -> list[str]:  # importing a.b.c runs a/__init__ and a/b/__init__
+    parts = name.split(".")
+    return [".".join(parts[:i]) for i in range(1, len(parts))]
 
 
 def _reachable(start: str) -> set[str]:
@@ -58,21 +88,105 @@ def _reachable(start: str) -> set[str]:
     return seen
 
 
-def _parents(name: str) -> list[str]:  # importing a.b.c runs a/__init__ and a/b/__init__
-    parts = name.split(".")
-    return [".".join(parts[:i]) for i in range(1, len(parts))]
+def _layer(name: str) -> int:
+    """The index in LAYERS of the longest prefix naming ``name``'s layer."""
+    best, rank = -1, None
+    for i, layer in enumerate(LAYERS):
+        for prefix in layer:
+            if (name == prefix or name.startswith(prefix + ".")) and len(prefix) > best:
+                best, rank = len(prefix), i
+    assert rank is not None, f"{name} is in no layer: add it to LAYERS"
+    return rank
+
+
+def _side(name: str) -> str:
+    return name.split(".")[1] if name.count(".") >= 1 else ""
+
+
+def _cycles() -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan's algorithm, iteratively)."""
+    graph = {m: sorted(_imports(m)) for m in MODULES}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = 0
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(graph[root]))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            for w in children:
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(graph[w])))
+                    break
+                if w in on_stack:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    component = []
+                    while True:
+                        w = stack.pop()
+                        on_stack.discard(w)
+                        component.append(w)
+                        if w == v:
+                            break
+                    if len(component) > 1:
+                        found.append(sorted(component))
+    return found
 
 
 def test_the_walker_sees_real_imports():
     assert "fmcwlog.evaluation.ground_truth" in _reachable("fmcwlog.evaluation.evaluate")
     assert "fmcwlog.frontend.gmmsc" in _reachable("fmcwlog.frontend.methods")
     assert "fmcwlog.sim.recorder" in _reachable("fmcwlog.api")
+    assert "fmcwlog.pipeline.process" in _imports("fmcwlog.fleet.worker")  # an import inside a function
+
+
+def test_the_cycle_finder_finds_a_cycle(monkeypatch):
+    """A planted two-module cycle is found (so an empty answer means something)."""
+    real = _imports
+    planted = {"fmcwlog.types": {"fmcwlog.kernels.voxel"}, "fmcwlog.kernels.voxel": {"fmcwlog.types"}}
+    monkeypatch.setattr(sys.modules[__name__], "_imports", lambda m: real(m) | planted.get(m, set()))
+    assert ["fmcwlog.kernels.voxel", "fmcwlog.types"] in _cycles()
+
+
+def test_no_import_cycle():
+    assert _cycles() == []
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_a_module_imports_only_its_own_layer_and_those_below(module):
+    mine = _layer(module)
+    above = sorted(m for m in _imports(module) if _layer(m) > mine)
+    assert not above, f"{module} (layer {mine}) imports {above} from a higher layer"
+    if _layer(module) == 3:  # the front end and the back end stand side by side
+        across = sorted(m for m in _imports(module) if _layer(m) == 3 and _side(m) != _side(module))
+        assert not across, f"{module} imports {across} across the front end / back end line"
 
 
 @pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith(ESTIMATION)))
-def test_estimation_cannot_reach_ground_truth_or_the_simulator(module):
-    leaks = sorted(m for m in _reachable(module) if m.startswith(FORBIDDEN))
+def test_estimation_reaches_no_file_format_ground_truth_or_simulator(module):
+    leaks = sorted(m for m in _reachable(module) if m.startswith(OFF_LIMITS_TO_ESTIMATION))
     assert not leaks, f"{module} reaches {leaks}"
+
+
+def test_the_fleet_never_imports_the_facade():
+    for name in (m for m in MODULES if m.startswith("fmcwlog.fleet")):
+        assert "fmcwlog.api" not in _reachable(name), name
 
 
 def test_only_evaluation_and_the_simulator_name_ground_truth():
@@ -86,22 +200,30 @@ def test_only_evaluation_and_the_simulator_name_ground_truth():
 
 
 def test_the_method_names_agree_with_the_method_classes():
-    from fmcwlog.frontend import names
+    from fmcwlog import types
     from fmcwlog.frontend.methods import METHODS
 
-    assert tuple(METHODS) == names.METHOD_NAMES
-    assert tuple(m for m, cls in METHODS.items() if cls.segments) == names.SEGMENTING_METHODS
+    assert tuple(METHODS) == types.METHOD_NAMES
+    assert tuple(m for m, cls in METHODS.items() if cls.segments) == types.SEGMENTING_METHODS
+
+
+def _loaded_after(code: str, prefixes: tuple[str, ...]) -> list[str]:
+    """The modules starting with ``prefixes`` that a fresh interpreter holds after running ``code``."""
+    probe = f"{code}\nimport sys\nprint(sorted(m for m in sys.modules if m.startswith({prefixes!r})))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=PACKAGE.parent, check=True)
+    return eval(out.stdout.strip().splitlines()[-1])  # a printed list of str
+
+
+def test_importing_the_front_end_loads_no_file_format_plots_or_gtsam():
+    stages = " ".join(f"import {m};" for m in sorted(MODULES) if m.startswith("fmcwlog.frontend"))
+    assert _loaded_after(stages, ("mcap", "matplotlib", "gtsam", "pyarrow", "fmcwlog.io")) == []
+    # the probe sees what it looks for: the back end does load gtsam
+    assert "gtsam" in _loaded_after("import fmcwlog.backend", ("gtsam",))
 
 
 def test_evaluation_does_not_import_the_estimation_stack():
     """report needs the methods' names, not scikit-learn and the stages (1.7 s of imports)."""
-    import subprocess
-    import sys
-
-    code = ("import sys, fmcwlog.evaluation.pages; "
-            "print(sorted(m for m in sys.modules if m.startswith(('sklearn', 'fmcwlog.frontend.'))))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=PACKAGE.parent, check=True)
-    assert out.stdout.strip() == "['fmcwlog.frontend.names']", out.stdout
+    assert _loaded_after("import fmcwlog.evaluation.pages", ("sklearn", "fmcwlog.frontend")) == []
 
 
 ESTIMATION_STACK = ("gtsam", "scipy.optimize", "scipy.ndimage", "scipy.spatial", "sklearn", "pyarrow",
@@ -111,9 +233,6 @@ ESTIMATION_STACK = ("gtsam", "scipy.optimize", "scipy.ndimage", "scipy.spatial",
 def test_record_does_not_import_the_estimation_stack(tmp_path):
     """``fmcwlog record`` (and ``--help``) import the simulator and the log writer only: the
     estimation stack and the evaluation are about a second of imports a recording never uses."""
-    import subprocess
-    import sys
-
     code = ("import sys\n"
             "from fmcwlog.cli import cli\n"
             "cli.main(sys.argv[1:], standalone_mode=False)\n"

@@ -1,4 +1,4 @@
-"""Two methods in two processes (fmcwlog.parallel_methods): the same bytes as one process, the same
+"""Two methods in two processes (fmcwlog.pipeline.method_process): the same bytes as one process, the same
 errors, nothing left behind.
 
 The reference is the same run in one process (``jobs=1``), compared file by file: bytes, except

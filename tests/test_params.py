@@ -25,14 +25,14 @@ from fmcwlog.errors import ConfigError, MapSizeError
 from fmcwlog.frontend.gmmsc import GMMSCParams
 from fmcwlog.frontend.icp import ICPParams
 from fmcwlog.frontend.keyframe_map import LocalMapParams
-from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
 from fmcwlog.frontend.recovery import RecoveryParams
 from fmcwlog.frontend.segmentation import SegmentationParams
 from fmcwlog.kernels.correlative import CorrelativeParams
 from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams
+from fmcwlog.pipeline.params import ProcessParams, load_params
 from fmcwlog.sim.config import RobotConfig, RunConfig, SensorConfig, SimConfig
 
-USER_PARAMETERS = (FrontEndParams, SegmentationParams, ICPParams, GMMSCParams, LocalMapParams, RecoveryParams,
+USER_PARAMETERS = (ProcessParams, SegmentationParams, ICPParams, GMMSCParams, LocalMapParams, RecoveryParams,
                    CorrelativeParams, BackendParams, LineICPParams, SensorConfig, RobotConfig, RunConfig)
 
 
@@ -55,7 +55,7 @@ def test_every_numeric_parameter_has_a_bounded_range_holding_its_default(cls):
 def _numeric():
     """(command, name as --set takes it, type, range) of every numeric parameter of process and record."""
     out = []
-    for name, f, kind in param_leaves(FrontEndParams):
+    for name, f, kind in param_leaves(ProcessParams):
         if kind in (int, float):  # the front end's own keys live in [frontend]
             out.append(("process", name if "." in name else f"frontend.{name}", kind, range_of(f)))
     for section, cls in (("sensor", SensorConfig), ("robot", RobotConfig), ("run", RunConfig)):
@@ -131,8 +131,8 @@ def test_library_construction_is_checked_too():
     assert SegmentationParams(alpha=0.0).alpha == 0.0  # the closed end is inside
 
 
-def _frontend_as_tables(p: FrontEndParams) -> dict:
-    """FrontEndParams as the TOML tables its printer must produce: the front end's own keys in [frontend]."""
+def _frontend_as_tables(p: ProcessParams) -> dict:
+    """ProcessParams as the TOML tables its printer must produce: the front end's own keys in [frontend]."""
     d = dataclasses.asdict(p)
     nested = {k: d.pop(k) for k in [k for k, v in d.items() if isinstance(v, dict)]}
     return {"frontend": d, **nested}
@@ -157,9 +157,9 @@ def test_show_config_is_toml_that_config_takes_back_unchanged(tmp_path, command,
     assert code == 0, err
     tables = tomllib.loads(printed)  # an independent parser
     if command == "process":
-        params = load_frontend_params(None, parse_set_option(sets))
+        params = load_params(None, parse_set_option(sets))
         assert tables == _frontend_as_tables(params)
-        assert load_frontend_params(tables) == params
+        assert load_params(tables) == params
     else:
         assert set(tables) == {"sensor", "robot", "run"}
         cfg = SimConfig(SensorConfig(**tables["sensor"]), RobotConfig(**tables["robot"]), RunConfig(**tables["run"]))

@@ -205,7 +205,7 @@ def test_non_empty_output_folder_is_refused_without_force_and_a_foreign_one_even
 def test_config_file_and_set_reach_nested_stages(tmp_path):
     from fmcwlog.config import parse_set_option, read_config_file
     from fmcwlog.errors import ConfigError
-    from fmcwlog.frontend.params import load_frontend_params as load_params
+    from fmcwlog.pipeline.params import load_params
 
     cfg = tmp_path / "p.toml"
     cfg.write_text("[segmentation]\nv_th = 0.25\n[icp.gmmsc]\nw_th = 0.6\n[frontend]\nvoxel_size = 0.1\n")

@@ -191,12 +191,12 @@ def test_header_says_what_was_run(folders, tmp_path):
     import hashlib
 
     import fmcwlog
-    from fmcwlog.frontend.params import FrontEndParams
+    from fmcwlog.pipeline.params import ProcessParams
 
     folder = tmp_path / "header"
     shutil.copytree(folders["exact"], folder)
     run = json.loads((folder / "run.json").read_text())
-    params = dataclasses.asdict(FrontEndParams())
+    params = dataclasses.asdict(ProcessParams())
     run.update(params=dict(reversed(list(params.items()))), fmcwlog_version="9.9.9", methods=["improved", "baseline"])
     (folder / "run.json").write_text(json.dumps(run, indent=3))  # key order and layout must not matter
     ev = evaluate(folder)

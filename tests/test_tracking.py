@@ -19,10 +19,10 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.frontend.params import FrontEndParams, load_frontend_params
 from fmcwlog.frontend.segmentation import SegmentationParams, segment_moving
 from fmcwlog.frontend.tracking import MoverTracker, TrackingParams
 from fmcwlog.kernels.occupancy import OccupancyGrid, Scan
+from fmcwlog.pipeline.params import ProcessParams, load_params
 from fmcwlog.sim.chassis import BodyState
 from fmcwlog.sim.config import SensorConfig
 from fmcwlog.sim.lidar import FmcwLidar
@@ -166,7 +166,7 @@ def dense_scores(dense_crowd_log, tmp_path_factory):
     scores = {}
     for enabled in (True, False):
         out = tmp_path_factory.mktemp("dense") / "out"
-        params = load_frontend_params({"tracking": {"enabled": enabled}})
+        params = load_params({"tracking": {"enabled": enabled}})
         process(dense_crowd_log, out, ProcessOptions(methods=("improved",), params=params))
         tp = fp = fn = 0
         for _, _, m, msg in decoded(out / "processed.mcap", ["/improved/moving_labels"]):
@@ -206,7 +206,7 @@ def test_middle_time_is_numpys_median(t, sort):
     assert np.array(got).tobytes() == np.array(want).tobytes()
 
 
-@pytest.mark.parametrize("grid_distance", sorted({FrontEndParams().grid_distance, 1.0}))
+@pytest.mark.parametrize("grid_distance", sorted({ProcessParams().grid_distance, 1.0}))
 def test_walker_crossing_free_space_seen_from_scans_grid_distance_apart(grid_distance):
     # The robot drives at 1 m/s down a hall and hands its static points to the grids only every
     # grid_distance m of path, as the front end does; a walker crosses 12-14 m ahead broadside, so

@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,6 +39,7 @@ from ..kernels.correlative import MAX_LEVELS, CorrelativeParams
 from ..kernels.growing import GrowingArray
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams
 from ..kernels.voxel import voxel_downsample
+from ..types import SweepResult
 from .candidates import closure_candidates
 from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
@@ -47,9 +47,6 @@ from .local_edges import LocalMatcher
 from .params import BackendParams
 from .point_store import PointStore
 from .verification import verify
-
-if TYPE_CHECKING:
-    from ..types import SweepResult
 
 QUERY_VOXEL = 0.1  # m: the query node's points are thinned to this for verification
 SUBMAP_VOXEL = 0.05  # m: and the submap's
@@ -101,6 +98,21 @@ class BackendResult:
                 "local_rejections": dict(sorted(self.local_rejections.items())), "closures_proposed": self.proposed,
                 "closures_verified": self.verified, "closures_accepted": self.accepted,
                 "rejections": dict(sorted(self.rejections.items())), "seconds": round(self.seconds, 3)}
+
+    def to_json(self) -> dict:
+        """What ``<method>_backend.json`` holds: the nodes (optimised poses, in the method's own
+        ``<method>/odom``), every verified closure and the :meth:`summary`."""
+        return {
+            "frame": "the method's own <method>/odom; base_link",
+            "nodes": {"stamp_ns": self.node_stamps_ns.tolist(), "x": self.node_poses[:, 0].round(6).tolist(),
+                      "y": self.node_poses[:, 1].round(6).tolist(), "yaw": self.node_poses[:, 2].round(6).tolist()},
+            "closures": [{"query": c.query, "candidate": c.candidate, "query_stamp_ns": c.query_stamp_ns,
+                          "candidate_stamp_ns": c.candidate_stamp_ns, "relative": [round(float(v), 6) for v in c.relative],
+                          "score": round(c.score, 4), "second_score": round(c.second_score, 4),
+                          "inlier_fraction": round(c.inlier_fraction, 4), "free_directions": c.free_directions,
+                          "whitened_error": round(c.whitened_error, 4), "accepted": c.accepted} for c in self.closures],
+            "summary": self.summary(),
+        }
 
 
 @dataclass

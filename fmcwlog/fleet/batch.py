@@ -23,6 +23,7 @@ from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, OutputError
+from ..pipeline.options import ProcessOptions, options_digest
 from .inputs import MCAP_PATTERNS, find_logs, unique_names
 from .local import run_local
 from .progress import Progress
@@ -31,7 +32,6 @@ from .state import (
     completeness,
     follow_renamed,
     is_fmcwlog_output,
-    options_digest,
     read_batch,
     remove_stale_partials,
     write_batch,
@@ -135,15 +135,25 @@ class _Record:
         write_batch(self.out_dir, self.doc)
 
 
-def process_many(paths: Sequence[str | os.PathLike], out_dir: str | os.PathLike, options: Any, force: bool = False,
-                 jobs: int | None = None, limits: Limits | None = None, ray_address: str | None = None,
-                 use_ray: bool = False, retries: int = 2,
+def process_many(paths: Sequence[str | os.PathLike], out_dir: str | os.PathLike, opts: ProcessOptions | None = None,
+                 force: bool = False, jobs: int | None = None, limits: Limits | None = None, ray: bool = False,
+                 ray_address: str | None = None, retries: int = 2,
                  on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
-    """See :func:`fmcwlog.api.process_many`."""
+    """:func:`~fmcwlog.pipeline.process.process` every log that ``paths`` name (files, or folders searched for ``*.mcap``),
+    each into ``out_dir/<name>`` in a worker process of its own; see :mod:`fmcwlog.fleet`.
+
+    ``jobs`` workers at a time (default: every core); ``limits``: each log's memory cap and
+    timeout. Logs whose results are complete from the same bytes and options are skipped
+    unless ``force``. ``ray``: run them as Ray tasks instead (``ray_address`` None starts a
+    local Ray; ``retries``: Ray's retries of a task whose worker or node died). A log that
+    fails is an outcome with its reason (``summary.failed``), not an exception; the
+    exceptions are for the batch as a whole (no logs found, bad limits, Ray unreachable).
+    """
+    options = opts or ProcessOptions()
     limits = limits or Limits()
     check_limits(limits, jobs)
     out_dir = Path(out_dir)
-    executor = "ray" if use_ray else "local"
+    executor = "ray" if ray else "local"
     tasks, known, names = plan(paths, out_dir, options, force, jobs or default_jobs())
     created = [d for d in (out_dir, *out_dir.parents) if not d.exists()]  # deepest first
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -155,7 +165,7 @@ def process_many(paths: Sequence[str | os.PathLike], out_dir: str | os.PathLike,
         progress = Progress(tasks, on_progress, on_outcome=record.add)
         if not tasks:
             ran: list[LogOutcome] = []
-        elif use_ray:
+        elif ray:
             from .ray_executor import run_on_ray
 
             ran = run_on_ray(tasks, limits, ray_address, jobs, retries, progress)

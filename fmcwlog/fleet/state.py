@@ -13,42 +13,20 @@ lives here; ``fmcwlog report OUT`` reads it.
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import json
 import os
 import re
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from .. import __version__
 from ..io.atomic import read_marker, write_json
 from ..io.digest import file_sha256
-
-if TYPE_CHECKING:
-    from ..api import ProcessOptions
 
 BATCH_FILE = "batch.json"
 BATCH_SCHEMA = "fmcwlog.batch/1"
 
 
-def options_digest(opts: ProcessOptions) -> str:
-    """SHA-256 of everything that shapes the results: methods, topics, every parameter, the
-    publishing period, the calibration file's bytes (``--calibration``: a file edited in place
-    gives other results; the same bytes elsewhere, the same) and fmcwlog's version (new code
-    may give different results)."""
-    doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
-    if opts.calibration is not None:
-        doc["calibration"] = _file_digest(Path(opts.calibration))
-    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _file_digest(path: Path) -> str:
-    try:
-        return "sha256:" + file_sha256(path)
-    except OSError:  # unreadable: processing says so, naming the file; the digest only has to differ
-        return f"unreadable: {path}"
 
 
 def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, str]:

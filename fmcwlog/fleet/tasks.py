@@ -27,7 +27,8 @@ class Limits:
 
 @dataclass(frozen=True)
 class LogTask:
-    """Process ``log`` into ``out_dir`` (``OUT/<name>``) with ``options`` (an :class:`fmcwlog.api.ProcessOptions`)."""
+    """Process ``log`` into ``out_dir`` (``OUT/<name>``) with ``options``
+    (an :class:`fmcwlog.pipeline.options.ProcessOptions`)."""
 
     name: str
     log: Path

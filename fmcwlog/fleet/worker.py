@@ -3,7 +3,7 @@
 The worker caps its address space (``RLIMIT_AS``) at the megabytes its one argument gives,
 before anything large is imported; the parent then writes a pickled
 :class:`~fmcwlog.fleet.tasks.LogTask` to its stdin; the worker runs
-:func:`fmcwlog.api.process` and answers on stdout, one line per message:
+:func:`fmcwlog.pipeline.process.process` and answers on stdout, one line per message:
 
 - ``sweeps DONE TOTAL`` now and then (TOTAL ``-`` when the log's summary does not say);
 - ``done {json}`` once the results are in place: sweeps, ms per sweep, warnings;
@@ -23,15 +23,14 @@ import json
 import os
 import pickle
 import resource
-import signal
 import sys
 import time
 import traceback
 
 from ..errors import FmcwlogError  # tiny: safe before the cap
+from ..pipeline.children import die_with_parent  # tiny too
 
 PROGRESS_PERIOD_S = 0.25  # the parent's bar needs no more
-PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def _cap_address_space(limit_bytes: int | None) -> None:
@@ -50,18 +49,6 @@ def _out_of_memory(exc: BaseException) -> bool:
         isinstance(exc, ImportError) and ("failed to map segment" in text or "Cannot allocate memory" in text))
 
 
-def die_with_parent() -> None:
-    """Linux: end this worker when the process that started it dies (a killed batch or Ray worker),
-    rather than finish a log nobody waits for (also the child of :mod:`fmcwlog.parallel_methods`)."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):  # not Linux: the worker runs on to the end of its log
-        pass
-
-
 def main() -> int:
     die_with_parent()
     proto = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1)
@@ -74,7 +61,7 @@ def main() -> int:
     try:
         _cap_address_space(cap_mb * 2**20 if cap_mb else None)  # first: numpy, scipy and sklearn count too
         task = pickle.load(sys.stdin.buffer)
-        from ..api import process
+        from ..pipeline.process import process
 
         last = [0.0]
 

@@ -1,25 +1,17 @@
-"""The parameters of a front end, and how config files and ``--set`` reach them.
+"""The parameters of a front end: its own, and each stage's as a nested table.
 
-A config file (TOML, YAML or JSON) holds the same structure as
-:class:`FrontEndParams`: the front end's own parameters at the top level (or in
-a ``[frontend]`` table), each stage's in its own table (``[segmentation]``,
-``[tracking]``, ``[icp]``, ``[icp.gmmsc]``). ``fmcwlog process --show-config`` prints exactly
-that as TOML (:func:`frontend_params_toml`, each parameter with its unit and valid range),
-and ``run.json`` records it under ``params``, so either can be fed back. Every numeric
-parameter declares its range beside its default (:func:`fmcwlog.config.param`); a value
-outside it is refused with one line naming it.
+Every numeric parameter declares its unit and range beside its default
+(:func:`fmcwlog.config.param`); a value outside it is refused with one line naming it. The
+parameters of a whole run (these and the back end's) and how config files and ``--set`` reach
+them are :mod:`fmcwlog.pipeline.params`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
-from ..backend.params import BackendParams
-from ..config import Checked, apply_to_dataclass, param, toml_table
-from ..errors import ConfigError
+from ..config import Checked, param
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
 from .recovery import RecoveryParams
@@ -80,13 +72,8 @@ class FrontEndParams(Checked):
     min_range: float = param(0.3, "m", ge=0.0, le=10.0)
     keyframe_distance: float = param(0.2, "m", ge=0.0, le=100.0)  # 0: every sweep is a keyframe
     keyframe_angle_deg: float = param(5.0, "deg", ge=0.0, le=180.0)
-    # 1 m (issue 14) was measured and not taken: it cuts the ray casting, shared by the grid and
-    # the tracker's free space (recent_grid.py), the tracker's largest part (120 s corridor: 231 -> 134
-    # casts, cast CPU 0.57 -> 0.40 s, front end 5.75 -> 5.50 s, min of 3 alternating; its moving F1
-    # and ATE unchanged, as on the 200 s ring), but dense-crowd 20 s's F1 over seeds 0/1/2 went
-    # 0.9813 / 0.9809 / 0.9748 -> 0.9724 / 0.9730 / 0.9794 with 3-5x the static points judged moving
-    # (60 s: 0.9876 -> 0.9870), and the last published front-end map and the back end's redraw of the
-    # same floor then differed by 14 % in observed cells (tests/test_outputs.py holds them within 5 %).
+    # 0.5 m: a coarser 1 m halves the ray casting but lets more static points be judged moving in
+    # dense crowds (docs/design/frontend-params.md)
     grid_distance: float = param(0.5, "m", ge=0.0, le=100.0)
     grid_angle_deg: float = param(10.0, "deg", ge=0.0, le=180.0)
     source_voxel: float = param(0.1, "m", ge=0.0, le=10.0)
@@ -115,42 +102,3 @@ class FrontEndParams(Checked):
     # the map scans are matched against, and the recovery from a poor prior (not in the paper)
     local_map: LocalMapParams = field(default_factory=LocalMapParams)
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
-    # the pose-graph back end both methods share (fmcwlog.backend)
-    backend: BackendParams = field(default_factory=BackendParams)
-
-
-def load_frontend_params(*sources: dict[str, Any] | None) -> FrontEndParams:
-    """Front-end parameters from parsed config files and ``--set`` tables, applied in order.
-
-    Each source has the structure of :class:`FrontEndParams` (``dataclasses.asdict``):
-    top-level keys are the front end's own, ``segmentation``/``icp`` are tables. A
-    ``[frontend]`` table is accepted as the front end's own keys, and a ``run.json``
-    (a table with ``params`` and ``fmcwlog_version``) gives its ``params``.
-    """
-    params = FrontEndParams()
-    for source in sources:
-        source = dict(source or {})
-        if "params" in source and "fmcwlog_version" in source:  # a run.json
-            if not isinstance(source["params"], dict):
-                raise ConfigError("a run.json's 'params' must be a table of parameters")
-            source = dict(source["params"])
-        own = source.pop("frontend", {})
-        if not isinstance(own, dict):
-            raise ConfigError("[frontend] must be a table of parameters")
-        params = apply_to_dataclass(params, own, "frontend")
-        params = apply_to_dataclass(params, source)
-    return params
-
-
-def frontend_params_toml(params: FrontEndParams) -> str:
-    """Every parameter as TOML (``[frontend]``, then a table per stage: ``[segmentation]``, ``[icp]``, ...), each
-    with its unit and range as a comment; :func:`load_frontend_params` takes it back unchanged."""
-    head = ["# fmcwlog process parameters: every one, with its unit and valid range.",
-            "# Use: fmcwlog process LOG --config FILE (or change one with --set TABLE.NAME=VALUE,",
-            "# e.g. --set icp.huber_delta=0.04 or --set frontend.voxel_size=0.1).", ""]
-    lines = head + toml_table("frontend", params, nested=False)
-    for f in dataclasses.fields(params):  # each stage's table: [segmentation], [icp] (and [icp.gmmsc]), ...
-        stage = getattr(params, f.name)
-        if dataclasses.is_dataclass(stage):
-            lines += toml_table(f.name, stage)
-    return "\n".join(lines).rstrip() + "\n"

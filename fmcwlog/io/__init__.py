@@ -1,15 +1,17 @@
 """Logs in and outputs out: every file fmcwlog reads or writes goes through here.
 
-- ``topics``        the names the log format fixes (topics, metadata records, frames)
-- ``schemas``       the ``ros2msg`` schema texts from ``schemas/``
-- ``messages``      ROS 2 messages as dicts and numpy arrays (PointCloud2, Odometry, ...)
-- ``mcap_log``      the MCAP container: :class:`LogReader`, :class:`LogWriter`
-- ``inputs``        what estimation reads: sweeps, wheel ticks, odometry poses
-- ``calibration``   the ``fmcwlog.calibration`` record as numbers
-- ``carmen``        real 2-D laser logs (CARMEN, CMU course format), parsed
-- ``carmen_import`` those logs written as fmcwlog logs
-- ``outputs``       TUM, parquet, map_server maps, ``processed.mcap``, ``run.json``
-- ``map_files``     map_server maps read back as occupied and free cells
-- ``atomic``        a temporary name, then a rename: nothing is seen half-written
-- ``spill``         data that grows with the log kept in a temporary file until needed (nodes' points)
+- ``topics``           the names the log format fixes (topics, metadata records, frames)
+- ``schemas``          the ``ros2msg`` schema texts from ``schemas/``
+- ``messages``         ROS 2 messages as dicts and numpy arrays (PointCloud2, Odometry, ...)
+- ``mcap_log``         the MCAP container: :class:`LogReader`, :class:`LogWriter`
+- ``mcap_scan``        reading an MCAP file's records in one time-ordered pass
+- ``inputs``           what estimation reads: decoded, checked sweeps, wheel ticks, odometry poses
+- ``calibration``      the ``fmcwlog.calibration`` record (or a calibration file) as numbers
+- ``calibration_file`` calibration files, read and written
+- ``carmen``           real 2-D laser logs (CARMEN, CMU course format), parsed
+- ``carmen_import``    those logs written as fmcwlog logs
+- ``outputs``          TUM, parquet, map_server maps, ``processed.mcap``
+- ``map_files``        map_server maps read back as occupied and free cells
+- ``atomic``           a temporary name, then a rename: nothing is seen half-written
+- ``digest``           a file's SHA-256
 """

@@ -10,10 +10,16 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..errors import CalibrationError
+from ..errors import CalibrationError, LogError
 from ..types import Calibration, WheelCalibration
+from .calibration_file import read_calibration_file
 from .topics import CALIBRATION_KEY
+
+if TYPE_CHECKING:
+    from .mcap_log import LogReader
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
@@ -113,3 +119,23 @@ def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: 
     opt = {k: _number(values, k) if k in values else None for k in OPTIONAL_KEYS}
     return Calibration(wheels, (x, y, yaw), opt["doppler_resolution"], opt["range_sigma"], opt["max_range"],
                        opt["scan_rate"] or None)
+
+
+def load_calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
+    """The calibration to process ``log`` with: the calibration file at ``path`` if given, else the
+    log's ``fmcwlog.calibration`` record; and where it came from (the path, or ``log record ...``).
+
+    ``need_wheels``: the wheels' keys must be there (wheel ticks are read). Raises
+    :class:`~fmcwlog.errors.CalibrationError` (naming the file) for a bad file, and
+    :class:`~fmcwlog.errors.LogError` (naming the log) for a missing or bad record. A calibration
+    that leaves out some of the mount's keys is warned of by :func:`parse_calibration`."""
+    if path is not None:
+        try:
+            return parse_calibration(read_calibration_file(path), need_wheels, str(path)), str(path)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+    try:
+        record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
+        return parse_calibration(record, need_wheels, str(log)), f"log record {CALIBRATION_KEY}"
+    except CalibrationError as exc:
+        raise LogError(f"{log}: {exc}{reader.damage_note()}") from None

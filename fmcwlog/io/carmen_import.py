@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CarmenImportError
-from .carmen import ParsedLog, ScanRecord
+from ..errors import CarmenImportError, os_reason
+from .atomic import created_parents, reported_write_errors
+from .carmen import ParsedLog, ScanRecord, parse_log
 from .mcap_log import LogWriter
 from .messages import odometry_message, stamp
 from .topics import CALIBRATION_KEY, IMPORT_KEY
@@ -139,3 +140,14 @@ def _unique_stamps(events: list[tuple[float, int, int]], scans: list[ScanRecord]
         last[topic] = ns
         kept.append((t, kind, i))
     return kept, repeated
+
+
+def import_carmen(source: str | Path, output: str | Path) -> tuple[ImportSummary, str]:
+    """Convert a CARMEN or CMU course log into an fmcwlog MCAP log; returns the summary and the format."""
+    try:
+        parsed = parse_log(Path(source))
+    except (OSError, EOFError, UnicodeDecodeError) as exc:  # a damaged .gz/.xz stream is an EOFError or OSError
+        reason = os_reason(exc) if isinstance(exc, OSError) else str(exc) or type(exc).__name__
+        raise CarmenImportError(f"{source}: cannot read ({reason})") from None
+    with reported_write_errors(output), created_parents(output):
+        return write_mcap(parsed, Path(output)), parsed.format

@@ -22,7 +22,7 @@ in ``map`` (the ground truth's frame) the robot started, so no estimate claims `
   map are then the optimised ones (:meth:`ProcessOutputs.correct`), the parquet keeping the front
   end's beside them (``x_frontend, y_frontend, yaw_frontend``);
 - ``<M>_backend.json`` (with a back end): its nodes and loop closures;
-- ``run.json`` (written by :mod:`fmcwlog.api`): parameters, version, inputs, counts.
+- ``run.json`` (:class:`fmcwlog.pipeline.run_record.RunRecord`): parameters, version, inputs, counts.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -40,6 +39,8 @@ from ..allocator import release_freed_memory
 from ..errors import ReportError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from ..kernels.growing import GrowingArray
+from ..kernels.occupancy import OccupancyGrid
+from ..types import SweepResult
 from .mcap_log import LogWriter, Pose7, Stamp, float32_cloud_cdr, odometry_cdr, path_cdr, stamp_pair, tf_cdr
 from .messages import (
     occupancy_grid_message,
@@ -50,10 +51,6 @@ from .messages import (
     transform_dict,
 )
 from .topics import TF_STATIC_TOPIC, TF_TOPIC
-
-if TYPE_CHECKING:  # built by the front end; outputs only read them
-    from ..kernels.occupancy import OccupancyGrid
-    from ..types import SweepResult
 
 
 def odom_frame(name: str) -> str:

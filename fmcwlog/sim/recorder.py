@@ -23,6 +23,7 @@ import numpy as np
 
 from .. import __version__
 from ..geometry import yaw_to_quaternion
+from ..io.atomic import created_parents, reported_write_errors
 from ..io.mcap_log import (
     LogWriter,
     float32_cloud_cdr,
@@ -152,16 +153,19 @@ def _cloud(ns: int, sweep: Sweep) -> bytes:
     return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
 
 
-def record(
-    world: World,
-    cfg: SimConfig,
-    out: str | Path,
-    on_progress: Callable[[int], None] | None = None,
-) -> RecordSummary:
-    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``.
+def record(world: World, cfg: SimConfig, out: str | Path,
+           on_progress: Callable[[int], None] | None = None) -> RecordSummary:
+    """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out`` (and the
+    folders it needs: removed again if the recording fails).
 
-    ``on_progress`` is called with the number of sweeps done after each one.
+    ``on_progress`` is called with the number of sweeps done after each one. A full disk or an
+    unwritable folder is one :class:`~fmcwlog.errors.OutputError` naming ``out``.
     """
+    with reported_write_errors(out), created_parents(out):
+        return _record(world, cfg, out, on_progress)
+
+
+def _record(world: World, cfg: SimConfig, out: str | Path, on_progress: Callable[[int], None] | None) -> RecordSummary:
     cfg.validate()
     s_cfg, r_cfg, run = cfg.sensor, cfg.robot, cfg.run
     chassis = Chassis(world.route.build(), r_cfg)

@@ -193,3 +193,9 @@ def ring() -> World:
 SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "dense-crowd": dense_crowd,
              "long-corridor": long_corridor, "ring": ring}
 DEFAULT_SCENARIO = "corridor"
+
+
+def scenario(name: str = DEFAULT_SCENARIO) -> World:
+    """A built-in world by name (one of :data:`SCENARIOS`: ``corridor``, ``static``, ``crowd``,
+    ``dense-crowd``, ``long-corridor``, ``ring``)."""
+    return SCENARIOS[name]()

@@ -4,7 +4,7 @@ A sweep waits in a short queue until the motion prior (wheel ticks or an
 Odometry topic) covers its whole duration, then every method processes it and
 :meth:`LogRunner.run` yields what each made of it (:class:`SweepStep`). No file
 is read or written here: the inputs come from :class:`fmcwlog.io.inputs.LogInputs`
-and the steps go to the output writers (:mod:`fmcwlog.api`).
+and the steps go to the output writers (:mod:`fmcwlog.pipeline.process`).
 
 What is damage and what is a refusal is decided where the inputs are decoded
 (:mod:`fmcwlog.io.inputs`): they arrive here non-empty, with stamps strictly
@@ -35,11 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LogError
+from ..frontend.methods import METHODS, FrontEnd, PriorMotion
+from ..frontend.motion_prior import PoseTrack
+from ..frontend.params import FrontEndParams
 from ..geometry import compose, inverse
 from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
-from .methods import METHODS, FrontEnd, PriorMotion
-from .motion_prior import PoseTrack
-from .params import FrontEndParams
 
 MIN_SPAN_S = 1e-3  # s: the shortest window a sweep's prior twist is taken over (a cloud without point times)
 

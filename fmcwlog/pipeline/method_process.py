@@ -2,13 +2,13 @@
 
 The methods are independent: each has its front end, its map and its back end, and they
 share only the log they read. With two or more methods asked and two or more CPUs usable
-(``os.sched_getaffinity``), :func:`fmcwlog.api.process` keeps the first method (``improved``)
+(``os.sched_getaffinity``), :func:`fmcwlog.pipeline.process.process` keeps the first method (``improved``)
 and the outputs in its own process and starts one child (:class:`MethodProcess`) that reads
 the same log and runs the others (``baseline``): front end and pose-graph back end. The
 outputs stay byte for byte those of one process, because the parent still writes every one
 of them, in the same order:
 
-- per sweep the child sends its methods' :class:`~fmcwlog.frontend.methods.SweepResult`\\ s,
+- per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s,
   which the parent puts after its own (the order of ``methods``) before the outputs take the
   sweep; a back end's error on that sweep comes with them and is raised where the parent
   would have added the result to that back end (:class:`ChildBackend`);
@@ -28,46 +28,20 @@ sweep. A child that dies without its results (killed, out of memory, crashed) is
 (done, an error, Ctrl-C: the child ignores SIGINT and is killed by the parent), and a child
 whose parent dies is ended by the system (Linux) or by its next write to the closed pipe. The
 child writes no file but the back end's unnamed temporary point store (:mod:`fmcwlog.backend.point_store`):
-the output folder's atomicity is the parent's, as before.
+the output folder's atomicity is the parent's.
 
 One process instead (``jobs=1``, ``fmcwlog process --jobs 1``): one CPU usable, one method
 asked, and inside the fleet's workers (:mod:`fmcwlog.fleet.worker`: they run logs side by side
 already). The outputs do not depend on it, so ``options_sha256`` does not either.
 
-What it buys, on the shared 2-core machine of issue 14 (load average 4-9 from other work, so
-wall times swing by half between repeats of the same command): the work is split, not added.
-Both processes pinned to one core (``taskset``), CPU s of ``process`` (both methods, pose graph):
+What it buys: the work is split, not added. With both processes pinned to one core, the
+CPU seconds of parent and child add up to about one process's (120 s corridor, both methods and
+the pose graph: 13.2-13.7 + 9.0-9.2 s against 22.7-26.4 s in one), so with two free cores the
+wall time falls to about the parent's share; the measurements are in
+``docs/design/method-process.md``.
 
-| log | one process | two: parent (improved + outputs) | two: child (baseline) | two: sum |
-|---|---|---|---|---|
-| 120 s corridor | 22.7-26.4 | 13.2-13.7 | 9.0-9.2 | 22.2-22.9 |
-| 200 s ring | 37.8 | 22.3 | 16.8 | 39.1 |
-| 20 s crowd | 5.1-7.0 | 3.7-4.2 | 2.3-2.8 | 5.9-7.1 |
-
-so with two free cores the run's wall time falls to about the parent's share, 50-60 % of one
-process's on the corridor and the ring (the child runs up to a publishing period ahead, so its
-back end's slow sweeps need not stall the parent). The child's fixed costs are its own read of
-the log (0.5 s CPU on the corridor) and the results it sends. ``fmcwlog run`` (record, process,
-report), its process step as there (after a recording in the same process): parent 14.0 s +
-child 9.4 s against 22.8 s. Not pinned, the two processes' CPU was 0-30 % above one process's
-(the corridor 14.5 + 10.0 s against 21.9 s; the ring 38.8 and 48.4 s against 35.2 and 36.7 s;
-``fmcwlog run`` as a whole 36.6 and 32.3 s against 28.8 and 26.7 s): since the pinned runs add
-no work, presumably the time both cores running fmcwlog lose to the other work. The wall-time gain
-could not be shown there: the other work kept both cores busy, and the kernel's autogroup
-scheduling gives a command's session one fair share however many processes it runs (two
-processes each burning 2 s of CPU took 4.0 s of wall time, one took 2.1 s), so the walls of
-one and two processes moved with the load alone (corridor 94 and 50 s against 68 and 43 s;
-ring 73 and 52 s against 82 and 51 s; crowd 15.7-17.1 s against 17.2-17.6 s; ``fmcwlog run``
-33 and 40 s against 51 and 57 s; alternated). Once the machine was quiet (load 0.2), the
-corridor, two alternating pairs, ``/usr/bin/time python -m fmcwlog process``: 12.8-13.0 s wall
-with two processes against 20.3-20.6 s with ``--jobs 1`` (-37 %), CPU 21.9-22.7 against
-20.4-20.9 s.
-
-How the child starts: ``fork`` where the system has it safely (Linux), else ``spawn``. Measured
-on the shared 2-core machine, a parent that has imported the estimation stack, three starts
-each, until the child's first message: fork 9-20 ms wall and 8-10 ms CPU; spawn 1.2-2.2 s
-wall and 1.2-1.3 s CPU (a fresh interpreter importing numpy, scipy and the stages);
-forkserver 1.2-2.3 s wall (the server's start).
+How the child starts: ``fork`` where the system has it safely (Linux), else ``spawn`` (a fresh
+interpreter importing numpy, scipy and the stages: about 1.2 s more a run).
 """
 
 from __future__ import annotations
@@ -89,17 +63,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .errors import FmcwlogError, MethodProcessError
+from ..allocator import keep_freed_memory
+from ..backend import BackendResult, PoseGraphBackend
+from ..errors import FmcwlogError, MethodProcessError
+from ..io.inputs import LogInputs
+from ..io.mcap_log import LogReader
+from ..io.outputs import ProcessOutputs
+from ..kernels.occupancy import OccupancyGrid
+from ..types import Calibration, InputTopics, SweepResult
+from .children import die_with_parent
+from .params import ProcessParams
+from .runner import LogRunner, SweepStep
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
-
-    from .backend import BackendResult
-    from .frontend.params import FrontEndParams
-    from .frontend.runner import SweepStep
-    from .io.outputs import ProcessOutputs
-    from .kernels.occupancy import OccupancyGrid
-    from .types import Calibration, InputTopics, SweepResult
 
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"  # numbers in the module docstring
 _JOIN_S = 5.0  # s to wait for a child that was told to end, or has ended, before it is killed
@@ -128,7 +105,7 @@ class ChildTask:
 
     log: Path
     methods: tuple[str, ...]
-    params: FrontEndParams
+    params: ProcessParams
     cal: Calibration
     topics: InputTopics
     backend: bool
@@ -308,8 +285,6 @@ class MethodProcess:
 
 
 def _merged(step: SweepStep, results: list[SweepResult]) -> SweepStep:
-    from .frontend.runner import SweepStep
-
     return SweepStep(step.sweep, [*step.results, *results], step.wheel_pose, step.wheel_twist)
 
 
@@ -349,8 +324,6 @@ def _child_main(task: ChildTask, out: Connection, schedule: Connection, own_ends
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     for conn in own_ends:  # the parent's ends, copied by fork: the pipes close when the parent dies
         conn.close()
-    from .fleet.worker import die_with_parent
-
     die_with_parent()
     try:
         _run(task, out, schedule)
@@ -375,12 +348,6 @@ def _send_error(out: Connection, exc: BaseException) -> None:
 
 
 def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
-    from .allocator import keep_freed_memory
-    from .backend import PoseGraphBackend
-    from .frontend.runner import LogRunner
-    from .io.inputs import LogInputs
-    from .io.mcap_log import LogReader
-
     keep_freed_memory()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the log's warnings are the parent's, which reads it too
@@ -457,7 +424,7 @@ class _Schedule:
 
 
 def merge_diagnostics(first: tuple[dict, list[str]], rest: tuple[dict, list[str]]) -> tuple[dict, list[str]]:
-    """Two runners' :meth:`~fmcwlog.frontend.runner.LogRunner.diagnostics`, ``first``'s methods first."""
+    """Two runners' :meth:`~fmcwlog.pipeline.runner.LogRunner.diagnostics`, ``first``'s methods first."""
     (a, a_notes), (b, b_notes) = first, rest
     merged = {**b, **a, "motion_sources": {**a["motion_sources"], **b["motion_sources"]}}
     return merged, a_notes + b_notes

@@ -1,0 +1,99 @@
+"""The lidar's mount and the wheels' radii estimated from a log itself: ``fmcwlog calibrate``.
+
+The improved method runs over the log and its calibration check
+(:mod:`fmcwlog.frontend.self_calibration`) estimates the values; those that disagree with the
+calibration are adopted and the check runs again until they no longer move. The result is
+written as a calibration file that ``process --calibration`` takes.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import __version__
+from ..errors import LogError, OutputError
+from ..frontend.self_calibration import adopt, converged, recheck, with_estimate
+from ..io.atomic import check_output_file, reported_write_errors
+from ..io.calibration import load_calibration
+from ..io.calibration_file import read_calibration_file, write_calibration_file
+from ..io.inputs import LogInputs, choose_topics
+from ..io.mcap_log import LogReader
+from ..io.topics import CALIBRATION_KEY
+from ..types import Calibration, InputTopics
+from .options import ProcessOptions
+from .runner import LogRunner
+
+
+@dataclass
+class CalibrateSummary:
+    """What :func:`calibrate` found: the file written, the check (as in ``run.json``) and warnings."""
+
+    output: Path
+    check: dict
+    warnings: list[str]
+
+
+def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None = None,
+              force: bool = False) -> CalibrateSummary:
+    """Estimate the lidar's mount and the wheels from ``log`` itself and write them as a calibration file.
+
+    Runs the improved method over the log (nothing else is written), then
+    :mod:`fmcwlog.frontend.self_calibration`. The file holds the calibration's keys (the
+    log's record, or ``opts.calibration``) with the estimated values in place of its own,
+    each value's standard deviation in a comment; values the log cannot fix keep theirs.
+    """
+    opts = opts or ProcessOptions()
+    log, output = Path(log), Path(output)
+    check_output_file(output, force, (log, opts.calibration))  # --force never overwrites the log it reads
+    if not output.parent.is_dir():
+        raise OutputError(f"{output}: no folder {output.parent} to write it in")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = LogReader(log)
+        topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
+        if topics.ticks is None:
+            raise LogError(f"{log}: no wheel ticks: the wheels' radii and the mount are estimated against them")
+        cal0, cal_source = load_calibration(reader, log, True, opts.calibration)
+        check, adopted, passes, notes = _self_calibrate(reader, topics, cal0, opts)
+    first = recheck(check["values"], cal0, opts.params.self_calibration)  # against the calibration we started from
+    values: dict[str, str | float] = dict(read_calibration_file(opts.calibration) if opts.calibration
+                                          else reader.metadata.get(CALIBRATION_KEY, {}))
+    lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check['sweeps_used']['doppler']} moving "
+             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} "
+             f"pass{'es' if passes > 1 else ''}), "
+             f"starting from the {cal_source}"]
+    for name, c in first.items():
+        if name in adopted:
+            values[name] = c["estimate"]
+        kept = "" if name in adopted else "; kept the calibration's: it agrees within 3 standard deviations"
+        lines.append(f"{name}: {c['estimate']:.6g} +- {c['sigma']:.2g} (was {c['calibration']:.6g}){kept}")
+    lines += [f"{name}: kept the calibration's: {why}" for name, why in check["not_estimated"].items()]
+    with reported_write_errors(output):
+        write_calibration_file(output, values, lines)
+    check = {**check, "values": first, "disagrees": sorted(n for n, c in first.items() if c["disagrees"]),
+             "adopted": sorted(adopted), "passes": passes}
+    return CalibrateSummary(output, check, [str(w.message) for w in caught] + notes)
+
+
+def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
+                    opts: ProcessOptions) -> tuple[dict, set[str], int, list[str]]:
+    """The calibration check over the whole log, repeated with the values it adopts
+    (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most
+    ``self_calibration.passes`` times); returns the last check, the adopted names, the passes, the notes."""
+    prm = opts.params.self_calibration
+    passes, adopted = 0, set()
+    while True:
+        passes += 1
+        runner = LogRunner(("improved",), opts.params, cal, topics, reader.path)
+        for _ in runner.run(LogInputs(reader, topics, cal)):
+            pass
+        diagnostics, notes = runner.diagnostics()
+        check = diagnostics.get("calibration_check", {})
+        if not check.get("checked"):
+            raise LogError(f"{reader.path}: cannot estimate the calibration: {check.get('reason', 'no Doppler')}")
+        adopted = adopt(check["values"], adopted)
+        if not adopted or converged(check["values"], adopted) or passes >= prm.passes:
+            return check, adopted, passes, notes
+        cal = with_estimate(cal, {n: check["values"][n] for n in adopted})

@@ -1,0 +1,95 @@
+"""``run.json``: what one ``fmcwlog process`` run read, assumed, found and wrote, as one typed record.
+
+:meth:`RunRecord.to_json` gives the document ``run.json`` holds (written with sorted keys):
+report, the fleet's resume check and the user's own tools read it back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One run of ``fmcwlog process`` on one log.
+
+    log: the log's absolute path; log_size_bytes, log_sha256: its size and SHA-256, which
+        ``fmcwlog report --log`` and a resumed batch check. options_sha256: the digest of every
+        option (:func:`fmcwlog.pipeline.options.options_digest`).
+    methods: the front ends run. scan_topic: the scan topic read. prior: the motion prior as the
+        summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)`` or ``none (constant
+        velocity)``). doppler: whether the scans carried Doppler velocity.
+    mount: the lidar's pose in ``base_link`` (m, m, rad); calibration_source: where the calibration
+        came from (a file's path, or the log's record).
+    motion_sources: per method, where its twist came from and what the sensor checks found.
+    calibration_check: the calibration check's findings, where it ran (absent otherwise).
+    frames: each trajectory's odometry frame. params: every parameter (``dataclasses.asdict`` of
+        :class:`~fmcwlog.pipeline.params.ProcessParams`), loadable again with ``--config``.
+    sweeps: sweeps processed; skipped_sweeps: sweeps left out as damaged; repeated_prior_stamps:
+        motion-prior messages with a stamp already seen; skipped_inputs: messages skipped per kind.
+    truncated_log: the log ends without its summary (a recording cut off).
+    warnings: every warning of the run, one line each.
+    ms_per_sweep_median: per method, the median CPU time of a sweep (ms).
+    correlative_searches: per method, ``run`` (searches run), ``kept`` (matches they replaced), ``sweeps``.
+    backend: ``kind`` (``pose-graph`` or ``none``) and, per method, the back end's summary.
+    wall_seconds: the run's wall-clock time (s).
+    """
+
+    fmcwlog_version: str
+    log: str
+    log_size_bytes: int
+    log_sha256: str
+    options_sha256: str
+    methods: tuple[str, ...]
+    scan_topic: str
+    prior: str
+    doppler: bool
+    mount: tuple[float, float, float]
+    calibration_source: str
+    motion_sources: dict[str, dict[str, Any]]
+    frames: dict[str, str]
+    params: dict[str, Any]
+    sweeps: int
+    skipped_sweeps: int
+    repeated_prior_stamps: int
+    skipped_inputs: dict[str, int]
+    truncated_log: bool
+    warnings: list[str]
+    ms_per_sweep_median: dict[str, float]
+    correlative_searches: dict[str, dict[str, int]]
+    backend: dict[str, Any]
+    wall_seconds: float
+    calibration_check: dict[str, Any] | None = field(default=None)
+
+    def to_json(self) -> dict[str, Any]:
+        """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
+        diagnostics: dict[str, Any] = {"motion_sources": self.motion_sources}
+        if self.calibration_check is not None:
+            diagnostics["calibration_check"] = self.calibration_check
+        return {
+            "fmcwlog_version": self.fmcwlog_version,
+            "log": self.log,
+            "log_size_bytes": self.log_size_bytes,
+            "log_sha256": self.log_sha256,
+            "options_sha256": self.options_sha256,
+            "methods": list(self.methods),
+            "scan_topic": self.scan_topic,
+            "prior": self.prior,
+            "doppler": self.doppler,
+            "mount": list(self.mount),
+            "calibration_source": self.calibration_source,
+            **diagnostics,
+            "frames": self.frames,
+            "params": self.params,
+            "sweeps": self.sweeps,
+            "skipped_sweeps": self.skipped_sweeps,
+            "repeated_prior_stamps": self.repeated_prior_stamps,
+            "skipped_inputs": self.skipped_inputs,
+            "truncated_log": self.truncated_log,
+            "warnings": self.warnings,
+            "ms_per_sweep_median": self.ms_per_sweep_median,
+            "correlative_searches": self.correlative_searches,
+            "backend": self.backend,
+            "wall_seconds": self.wall_seconds,
+        }

@@ -31,11 +31,12 @@ from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
 from fmcwlog import api
 from fmcwlog.cli import cli
 from fmcwlog.errors import ConfigError, FmcwlogError, LogError
-from fmcwlog.evaluation.fleet import flag_logs
+from fmcwlog.evaluation.fleet import FleetRow, flag_logs
 from fmcwlog.fleet.inputs import MCAP_PATTERNS, find_logs, unique_names
 from fmcwlog.fleet.local import run_one
-from fmcwlog.fleet.state import completeness, options_digest
+from fmcwlog.fleet.state import completeness
 from fmcwlog.fleet.tasks import Limits, LogTask
+from fmcwlog.pipeline.options import options_digest
 from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import SimConfig, apply_overrides
 from fmcwlog.sim.recorder import record
@@ -361,10 +362,9 @@ def test_ray_given_a_path_as_its_address_says_how_to_write_it(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def _row(name: str, gt: bool, ate: float | None = None, disagree: float | None = None, starved: int = 0) -> dict:
-    return {"name": name, "status": "done", "reason": None, "report_error": None, "truncated_log": False,
-            "ground_truth": gt, "ate_rmse_m": {"improved": ate}, "feature_avg_rel_error_pct": {},
-            "methods_disagreement_m": disagree, "icp_starved_sweeps": {"improved": starved}, "sweeps": 100, "flags": []}
+def _row(name: str, gt: bool, ate: float | None = None, disagree: float | None = None, starved: int = 0) -> FleetRow:
+    return FleetRow(name, None, "done", ground_truth=gt, ate_rmse_m={"improved": ate}, methods_disagreement_m=disagree,
+                    icp_starved_sweeps={"improved": starved}, sweeps=100)
 
 
 def test_flags_go_to_the_clear_outliers_only():
@@ -372,11 +372,11 @@ def test_flags_go_to_the_clear_outliers_only():
     rows += [_row(f"free{i}", False, disagree=0.02) for i in range(4)] + [_row("free-bad", False, disagree=0.4)]
     rows += [_row("starved", False, disagree=0.02, starved=5)]
     flag_logs(rows)
-    assert {r["name"] for r in rows if r["flags"]} == {"gt-bad", "free-bad", "starved"}
-    assert "ATE RMSE 50.0 cm" in rows[9]["flags"][0] and "5 of 100 sweeps" in rows[-1]["flags"][0]
+    assert {r.name for r in rows if r.flags} == {"gt-bad", "free-bad", "starved"}
+    assert "ATE RMSE 50.0 cm" in rows[9].flags[0] and "5 of 100 sweeps" in rows[-1].flags[0]
     even = [_row(f"e{i}", True, ate=0.01 + 0.0001 * i) for i in range(10)]
     flag_logs(even)
-    assert not any(r["flags"] for r in even)  # the worst of ten good logs needs no look
+    assert not any(r.flags for r in even)  # the worst of ten good logs needs no look
 
 
 def test_import_carmen_takes_a_folder_and_goes_on_past_a_bad_file(tmp_path):

@@ -35,6 +35,7 @@ A ranking needs at least two logs to compare; with one log only the absolute fla
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import json
 import math
@@ -59,7 +60,43 @@ STARVED_FRACTION = 0.01  # more than 1 % of sweeps without enough ICP pairs
 _IMPROVED, _BASELINE = IMPROVED, BASELINE
 
 
-@dataclass
+@dataclass(frozen=True)
+class FleetRow:
+    """One log's row of the fleet page and of fleet.json's ``logs`` (the keys: the module's docstring).
+
+    Units: seconds (``duration_s``, ``wall_s``), metres (``distance_m``, ``ate_rmse_m``,
+    ``methods_disagreement_m``), milliseconds (``ms_per_sweep``), percent
+    (``feature_avg_rel_error_pct``); None where a value cannot be computed. ``flags`` is filled by
+    :func:`flag_logs`.
+    """
+
+    name: str
+    log: str | None
+    status: str  # done, failed
+    reason: str | None = None
+    report: str | None = None
+    report_error: str | None = None
+    duration_s: float | None = None
+    distance_m: float | None = None
+    distance_from: str | None = None
+    sweeps: int | None = None
+    wall_s: float | None = None
+    ms_per_sweep: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    truncated_log: bool = False
+    ground_truth: bool = False
+    ate_rmse_m: dict[str, float | None] = field(default_factory=dict)
+    feature_avg_rel_error_pct: dict[str, float | None] = field(default_factory=dict)
+    methods_disagreement_m: float | None = None
+    icp_starved_sweeps: dict[str, int] = field(default_factory=dict)
+    flags: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """The row as fleet.json holds it."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class FleetEntry:
     """One log of a batch: its folder when it holds results, and its batch.json record."""
 
@@ -146,7 +183,7 @@ def _from_report(row: dict[str, Any], ev: Evaluation, span: tuple[float, float] 
         row["distance_m"], row["distance_from"] = _path_length(ev.gt[inside, :2]), "ground truth"
 
 
-def log_row(entry: FleetEntry, ev: Evaluation | None, report_error: str | None = None) -> dict[str, Any]:
+def log_row(entry: FleetEntry, ev: Evaluation | None, report_error: str | None = None) -> FleetRow:
     """One log's row of the fleet page (keys: the module's docstring)."""
     rec = entry.record
     failed = rec.get("status") == "failed"
@@ -163,19 +200,19 @@ def log_row(entry: FleetEntry, ev: Evaluation | None, report_error: str | None =
         span = _from_folder(row, entry.folder)
         if ev is not None:
             _from_report(row, ev, span)
-    return row
+    return FleetRow(**row)
 
 
-def _primary(row: dict[str, Any], key: str) -> tuple[str, float] | None:
-    vals = row[key]
+def _primary(row: FleetRow, key: str) -> tuple[str, float] | None:
+    vals = getattr(row, key)
     for m in (_IMPROVED, _BASELINE):
         if vals.get(m) is not None:
             return m, float(vals[m])
     return None
 
 
-def _flag_worst(rows: list[dict[str, Any]], value: Callable[[dict[str, Any]], float | None],
-                describe: Callable[[dict[str, Any], float], str], population: str) -> None:
+def _flag_worst(rows: list[FleetRow], value: Callable[[FleetRow], float | None],
+                describe: Callable[[FleetRow, float], str], population: str) -> None:
     """Flag the worst FLAG_FRACTION (at least one) of ``rows`` by ``value(row)`` (larger is worse)
     that are also at least OUTLIER_RATIO times the median."""
     scored = [(v, r) for r in rows if (v := value(r)) is not None]
@@ -185,30 +222,30 @@ def _flag_worst(rows: list[dict[str, Any]], value: Callable[[dict[str, Any]], fl
     median = float(np.median([v for v, _ in scored]))
     for v, r in sorted(scored, key=lambda x: -x[0])[:k]:
         if v >= OUTLIER_RATIO * median:
-            r["flags"].append(f"{describe(r, v)}: among the worst {k} of the {len(scored)} logs {population}, "
+            r.flags.append(f"{describe(r, v)}: among the worst {k} of the {len(scored)} logs {population}, "
                               f"{v / median:.1f} times their median" if median > 0 else
                               f"{describe(r, v)}: the worst of the {len(scored)} logs {population}")
 
 
-def flag_logs(rows: list[dict[str, Any]]) -> None:
+def flag_logs(rows: list[FleetRow]) -> None:
     """Add to each row's ``flags`` why a person should look at it (see the module's docstring)."""
     for r in rows:
-        if r["status"] == "failed":
-            r["flags"].append(f"failed: {r['reason']}")
-        if r["report_error"]:
-            r["flags"].append(f"no report: {r['report_error']}")
-        if r["truncated_log"]:
-            r["flags"].append("the log is cut off before its summary: processed up to where it ends")
-    done = [r for r in rows if r["status"] == "done"]
-    with_gt = [r for r in done if r["ground_truth"]]
-    without = [r for r in done if not r["ground_truth"]]
+        if r.status == "failed":
+            r.flags.append(f"failed: {r.reason}")
+        if r.report_error:
+            r.flags.append(f"no report: {r.report_error}")
+        if r.truncated_log:
+            r.flags.append("the log is cut off before its summary: processed up to where it ends")
+    done = [r for r in rows if r.status == "done"]
+    with_gt = [r for r in done if r.ground_truth]
+    without = [r for r in done if not r.ground_truth]
 
     def ranked(key: str, what: str, fmt: Callable[[float], str]) -> None:
-        def value(r: dict[str, Any]) -> float | None:
+        def value(r: FleetRow) -> float | None:
             p = _primary(r, key)
             return None if p is None else p[1]
 
-        def describe(r: dict[str, Any], v: float) -> str:
+        def describe(r: FleetRow, v: float) -> str:
             p = _primary(r, key)
             return f"{what} {fmt(v)} ({p[0] if p else '?'})"
 
@@ -216,40 +253,39 @@ def flag_logs(rows: list[dict[str, Any]]) -> None:
 
     ranked("ate_rmse_m", "ATE RMSE", lambda v: f"{v * 100:.1f} cm")
     ranked("feature_avg_rel_error_pct", "feature error", lambda v: f"{v:.2f} %")
-    _flag_worst(without, lambda r: r["methods_disagreement_m"],
+    _flag_worst(without, lambda r: r.methods_disagreement_m,
                 lambda r, v: f"improved and baseline disagree by {v * 100:.1f} cm RMSE", "without ground truth")
     for r in without:
-        sweeps = max(int(r["sweeps"] or 0), 1)
-        for m, n in r["icp_starved_sweeps"].items():
+        sweeps = max(int(r.sweeps or 0), 1)
+        for m, n in r.icp_starved_sweeps.items():
             if n > STARVED_FRACTION * sweeps:
-                r["flags"].append(f"ICP ({m}) ran out of correspondences on {n} of {sweeps} sweeps")
+                r.flags.append(f"ICP ({m}) ran out of correspondences on {n} of {sweeps} sweeps")
 
 
-def _totals(rows: list[dict[str, Any]], batch: dict[str, Any]) -> dict[str, Any]:
-    done = [r for r in rows if r["status"] == "done"]
-    total = lambda key: float(sum(r[key] or 0 for r in done))
+def _totals(rows: list[FleetRow], batch: FleetRow) -> FleetRow:
+    done = [r for r in rows if r.status == "done"]
+    total = lambda key: float(sum(getattr(r, key) or 0 for r in done))
     sweeps = int(total("sweeps"))
     wall = batch.get("wall_s")  # the last 'fmcwlog process' run over this folder
     per_method: dict[str, dict[str, float | None]] = {}
-    for m in sorted({m for r in done for m in r["ate_rmse_m"]}):
-        vals = [r["ate_rmse_m"][m] for r in done if r["ate_rmse_m"].get(m) is not None]
+    for m in sorted({m for r in done for m in r.ate_rmse_m}):
+        vals = [r.ate_rmse_m[m] for r in done if r.ate_rmse_m.get(m) is not None]
         if vals:
             per_method[m] = {"ate_rmse_m_median": float(np.median(vals)), "ate_rmse_m_max": float(np.max(vals)),
                              "logs": len(vals)}
     return {"logs": len(rows), "done": len(done), "failed": len(rows) - len(done),
-            "with_ground_truth": sum(r["ground_truth"] for r in done), "sweeps": sweeps,
+            "with_ground_truth": sum(r.ground_truth for r in done), "sweeps": sweeps,
             "duration_s": total("duration_s"), "distance_m": total("distance_m"), "processing_s": total("wall_s"),
             "batch_wall_s": wall, "methods": per_method}
 
 
-def fleet_result(out_dir: Path, rows: list[dict[str, Any]], batch: dict[str, Any]) -> dict[str, Any]:
+def fleet_result(out_dir: Path, rows: list[FleetRow], batch: dict[str, Any]) -> dict[str, Any]:
     """fleet.json's document: rows flagged, totals, the flagged logs (most flags first)."""
     flag_logs(rows)
-    flagged = sorted((r for r in rows if r["flags"]), key=lambda r: (r["status"] != "failed", -len(r["flags"]),
-                                                                      r["name"]))
+    flagged = sorted((r for r in rows if r.flags), key=lambda r: (r.status != "failed", -len(r.flags), r.name))
     return {"schema": FLEET_SCHEMA, "out_dir": str(out_dir), "executor": batch.get("executor"),
             "options_sha256": batch.get("options_sha256"), "totals": _totals(rows, batch),
-            "flagged": [{"name": r["name"], "flags": r["flags"]} for r in flagged], "logs": rows}
+            "flagged": [{"name": r.name, "flags": r.flags} for r in flagged], "logs": [r.to_json() for r in rows]}
 
 
 def _fmt(x: Any, digits: int = 1, scale: float = 1.0) -> str:

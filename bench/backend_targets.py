@@ -39,12 +39,12 @@ def _verdict(value: float, target: float) -> str:
     return f"{'met' if value <= target else 'NOT met'} (target <= {target:g})"
 
 
-def intel(work: Path) -> None:
+def intel(work: Path, datasets: Path = DATASETS) -> None:
     log = work / "intel.mcap"
-    import_carmen(DATASETS / "intel_lab_subset910" / "intel_subset910_rawodom.clf.xz", log)
+    import_carmen(datasets / "intel_lab_subset910" / "intel_subset910_rawodom.clf.xz", log)
     out = work / "intel"
     process(log, out, ProcessOptions())
-    ev = report(out, relations=DATASETS / "freiburg_relations" / "intel.relations")
+    ev = report(out, relations=datasets / "freiburg_relations" / "intel.relations")
     print("Intel subset: relations translation error (m): all / < 20 s / >= 20 s")
     for m in ("improved", "improved_frontend", "baseline", "baseline_frontend", "wheel_odometry"):
         r = ev.result["methods"][m]["relations"]
@@ -75,14 +75,17 @@ def scenario(work: Path, name: str) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", choices=["intel", *SCENARIO_SECONDS])
+    ap.add_argument("--datasets", type=Path, default=DATASETS,
+                    help="folder holding intel_lab_subset910/ and freiburg_relations/ (default: %(default)s)")
     args = ap.parse_args()
-    if args.only in (None, "intel") and not DATASETS.is_dir():
-        sys.exit(f"backend_targets: error: {DATASETS}: no such folder (the Intel subset is read from "
-                 "../shared/datasets beside this checkout); --only ring, corridor or long-corridor need none")
+    if args.only in (None, "intel") and not args.datasets.is_dir():
+        sys.exit(f"backend_targets: error: {args.datasets}: no such folder (the Intel subset is read from "
+                 "--datasets, by default ../shared/datasets beside this checkout); "
+                 "--only ring, corridor or long-corridor need none")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         if args.only in (None, "intel"):
-            intel(work)
+            intel(work, args.datasets)
         for name in SCENARIO_SECONDS:
             if args.only == name or (args.only is None and name in UNDER_1_CM):
                 scenario(work, name)

@@ -100,8 +100,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, default=Path("killian.mcap"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--datasets", type=Path, default=SHARED,
+                    help="folder holding mit_killian_g2o/killian.g2o.xz (default: %(default)s)")
     args = ap.parse_args()
-    poses, lasers = read_g2o(G2O)
+    poses, lasers = read_g2o(args.datasets / G2O.relative_to(SHARED))
     odom = perturbed_odometry(poses, args.seed)
     end = between(poses[0], poses[-1]), between(odom[0], odom[-1])
     print(f"{len(poses)} scans; path {np.hypot(*np.diff(poses[:, :2], axis=0).T).sum():.0f} m; odometry ends "

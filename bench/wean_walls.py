@@ -126,6 +126,8 @@ def main() -> None:
     ap.add_argument("--logs", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--gap", type=float, default=10.0, help="seconds between a point and the earlier ones")
     ap.add_argument("--keep", type=Path, help="keep the processed outputs here (maps to look at)")
+    ap.add_argument("--datasets", type=Path, default=WEAN.parent,
+                    help="folder holding cmu_wean_hall/robotdata1.log.xz ... (default: %(default)s)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
@@ -135,7 +137,7 @@ def main() -> None:
         print("| log | " + " | ".join(TRAJECTORIES) + " |")
         print("|---" * (len(TRAJECTORIES) + 1) + "|")
         for n in args.logs:
-            source = WEAN / f"robotdata{n}.log.xz"
+            source = args.datasets / WEAN.name / f"robotdata{n}.log.xz"
             log, out = work / f"wean{n}.mcap", work / f"wean{n}"
             if not (out / "run.json").exists():
                 import_carmen(source, log)

@@ -17,7 +17,8 @@ from ..errors import ConfigError
 
 # Ranges: what a planar robot LiDAR and a small ground robot can physically be, wide enough
 # for any real one, and bounded on every side so that a typo cannot make the simulator run
-# for days or allocate without limit (``--set sensor.scan_rate=1e6`` used to hang: 3e7 sweeps).
+# for days or allocate without limit (``--set sensor.scan_rate=1e6`` would make the default 30 s
+# log 3e7 sweeps).
 MAX_SEED = 2**32 - 1  # numpy seeds any non-negative integer; 32 bits is what every tool prints and takes
 
 

@@ -1,4 +1,4 @@
-"""Runs a simulation and writes it as a log (LOG_FORMAT.md).
+"""Runs a simulation and writes it as a log (the log format, docs/log-format.md).
 
 Messages go out in log-time order, a sweep period at a time: the sweep and
 its ground-truth labels at its first beam's stamp, then the encoder counts
@@ -68,7 +68,8 @@ class RecordSummary:
 
 
 def calibration_metadata(cfg: SimConfig) -> dict[str, str]:
-    """The ``fmcwlog.calibration`` record: what the robot *believes* (nominal radii)."""
+    """The ``fmcwlog.calibration`` record: what the robot *believes* (nominal radii), each value a
+    decimal string in SI units (m, rad, Hz, m/s) under the log format's keys (docs/log-format.md)."""
     s, r = cfg.sensor, cfg.robot
     values = {
         "wheel_radius_left": r.wheel_radius,
@@ -160,7 +161,10 @@ def record(
 ) -> RecordSummary:
     """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out``.
 
-    ``on_progress`` is called with the number of sweeps done after each one.
+    ``on_progress`` is called with the number of sweeps done after each one. ``cfg`` is validated
+    first (:class:`~fmcwlog.errors.ConfigError` naming the parameter at fault); the log is written
+    under a temporary name and moved to ``out`` only when complete, so an exception (an ``OSError``
+    from a full disk, say) leaves nothing at ``out``.
     """
     cfg.validate()
     s_cfg, r_cfg, run = cfg.sensor, cfg.robot, cfg.run

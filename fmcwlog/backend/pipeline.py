@@ -180,7 +180,7 @@ class PoseGraphBackend:
     def _spill(self, index: int) -> None:
         """Node ``index``'s points out of memory (:class:`~fmcwlog.io.spill.PointStore`): no later
         local edge reads them; a closure's submap and the final map read them back, the same
-        float32 values. They were the one per-node cost that grew with the log (~4 kB a node)."""
+        float32 values. Kept in memory they would be the one per-node cost that grows with the log (~4 kB a node)."""
         if index >= 0:
             if self._store is None:
                 self._store = PointStore()

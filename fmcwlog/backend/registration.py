@@ -122,9 +122,9 @@ _DAMPING = 1e-9 * np.eye(3)  # keeps a step defined where the scene leaves a dir
 
 def _system(pose: np.ndarray, sub: Submap, nearest: NearestPairs, c: float):
     """Residuals (K,), Jacobian rows (K, 3) and Cauchy weights (K,) of the source points that pair
-    at ``pose`` (module docstring). Each array is computed once, with the arithmetic it had before
-    this was tuned (``einsum``'s two-term sum written out), so the results are bit for bit the same
-    (checked on the 2,895 matches of the 200 s ring log)."""
+    at ``pose`` (module docstring). Each array is computed once, with the arithmetic of the plain
+    ``einsum`` form (its two-term sum written out), so the results are bit for bit those of that
+    form (checked on the 2,895 matches of the 200 s ring log)."""
     moved, idx, dist = nearest.nearest(pose)
     ok = sub.paired.take(idx)  # the target point has a normal (the index M, no target, has none)
     ok &= dist < nearest.gate

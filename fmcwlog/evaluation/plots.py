@@ -82,7 +82,7 @@ def _legend_below(fig, ax, ncol: int) -> None:
 
 def _log_y(ax, scale: str = "log", **kw) -> None:
     """A log (or symlog) y axis labelled with plain numbers (0.1, 1, 10) and no minor ticks:
-    easier to read than 10^x, and the minor ticks were half the drawing time of these figures."""
+    easier to read than 10^x, and the minor ticks would be half the drawing time of these figures."""
     from matplotlib.ticker import FuncFormatter, NullLocator
 
     ax.set_yscale(scale, **kw)

@@ -160,7 +160,7 @@ class PathEntries(Protocol):
 def path_cdr(stamp: Stamp, frame_id: str, poses: PathEntries) -> bytes:
     """``nav_msgs/Path``: its header, the count, then per pose its header and 7 float64. ``process``
     publishes each method's whole path every few seconds of log; through mcap_ros2's generic encoder
-    that was 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose
+    that is 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose
     path: 26.3 ms there, 4.2 ms from dicts, 1.5 ms from numbers here."""
     out = bytearray(_CDR_LE)
     out += _STAMP.pack(*stamp)

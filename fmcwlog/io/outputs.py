@@ -229,7 +229,7 @@ def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
 def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
     """``name.pgm`` + ``name.yaml`` (map_server) and ``name.png`` (a picture of the same, 8-bit grey).
 
-    Pillow writes the PNG: matplotlib's ``imsave`` took 0.5 s a run to import and 0.2 s a map.
+    Pillow writes the PNG: matplotlib's ``imsave`` takes 0.5 s a run to import and 0.2 s a map.
     """
     from PIL import Image
 

@@ -112,12 +112,10 @@ class _StopFlag:
             signal.signal(signal.SIGINT, self._old)
 
 
-# Sweeps simulated in one numpy pass: 10 shares the per-call overhead that dominated a sweep
-# (record of 20 s of crowd: 3.5 ms a sweep one at a time, 2.2 ms ten at a time, 2.3 ms 25 at a
-# time, loaded 2-core machine) and holds only 10 x 1081 beams at once. Once encoding and the
-# lidar's fixed costs had shrunk, 20 did better (record of 120 s, CPU, 3 runs each, alternating in
-# one process: crowd 1.31-1.34 s at 10, 1.13-1.22 at 20, 1.21-1.56 at 40; corridor 1.15-1.17,
-# 1.00-1.16, 1.24-1.40). The log's bytes do not depend on it.
+# Sweeps simulated in one numpy pass: 20 share the per-call overhead that dominates a sweep and
+# hold only 20 x 1081 beams at once. CPU time of ``fmcwlog record --scenario crowd --duration 120``:
+# 1.13-1.22 s CPU at 20, 1.31-1.34 s at 10, 1.21-1.56 s at 40 (docs/design/speed-experiments.md).
+# The log's bytes do not depend on it.
 SWEEPS_AT_ONCE = 20
 
 

@@ -72,6 +72,10 @@ _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_fi
 
 @dataclass
 class Evaluation:
+    """What :func:`evaluate` found: ``result`` (the report's numbers, ``report.json``; module
+    docstring) and, for the plots, the ground truth and each method's aligned trajectory, heading
+    errors (deg), RPE series, per-sweep times (ms) and disagreements, in the units their comments give."""
+
     out_dir: Path
     log: Path
     run: dict[str, Any]

@@ -126,6 +126,7 @@ class LikelihoodGrid:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """The fine grid's (rows, columns), its frame included."""
         return (int(self.fine.shape[0]), int(self.fine.shape[1]))
 
     def cell(self, xy: np.ndarray) -> np.ndarray:
@@ -133,6 +134,8 @@ class LikelihoodGrid:
         return np.floor((xy - self.origin) / self.resolution).astype(np.int64)
 
     def coarse(self, k: int) -> np.ndarray:
+        """The grid of the maximum fine likelihood over each ``k`` × ``k`` block of translations (the
+        branch and bound's bound), framed as the fine one; computed once per ``k``."""
         if k not in self._coarse:
             from scipy import ndimage
 

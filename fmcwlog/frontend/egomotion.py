@@ -46,6 +46,7 @@ class EgoMotion:
 
     @property
     def n_inliers(self) -> int:
+        """Points consistent with a static world."""
         return int(self.inliers.sum())
 
 

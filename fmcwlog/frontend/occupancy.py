@@ -272,14 +272,17 @@ class OccupancyGrid:
     # --- geometry -----------------------------------------------------------------
     @property
     def resolution(self) -> float:
+        """Cell size, m."""
         return self.params.resolution
 
     @property
     def width(self) -> int:
+        """Cells along x (the queued scans cast first)."""
         return self.log_odds.shape[1]
 
     @property
     def height(self) -> int:
+        """Cells along y (the queued scans cast first)."""
         return self.log_odds.shape[0]
 
     @property

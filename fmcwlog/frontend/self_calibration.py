@@ -140,9 +140,14 @@ class CalibrationSamples:
 
     def add_doppler(self, stamp: float, z: np.ndarray, cov: np.ndarray, turns: tuple[float, float],
                     span: float) -> None:
+        """One sweep's Doppler row: ``z`` (2,) the lidar origin's velocity (lidar frame, m/s),
+        ``cov`` its (2, 2) covariance ((m/s)²), ``turns`` the wheels' rotations ``(φ_L, φ_R)`` (rad)
+        over the sweep's ``span`` (s), ``stamp`` (s)."""
         self.doppler.append((float(z[0]), float(z[1]), float(cov[0, 0]), float(cov[1, 1]), *turns, span, stamp))
 
     def add_yaw(self, stamp: float, dyaw: float, turns: tuple[float, float], dt: float) -> None:
+        """One heading row: the scan-matched heading change ``dyaw`` (rad) between two consecutive
+        registered sweeps ``dt`` (s) apart, the wheels' rotations ``(φ_L, φ_R)`` (rad) over it, ``stamp`` (s)."""
         self.yaw.append((float(dyaw), *turns, dt, stamp))
 
 

@@ -231,6 +231,7 @@ class MoverTracker:
         self.recent.integrate(scan, path_m)
 
     def reset(self) -> None:
+        """Drop every track (the free-space grids are kept)."""
         self.x = np.zeros((0, 4))  # (T, 4) x, y, vx, vy
         self.cov = np.zeros((0, 4, 4))
         self.time = np.zeros(0)  # s, the time the state refers to

@@ -378,6 +378,7 @@ class LogWriter:
         self._writer.add_message(channel, log_time=log_time_ns, data=data, publish_time=log_time_ns)
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        """One MCAP metadata record ``name`` (e.g. ``fmcwlog.calibration``) of string keys and values."""
         self._writer.add_metadata(name, values)
 
     def close(self) -> Path:
@@ -513,10 +514,12 @@ class LogReader:
 
     @property
     def metadata(self) -> dict[str, dict[str, str]]:
+        """The first metadata record of each name (:attr:`LogContents.metadata`)."""
         return self.contents.metadata
 
     @property
     def topics(self) -> dict[str, str]:
+        """Topic -> schema name, of every channel found so far."""
         return self.contents.topics
 
     def metadata_all(self, name: str) -> list[dict[str, str]]:

@@ -92,6 +92,7 @@ def parse(cls: Any, body: bytes, *args: Any) -> Any:
 
 
 def record_name(opcode: int) -> str:
+    """An MCAP opcode in words, for messages ("chunk record")."""
     try:
         return Opcode(opcode).name.lower().replace("_", " ") + " record"
     except ValueError:

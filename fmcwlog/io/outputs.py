@@ -57,14 +57,17 @@ if TYPE_CHECKING:  # built by the front end; outputs only read them
 
 
 def odom_frame(name: str) -> str:
+    """Trajectory ``name``'s fixed frame, where it starts at the origin: ``<name>/odom``."""
     return f"{name}/odom"
 
 
 def base_frame(name: str) -> str:
+    """Trajectory ``name``'s robot frame (the rear-axle midpoint): ``<name>/base_link``."""
     return f"{name}/base_link"
 
 
 def lidar_frame(name: str) -> str:
+    """Trajectory ``name``'s sensor frame: ``<name>/lidar``."""
     return f"{name}/lidar"
 
 
@@ -184,6 +187,7 @@ class TrajectoryRows:
         return len(self.method)
 
     def add(self, values: dict) -> None:
+        """One row: ``values`` by column name (units in the schema's metadata); a column left out is null."""
         ints = [values.get(k) for k in self.INTS]
         floats = [values.get(k) for k in self.FLOATS]
         self.method.append(values["method"])
@@ -205,6 +209,7 @@ class TrajectoryRows:
         self._floats.values[np.asarray(rows, np.int64)[:, None], cols] = poses
 
     def arrow(self, name: str, kind: pa.DataType) -> pa.Array:
+        """Column ``name`` as an Arrow array of type ``kind``, nulls where no value was given."""
         if name == "method":
             return _arrow_strings(self.method, np.ones(len(self.method), bool))
         if name == "t":
@@ -282,6 +287,7 @@ class PathPoses:
         self._poses = GrowingArray(np.float64, (7,))
 
     def append(self, stamp_ns: int, pose: Pose7) -> None:
+        """One pose (the 7 numbers of a ``geometry_msgs/Pose``, m) at ``stamp_ns`` (ns since the epoch)."""
         self._stamps.append(stamp_ns)
         self._poses.append(pose)
 
@@ -451,6 +457,7 @@ class ProcessOutputs:
         self.rows.set_pose(np.array(rows, np.int64), poses[: len(rows)])
 
     def ms_median(self) -> dict[str, float]:
+        """Per trajectory, the median processing time of its sweeps (ms); those never timed are left out."""
         method = np.asarray(self.rows.method)
         values, valid = self.rows.column("ms")
         ms = np.where(valid, values, np.nan)
@@ -474,4 +481,5 @@ class ProcessOutputs:
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:
+        """Drop ``processed.mcap``'s partial file (after a failure)."""
         self.writer.abort()

@@ -33,6 +33,7 @@ class BodyState:
 
     @property
     def poses(self) -> np.ndarray:
+        """(N, 3) ``(x, y, yaw)`` of base_link in ``map`` (m, m, rad; yaw unwrapped)."""
         return np.stack([self.x, self.y, self.yaw], -1)
 
 

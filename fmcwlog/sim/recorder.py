@@ -55,6 +55,9 @@ from .world import World
 
 @dataclass(frozen=True)
 class RecordSummary:
+    """What :func:`record` wrote: the log's path, its sweeps, the simulated seconds, whether Ctrl-C
+    cut it short, and how many points (and of them on movers) it holds."""
+
     path: Path
     sweeps: int
     seconds: float  # simulated time written
@@ -64,6 +67,7 @@ class RecordSummary:
 
     @property
     def moving_fraction(self) -> float:
+        """The share of the points that hit a mover (0 with no points)."""
         return self.moving_points / self.points if self.points else 0.0
 
 

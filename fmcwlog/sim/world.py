@@ -47,21 +47,28 @@ class Feature:
 
     @property
     def length(self) -> float:
+        """The true length, m."""
         return float(np.hypot(self.b[0] - self.a[0], self.b[1] - self.a[1]))
 
 
 @dataclass(frozen=True)
 class RouteSpec:
+    """The route of base_link as the world file gives it: waypoints (K, 2) in ``map`` (m), whether
+    it loops, and the radius (m) of the arcs that round its corners."""
+
     waypoints: np.ndarray
     loop: bool = True
     corner_radius: float = 1.0
 
     def build(self) -> Route:
+        """The route itself (:func:`.route.build_route`)."""
         return build_route(self.waypoints, self.loop, self.corner_radius)
 
 
 @dataclass(frozen=True)
 class World:
+    """A floor: its walls (``map``, m), the robot's route, the labelled features and the movers."""
+
     name: str
     walls: np.ndarray  # (M, 4) segments x1, y1, x2, y2
     route: RouteSpec
@@ -80,6 +87,7 @@ class World:
         }
 
     def without_movers(self, name: str | None = None) -> World:
+        """The same floor with nothing moving (renamed ``name`` if given)."""
         return World(name or self.name, self.walls, self.route, self.features, [])
 
 

@@ -22,14 +22,14 @@ import pyarrow.parquet as pq
 import pytest
 from helpers import assert_one_line_error, run_cli_here
 
-from fmcwlog import parallel_methods
+from fmcwlog.pipeline import method_process
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.backend import PoseGraphBackend
 from fmcwlog.errors import LogError, MapSizeError, MethodProcessError, OutputError
 from fmcwlog.frontend.methods import BaselineFrontEnd
 
 TIMINGS = {"wall_seconds", "seconds", "ms_per_sweep_median"}
-needs_fork = pytest.mark.skipif(parallel_methods.START_METHOD != "fork",
+needs_fork = pytest.mark.skipif(method_process.START_METHOD != "fork",
                                 reason="failures are injected by patching code the forked child inherits")
 
 
@@ -58,13 +58,13 @@ def assert_same_outputs(a: Path, b: Path) -> None:
 
 def _count_children(monkeypatch) -> list:
     started = []
-    init = parallel_methods.MethodProcess.__init__
+    init = method_process.MethodProcess.__init__
 
     def counting(self, task):
         started.append(task.methods)
         init(self, task)
 
-    monkeypatch.setattr(parallel_methods.MethodProcess, "__init__", counting)
+    monkeypatch.setattr(method_process.MethodProcess, "__init__", counting)
     return started
 
 
@@ -98,18 +98,18 @@ def test_spawned_child_writes_the_same_bytes(crowd_log, tmp_path, monkeypatch):
 def test_one_process_where_one_method_or_one_cpu_or_asked(monkeypatch):
     both = ("improved", "baseline")
     monkeypatch.setattr(parallel_methods, "usable_cpus", lambda: 1)
-    assert parallel_methods.child_methods(both, None) == ()
-    assert parallel_methods.child_methods(both, 2) == ("baseline",)  # asked for
+    assert method_process.child_methods(both, None) == ()
+    assert method_process.child_methods(both, 2) == ("baseline",)  # asked for
     monkeypatch.setattr(parallel_methods, "usable_cpus", lambda: 2)
-    assert parallel_methods.child_methods(both, None) == ("baseline",)
-    assert parallel_methods.child_methods(both, 1) == ()
-    assert parallel_methods.child_methods(("baseline",), None) == ()
-    assert parallel_methods.child_methods(("improved",), 4) == ()
+    assert method_process.child_methods(both, None) == ("baseline",)
+    assert method_process.child_methods(both, 1) == ()
+    assert method_process.child_methods(("baseline",), None) == ()
+    assert method_process.child_methods(("improved",), 4) == ()
 
 
 def test_fleet_workers_run_their_methods_in_one_process():
     """The fleet's workers fill the cores with logs: each runs its methods in its own process alone."""
-    source = (Path(parallel_methods.__file__).parent / "fleet" / "worker.py").read_text()
+    source = (Path(method_process.__file__).parents[1] / "fleet" / "worker.py").read_text()
     assert "process(task.log, task.out_dir, task.options, force=task.force, on_sweep=on_sweep, jobs=1)" in source
 
 
@@ -242,5 +242,5 @@ def test_ctrl_c_stops_both_and_leaves_nothing(corridor_log, tmp_path):
 
 def test_method_process_error_names_the_way_out():
     assert issubclass(MethodProcessError, Exception)
-    assert "SIGKILL" in parallel_methods._exit_reason(-signal.SIGKILL)
-    assert parallel_methods._exit_reason(3) == "exit status 3"
+    assert "SIGKILL" in method_process._exit_reason(-signal.SIGKILL)
+    assert method_process._exit_reason(3) == "exit status 3"

@@ -9,18 +9,16 @@ graph as a Gaussian one does (on Intel, a deliberately loose gate admitted 7 % w
 which a Cauchy kernel absorbed and a Gaussian one did not).
 
 The solver: by default Levenberg-Marquardt re-solves the whole graph each time (``batch``).
-gtsam's ISAM2 (``solver = "isam2"``) is offered beside it and not chosen: it is given only what was
-added since its last update, and the whole graph is solved once by LM at the end, from its estimate,
-so the final answer is the batch one (sub-millimetre on the logs below; about 1 mm on the baseline's
-200 s ring, whose Cauchy-weighted closures leave more than one optimum). Measured by replaying the
-graph calls that the back end made on a 1,200 s ``ring`` log (12 laps, 2,042 nodes, 1,690 closures,
-191 re-solves; the improved method; CPU time on a shared 2-core machine): the re-solves' CPU 29.9 s
-with LM, 6.3 s with ISAM2 (one update a re-solve, relinearised beyond 0.1) or 23.8 s (three, beyond
-0.001), but ISAM2 holds its Bayes tree: glibc's heap in use grew to 173-181 MB, against 22 MB in use
-and a 57 MB arena at LM's peak (rebuilding ISAM2 from scratch every 10 or 40 re-solves held as much:
-the tree of a graph whose laps are all tied together is that large). At 200 s it was 17.5 against
-13.9 MB (0.24 → 0.08 s). The whole ``process`` measured at 5 minutes of ``corridor`` peaked at 225
-against 213 MB. Memory that grows with the log is what issue 14 asks to remove, so LM stays.
+gtsam's ISAM2 (``solver = "isam2"``) is offered beside it and not the default: it is given only
+what was added since its last update, and the whole graph is solved once by LM at the end, from
+its estimate, so the final answer is the batch one (sub-millimetre; about 1 mm on the baseline's
+200 s ring, whose Cauchy-weighted closures leave more than one optimum). It saves CPU but holds
+its Bayes tree, which grows with the log: on a 1,200 s ``ring`` log (``fmcwlog record --scenario
+ring --duration 1200``; 12 laps, 1,690 closures; the improved method's graph calls replayed) the
+re-solves take 6.3 s CPU with ISAM2 (``--set backend.solver=isam2 --set backend.isam2_steps=1
+--set backend.isam2_relinearize=0.1``) against 29.9 s with LM, and glibc's heap in use grows to
+173-181 MB against LM's 22 MB. The back end keeps memory from growing with the log, so LM is the
+default (docs/design/back-end.md).
 """
 
 from __future__ import annotations
@@ -56,7 +54,8 @@ class PoseGraph:
     the current estimate; ``"isam2"``, it hands the factors and nodes added since the last call to
     gtsam's ISAM2 (``isam2_steps`` Gauss-Newton updates, ``relinearize_threshold`` on a variable's
     change, rad or m), and :meth:`optimize` with ``final=True`` runs LM on the whole graph once from
-    ISAM2's estimate (and releases ISAM2: any later :meth:`optimize` runs LM)."""
+    ISAM2's estimate (and releases ISAM2: any later :meth:`optimize` runs LM). Another ``solver``
+    raises ``ValueError``. Poses are ``(x, y, θ)`` of base_link in the method's frame (m, m, rad)."""
 
     def __init__(self, cauchy_scale: float = 3.0, solver: str = "batch", isam2_steps: int = 3,
                  relinearize_threshold: float = 0.001):
@@ -95,6 +94,7 @@ class PoseGraph:
         return i
 
     def add_odometry(self, e: Edge) -> None:
+        """An odometry edge ``e`` between two existing nodes, with Gaussian noise of its covariance."""
         noise = gtsam.noiseModel.Gaussian.Covariance(e.covariance)
         self._add(gtsam.BetweenFactorPose2(e.a, e.b, _pose2(e.relative), noise))
 
@@ -124,6 +124,7 @@ class PoseGraph:
         self.values = gtsam.LevenbergMarquardtOptimizer(self.graph, self.values, params).optimize()
 
     def estimate(self, i: int) -> np.ndarray:
+        """The current estimate (3,) of node ``i`` (m, m, rad)."""
         return _array(self.values.atPose2(i))
 
     def estimates(self) -> np.ndarray:

@@ -1,18 +1,18 @@
 """Local edges: each new node matched, point to line, against the nodes just before it.
 
 The front end's relative poses carry a bias that loop closures cannot remove where a loop has
-no cross-visibility. On the 200 s ``ring`` log (seed 0) the front end's motion between two
-consecutive nodes (0.59 m) was 1.5 mm to the left of the truth on average (its heading sat
-0.14° right of its direction of travel, in every corridor of the ring) and 0.068° rms off in
-yaw; a closure ties the second lap to the first but leaves the shape of the lap as the
-odometry drew it. With exact closures (the truth's relative poses, held tight) the graph
-still ended at 1.25 cm ATE, against 0.59 cm with exact odometry and the real closures: the
-odometry, not the closures, set the floor.
+no cross-visibility. On the 200 s ``ring`` log (``fmcwlog record --scenario ring --duration
+200``, seed 0) the front end's motion between two consecutive nodes (0.59 m) is 1.5 mm to the
+left of the truth on average (its heading sits 0.14° right of its direction of travel, in every
+corridor of the ring) and 0.068° rms off in yaw; a closure ties the second lap to the first but
+leaves the shape of the lap as the odometry drew it. With exact closures (the truth's relative
+poses, held tight) the graph still ends at 1.25 cm ATE, against 0.59 cm with exact odometry and
+the real closures: the odometry, not the closures, sets the floor.
 
 The same nodes matched by :mod:`.registration` (point to line, full-density points, no
 motion prior) have no such bias: node to the one before it 2.1 mm rms across (mean 0.6 mm)
 and 0.034° in yaw; to the node four back (2.4 m) 2.5 mm and 0.047°, where the front end's
-own relative pose was 9.1 mm (mean 5.4 mm) and 0.12°. Along a bare corridor they determine
+own relative pose is 9.1 mm (mean 5.4 mm) and 0.12°. Along a bare corridor they determine
 less than the front end does (its Doppler speed holds the axis; 4.8 against 2.8 mm rms along
 track), so they are *added* to the front end's edges rather than replacing them: each with the
 information of its match (``effective_pairs`` pairs of ``residual_sigma``, as a closure's), in
@@ -20,26 +20,20 @@ which a corridor's axis is free and the front end's edge keeps it.
 
 Each new node ``i`` is matched against each of the nodes ``i-1 … i-L`` (``L`` = ``local_links``),
 one at a time: a submap of one node's own points (its normals built once), not of several placed
-by the front end's poses, since on both logs the single node did better (ring 0.55 against
-0.69 cm, corridor 0.49 against 0.64 cm with four; offline, on the same graphs). ``L`` = 4: 3
-gave 0.73 cm on the ring, 2 gave 0.61 cm on the corridor; 6 gave 0.48 / 0.40 cm for half as many
-matches again, 8 no better (0.54 / 0.48 cm). The query is the node's
-points thinned to 5 cm (10 cm lost most of the gain: 1.6 cm on the ring). A match that did not
+by the front end's poses, since on both logs the single node does better (ring 0.55 against
+0.69 cm, corridor 0.49 against 0.64 cm with four; offline, on the same graphs). ``L`` = 4, the
+query is the node's points thinned to 5 cm; the alternatives measured against both are in
+docs/design/back-end.md. A match that did not
 converge, paired fewer than ``min_pairs`` points or moved more than ``local_gate`` m or
 ``local_gate_deg`` from the front end's relative pose gives no edge (counted, not an error).
 
 Cost: a match is some 1.1-1.4 ms, mostly the nearest-point pairing (a 6-nearest KD-tree query of
 every query point, then re-queries of the points that moved). Its ICP stops once a step moves less
-than ``local_tolerance`` = 0.1 mm, as the closures' does. A 1 mm tolerance was measured and not
-taken (the back end's sweeps of the 120 s ``corridor`` and 200 s ``ring`` logs, seed 0, replayed
-through it): 5.4-5.6 → 2.9-3.1 iterations a match for the improved method, 7.6-8.8 → 5.0-5.9 for the
-baseline, the local matches' CPU time 1.05 → 0.85 s and 1.63 → 1.36 s (improved), 1.79 → 1.47 s and
-2.70 → 2.43 s (baseline), about 2 % of a whole ``process`` run's CPU, for back-end ATE corridor 0.666
-→ 0.679 cm (baseline 45.89 → 45.97 cm), ring 0.673 → 0.691 cm (baseline 151.3 → 148.2 cm): 2-3 %
-of the accuracy for 2 % of the time. The cheaper alternatives measured on the corridor cost more: the query
-at 7 cm 0.85 cm, at 10 cm 1.49 cm; the submap at 8 cm 1.03 cm; three links 0.73 cm; at most 5
-iterations 0.72 cm (297 matches then "did not converge"). The front end's own scan-to-map pose is no
-substitute: it is the odometry edge already, the biased measurement these edges are added to correct.
+than ``local_tolerance`` = 0.1 mm, as the closures' does: a 1 mm tolerance saves about 2 % of a
+whole ``process`` run's CPU for 2-3 % of the accuracy (on the 120 s ``corridor``, ``fmcwlog
+process --set backend.local_tolerance=0.001``: back-end ATE 0.679 against 0.666 cm). The front
+end's own scan-to-map pose is no substitute: it is the odometry edge already, the biased
+measurement these edges are added to correct.
 """
 
 from __future__ import annotations

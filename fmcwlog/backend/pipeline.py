@@ -14,16 +14,11 @@ through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f
 the front end's poses), the closures, and an occupancy grid rebuilt from the nodes' points at
 their optimised poses.
 
-Cost (CPU time, 200 s ``ring`` log, seed 0, both methods, on a shared 2-core machine): ``add``
-took 18.0 s (20.2 s before the ICP was tuned, :mod:`.registration`), ``finish`` about 1 s each.
-Under a profiler, verification was about half of ``add`` and its correlative search
-(:mod:`fmcwlog.kernels.correlative`, branch and bound in Python) about 70 % of verification; the
-local edges' ICP most of the rest; gtsam's re-optimisations 1.4 s. After the search and the ICP's
-passes were tuned (every output bit for bit the same; the front end's sweeps captured once and
-replayed through the old and new back ends alternately, min of 2-4 runs): ``add`` on that log
-17.5 → 12.5 s for both methods (baseline 11.3 → 6.8 s, its wide closure searches), on the 120 s
-``corridor`` 6.1 → 5.3 s, where the local edges' nearest-point pairing
-(:class:`~fmcwlog.kernels.nearest.NearestPairs`) is now the largest part (about a third).
+Cost (CPU time, ``fmcwlog record --scenario ring --duration 200``, seed 0, both methods): ``add``
+takes 12.5 s for both methods (the baseline 6.8 s, its wide closure searches), ``finish`` about
+1 s each; on the 120 s ``corridor`` ``add`` takes 5.3 s, where the local edges' nearest-point
+pairing (:class:`~fmcwlog.kernels.nearest.NearestPairs`) is the largest part (about a third). The
+profile, and what each tuning step saved: docs/design/speed-experiments.md.
 """
 
 from __future__ import annotations
@@ -94,6 +89,7 @@ class BackendResult:
     local_rejections: dict[str, int] = field(default_factory=dict)
 
     def summary(self) -> dict:
+        """The counts and the time (s) for ``run.json``'s ``backend``."""
         return {"nodes": int(len(self.node_stamps_ns)), "local_edges": self.local_edges,
                 "local_rejections": dict(sorted(self.local_rejections.items())), "closures_proposed": self.proposed,
                 "closures_verified": self.verified, "closures_accepted": self.accepted,
@@ -153,6 +149,9 @@ class PoseGraphBackend:
 
     # --- sweep by sweep -------------------------------------------------------------------
     def add(self, r: SweepResult) -> None:
+        """One sweep of the method, in time order: its pose (base_link in ``<method>/odom``, m, m,
+        rad), and, for a keyframe, its deskewed static points and the ICP's covariance; it may
+        become a node and look for loop closures (module docstring)."""
         t0 = time.perf_counter()
         if self._last_pose is not None:
             self._path_m += float(np.hypot(*(r.pose[:2] - self._last_pose[:2])))
@@ -193,7 +192,7 @@ class PoseGraphBackend:
     def _spill(self, index: int) -> None:
         """Node ``index``'s points out of memory (:class:`~fmcwlog.backend.point_store.PointStore`): no later
         local edge reads them; a closure's submap and the final map read them back, the same
-        float32 values. They were the one per-node cost that grew with the log (~4 kB a node)."""
+        float32 values. Kept in memory they would be the one per-node cost that grows with the log (~4 kB a node)."""
         if index >= 0:
             if self._store is None:
                 self._store = PointStore()
@@ -256,6 +255,8 @@ class PoseGraphBackend:
 
     # --- the end ----------------------------------------------------------------------------
     def finish(self) -> BackendResult:
+        """The last optimisation, every sweep's corrected pose and the map rebuilt from the nodes;
+        call once, after the last :meth:`add`."""
         t0 = time.perf_counter()
         if self.records:
             self._optimize(final=True)

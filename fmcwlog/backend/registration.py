@@ -11,21 +11,15 @@ the submap (M, 2) with unit normals (M, 2) in the target frame, poses map source
 Residual ``r = nᵀ(R p + t - q)`` (m); Jacobian ``[n_x, n_y, nᵀ R' p]`` with ``R' p = (-(Rp)_y, (Rp)_x)``;
 Cauchy weights ``1 / (1 + (r/c)²)``.
 
-Cost (measured on the 2,895 matches that the back ends of both methods ran on the 200 s ``ring``
-log, seed 0; CPU time, the old and new code alternating in one process on a shared 2-core machine;
-every result bit for bit the same): the old code spent about 170 µs of each 250-300 µs iteration
-(some 480 source points) in a KD-tree query of every point. The front end's
-:class:`~fmcwlog.kernels.nearest.NearestPairs` keeps each point's 6 nearest targets and asks the tree
-again only for points that moved too far for them to still hold the nearest (exact; with the back
-end's own copy of the idea, k = 4, 6, 8, 10 cost 0.69, 0.61, 0.63, 0.67 of the tree's time for the
-pairing; sharing the front end's gave byte-identical outputs on crowd 20 s and ring 200 s). Each
-pass also computes the residuals and Jacobian once, without repeated fancy indexing, ``einsum`` or
-``column_stack``, and calls LAPACK's ``gesv`` directly (the routine ``np.linalg.solve`` calls,
-without about 17 µs of checks in its wrapper); each submap's PCA is summed one neighbour at a time.
-register_point_to_line for these matches: 11.3 → 7.5 s; build_submap: 5.6 → 4.3 s. Later, each pass
-gathers a pair's target point and normal in one ``take`` from an (M, 4) array and selects the pairing
-points by index rather than by mask: 3.66 → 3.15 s for the 1,639 registrations of the 120 s
-corridor's back ends (every result the same).
+Cost: the pairing uses the shared :class:`~fmcwlog.kernels.nearest.NearestPairs`, which
+keeps each point's 6 nearest targets and asks the tree again only for points that moved too far
+for them to still hold the nearest (exact); a KD-tree query of every point would take about
+170 µs of each 250-300 µs iteration (some 480 source points). Each pass computes the residuals
+and Jacobian once, gathers a pair's target point and normal in one ``take`` from an (M, 4) array,
+and calls LAPACK's ``gesv`` directly (the routine ``np.linalg.solve`` calls, without about 17 µs
+of checks in its wrapper); each submap's PCA is summed one neighbour at a time. On the 120 s
+corridor's back ends (``fmcwlog run``) the 1,639 registrations take 3.15 s CPU; what each of
+these steps saves is measured in docs/design/speed-experiments.md.
 """
 
 from __future__ import annotations
@@ -84,6 +78,9 @@ class Submap:
 def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Submap:
     """Normals by PCA over each point's ``normal_neighbours`` nearest points (vectorised).
 
+    ``points`` (M, 2), m, in the submap's frame; the :class:`Submap` holds them, their unit
+    normals and a KD-tree over them.
+
     The neighbourhoods' means and covariances are summed one neighbour at a time, in the order
     ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost."""
     tree = cKDTree(points)
@@ -125,9 +122,9 @@ _DAMPING = 1e-9 * np.eye(3)  # keeps a step defined where the scene leaves a dir
 
 def _system(pose: np.ndarray, sub: Submap, nearest: NearestPairs, c: float):
     """Residuals (K,), Jacobian rows (K, 3) and Cauchy weights (K,) of the source points that pair
-    at ``pose`` (module docstring). Each array is computed once, with the arithmetic it had before
-    this was tuned (``einsum``'s two-term sum written out), so the results are bit for bit the same
-    (checked on the 2,895 matches of the 200 s ring log)."""
+    at ``pose`` (module docstring). Each array is computed once, with the arithmetic of the plain
+    ``einsum`` form (its two-term sum written out), so the results are bit for bit those of that
+    form (checked on the 2,895 matches of the 200 s ring log)."""
     moved, idx, dist = nearest.nearest(pose)
     ok = sub.paired.take(idx)  # the target point has a normal (the index M, no target, has none)
     ok &= dist < nearest.gate
@@ -150,6 +147,9 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
                            prior: tuple[np.ndarray, np.ndarray] | None = None) -> LineICPResult:
     """Gauss-Newton with Cauchy weights from ``initial`` (module docstring).
 
+    ``source_xy`` (N, 2), m, in the source frame; ``submap``: :func:`build_submap` of the target
+    points (target frame); ``initial`` (3,): the source-to-target pose to start from (m, m, rad).
+    Fewer than 3 pairs end the iterations (``converged`` False); nothing is raised.
     ``prior``: a pose (3,) and an information (3, 3) in the units of ``JᵀWJ`` (m⁻² and rad⁻² times
     m²) added to every step, e.g. to hold a direction the scene leaves free where an estimate put
     it; the returned ``hessian`` does not include it."""

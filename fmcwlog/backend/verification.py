@@ -23,24 +23,23 @@ deviations) that keeps it invertible.
 
 Which motion is left free: a free direction is found as an eigenvector of the lever-scaled ``H``,
 but that eigenvector is tilted by whatever weak structure the scene has (a door jamb, the far end
-of a corridor), so leaving *it* free told the graph that sliding along a corridor also turns the
-robot (in the 240 s ``long-corridor`` a median 0.3°, up to 2°, per metre of slide). A slide along a
-corridor turns nothing: each free direction is snapped to a pure translation (or, where its
-rotation dominates, a pure rotation) and marginalised out of ``H`` (its Schur complement), so the
-closure states the other directions whatever the graph makes of that one. Measured (closures from
-the front ends' own keyframes replayed through the back end): ``long-corridor`` 240 s, back-end ATE
-12.1 → 2.3 cm; 120 s, 1.89 → 1.84 cm.
+of a corridor), and leaving *it* free would tell the graph that sliding along a corridor also
+turns the robot (in the 240 s ``long-corridor`` a median 0.3°, up to 2°, per metre of slide). A
+slide along a corridor turns nothing: each free direction is snapped to a pure translation (or,
+where its rotation dominates, a pure rotation) and marginalised out of ``H`` (its Schur
+complement), so the closure states the other directions whatever the graph makes of that one.
+On the 240 s ``long-corridor`` (``fmcwlog record --scenario long-corridor --duration 240``;
+closures from the front ends' own keyframes replayed through the back end) the back-end ATE is
+2.3 cm this way, against 12.1 cm with the eigenvector left free.
 
-Where the scene leaves a direction free, the search put the pose anywhere along it, so the other
+Where the scene leaves a direction free, the search puts the pose anywhere along it, so the other
 directions are measured again with that one held where the estimate puts it (in ``long-corridor``
 the search slid the pose a median 1.5 m along the axis from an estimate 0.14 m off). Only where the
-estimate is trusted, though: after a drift that widened the search window, the estimate itself is
-metres off along the axis, and held there the closure's yaw is measured against the wrong stretch
-of wall. On MIT Killian a corridor revisited 4 m off along its axis was so closed (yaw 1.4° off
-where the unheld match was 0.9° off), the graph kept the 4 m, and a wrong closure 4.5 m off that
-agreed with it locked it in: relations error 0.167 m instead of 0.034 m, and 0.145 m with
-``closure_every`` 1.1 m instead of 1.0 (0.035 m without the hold). Held only in unwidened searches:
-0.034-0.035 m at 0.9, 1.0 and 1.1 m.
+estimate is trusted, in searches that were not widened: after a drift that widened the search
+window, the estimate itself is metres off along the axis, and held there the closure's yaw is
+measured against the wrong stretch of wall. On MIT Killian (``bench/killian_log.py`` gives the log
+and the commands) holding in every search gives a relations error of 0.167 m, holding only in
+unwidened searches 0.034-0.035 m (the case in full: docs/design/back-end.md).
 """
 
 from __future__ import annotations
@@ -118,9 +117,10 @@ def _in_free_directions(delta: np.ndarray, free: np.ndarray) -> bool:
 
 def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: BackendParams,
            search: CorrelativeParams | None = None) -> Verdict:
-    """Verify that ``query_xy`` (N, 2, query node's base_link) matches ``submap_xy`` (M, 2, the
-    candidate's base_link frame) near ``prior`` (3,, the query's pose in that frame); ``search``:
-    the correlative search's window (default ``p.search``; the pipeline widens it with the drift)."""
+    """Verify that ``query_xy`` (N, 2, m, query node's base_link) matches ``submap_xy`` (M, 2, m, the
+    candidate's base_link frame) near ``prior`` (3,, the query's pose in that frame, m, m, rad); ``search``:
+    the correlative search's window (default ``p.search``; the pipeline widens it with the drift).
+    A closure that fails a test is a :class:`Verdict` naming the test and why; nothing is raised."""
     search = search or p.search
     if len(query_xy) < p.min_pairs or len(submap_xy) < p.min_pairs:
         return Verdict(False, "points", f"{len(query_xy)} query and {len(submap_xy)} submap points")

@@ -72,6 +72,10 @@ _METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_fi
 
 @dataclass
 class Evaluation:
+    """What :func:`evaluate` found: ``result`` (the report's numbers, ``report.json``; module
+    docstring) and, for the plots, the ground truth and each method's aligned trajectory, heading
+    errors (deg), RPE series, per-sweep times (ms) and disagreements, in the units their comments give."""
+
     out_dir: Path
     log: Path
     run: dict[str, Any]
@@ -159,9 +163,9 @@ def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, s
     # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
     stamps = np.asarray(stamps, dtype=np.int64) - int(round(float(run.get("stamp_shift_s", 0.0)) * 1e9))
     if log_stamps.size == 0 or not np.all(np.isin(stamps, log_stamps)):
-        if recorded is not None:  # the very log: its log_time is not its header.stamp, against LOG_FORMAT.md
+        if recorded is not None:  # the very log: its log_time differs from its header.stamp (the log format has them equal)
             raise ReportError(f"{log}: the log_time of its {scan} messages differs from their header.stamp, by "
-                              f"which {out_dir} was processed (LOG_FORMAT.md has them equal): the sweeps cannot "
+                              f"which {out_dir} was processed (docs/log-format.md has them equal): the sweeps cannot "
                               "be matched")
         raise ReportError(f"{log}: does not belong to {out_dir} (its {scan} stamps differ from the processed sweeps)")
 

@@ -56,13 +56,12 @@ A row (``report.json``: ``methods.<method>.features``)
     (inliers) and ``rms_m`` (perpendicular RMS residual; None without inliers); :mod:`.evaluate` adds
     ``abs_error_m`` and ``rel_error_pct``.
 
-The previous measure is dropped
-    It picked the points the method kept that the *ground-truth* poses put near each
-    end and compared where the method had placed them: a relative pose error between
-    the times each end was seen, weighted by points. It never looked at the map (a wall
-    drawn twice, metres apart, still scored well; a wall no map showed was still scored
-    to 1 mm), RPE already reports that kind of error, and a "measured length" that is not
-    one misleads; so it is gone rather than renamed.
+Why not the points near the true ends
+    A measure that picks the points the method kept that the *ground-truth* poses put near
+    each end, and compares where the method placed them, is a relative pose error between the
+    times each end was seen, weighted by points: it never looks at the map (a wall drawn twice,
+    metres apart, scores well; a wall no map shows scores to 1 mm), and RPE already reports that
+    kind of error (docs/design/feature-lengths.md).
 """
 
 from __future__ import annotations
@@ -216,8 +215,11 @@ def feature_lengths(out_dir: Path, methods: list[str], features: list[dict], wal
     """Per method, one row per feature measured in its occupancy map (module docstring).
 
     ``features``: ``{id, name, a, b}`` with ends in the world frame (m); ``walls`` (M, 4): the
-    world's walls; ``gt_ns`` (N,), ``gt`` (N, 3): ground-truth stamps (ns) and poses.
-    A row's ``measured_m`` is None, with its ``reason``, where the map does not show the feature.
+    world's walls; ``gt_ns`` (N,), ``gt`` (N, 3): ground-truth stamps (ns) and poses of base_link
+    in ``map`` (m, m, rad); ``out_dir``: a ``process`` output folder holding ``<method>_map.yaml``
+    and ``<method>.tum`` per method. A row's ``measured_m`` is None, with its ``reason``, where the
+    map does not show the feature; a missing or unreadable map or trajectory is such a reason,
+    not an exception.
     """
     ends = np.array([[f["a"], f["b"]] for f in features], dtype=float).reshape(-1, 2)  # a0, b0, a1, ...
     if walls is None:

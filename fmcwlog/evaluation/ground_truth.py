@@ -1,5 +1,5 @@
 """The only readers of ground truth: ``/ground_truth/odom``, ``/ground_truth/point_labels`` and
-``fmcwlog.world`` (LOG_FORMAT.md). Evaluation imports this module; estimation never may
+``fmcwlog.world`` (the log format, docs/log-format.md). Evaluation imports this module; estimation never may
 (``tests/test_layers.py`` walks the imports to make sure).
 """
 
@@ -22,7 +22,7 @@ def read_ground_truth(reader: LogReader, topic: str = GT_ODOM_TOPIC) -> tuple[np
 
     A pose that is not finite, an orientation that is no rotation (a zero quaternion) or a stamp
     that does not increase raises :class:`ReportError` naming the log and the message: scores
-    against a damaged truth would be wrong, and they were tracebacks (SVD did not converge).
+    against a damaged truth would be wrong.
     """
     stamps: list[int] = []
     poses: list[np.ndarray] = []
@@ -47,7 +47,8 @@ def _seconds(ns: int) -> str:
 
 
 def read_point_labels(reader: LogReader, topic: str = GT_LABELS_TOPIC) -> dict[int, np.ndarray]:
-    """Per-sweep moving labels (uint8) keyed by sweep stamp (ns)."""
+    """Per-sweep moving labels (uint8, 1 where the point of the same index hit a mover) keyed by
+    sweep stamp (ns); an empty dict where the log has no ``topic``."""
     return {stamp_ns(m.msg.header.stamp): np.frombuffer(bytes(m.msg.moving), np.uint8)
             for m in reader.messages([topic])}
 
@@ -63,7 +64,7 @@ class WorldTruth:
 def read_world(reader: LogReader) -> WorldTruth:
     """The log's ``fmcwlog.world`` record (an empty truth if it has none).
 
-    A record that breaks LOG_FORMAT.md (a key missing, JSON that does not parse, a feature
+    A record that breaks the log format (a key missing, JSON that does not parse, a feature
     without its id, name or two finite ends, walls that are not ``[x1, y1, x2, y2]``) raises
     :class:`ReportError` naming the log and the entry: scoring maps against a half-read
     truth would be worse than no score.
@@ -74,7 +75,7 @@ def read_world(reader: LogReader) -> WorldTruth:
     where = f"{reader.path}: {WORLD_KEY}"
     missing = [k for k in ("features", "walls") if k not in world]
     if missing:
-        raise ReportError(f"{where} has no {' or '.join(repr(k) for k in missing)} (LOG_FORMAT.md: features and walls)")
+        raise ReportError(f"{where} has no {' or '.join(repr(k) for k in missing)} (docs/log-format.md: features and walls)")
     features = [_feature(f, f"{where} features[{i}]") for i, f in enumerate(_json_list(world["features"], where, "features"))]
     if len({f["id"] for f in features}) != len(features):
         raise ReportError(f"{where}: feature ids repeat")

@@ -40,10 +40,12 @@ ERROR_CMAP = "turbo"  # dark at both ends, so low and high errors both stand out
 
 
 def label(m: str) -> str:
+    """The name a method (or a peer) goes by on the figures."""
     return LABELS.get(m, m)
 
 
 def color(m: str) -> str:
+    """A method's colour on every figure; a peer's is picked from its name, the same on every run."""
     if m in COLORS:
         return COLORS[m]
     return _OTHER_COLORS[sum(map(ord, m)) % len(_OTHER_COLORS)]  # a peer: stable across runs
@@ -82,7 +84,7 @@ def _legend_below(fig, ax, ncol: int) -> None:
 
 def _log_y(ax, scale: str = "log", **kw) -> None:
     """A log (or symlog) y axis labelled with plain numbers (0.1, 1, 10) and no minor ticks:
-    easier to read than 10^x, and the minor ticks were half the drawing time of these figures."""
+    easier to read than 10^x, and the minor ticks would be half the drawing time of these figures."""
     from matplotlib.ticker import FuncFormatter, NullLocator
 
     ax.set_yscale(scale, **kw)
@@ -139,6 +141,7 @@ def error_colored(ev: Evaluation, method: str):
 
 
 def ate_over_time(ev: Evaluation):
+    """Each method's absolute position error (cm, log scale) against time (s) after SE(2) alignment."""
     plt = _pyplot()
     t0 = _t0(ev)
     fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
@@ -183,6 +186,7 @@ def rpe_over_distance(ev: Evaluation):
 
 
 def heading_over_time(ev: Evaluation):
+    """Each method's heading error (deg, estimate − ground truth after SE(2) alignment) against time (s)."""
     plt = _pyplot()
     t0 = _t0(ev)
     fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
@@ -234,6 +238,8 @@ def sweep_times(ev: Evaluation):
 
 
 def feature_errors(result: dict):
+    """The baseline's and the improved method's relative feature-length errors (%; ``result``: the
+    report's numbers), one bar per feature; None when neither has feature rows."""
     plt = _pyplot()
     feats = {m: result["methods"][m]["features"] for m in ("baseline", "improved")
              if (result["methods"].get(m) or {}).get("features")}
@@ -334,6 +340,8 @@ def aligned_over_reference_map(ev: Evaluation):
 
 
 def disagreement_along(ev: Evaluation):
+    """The distance (m) of each trajectory to the reference one after SE(2) alignment, against time
+    (s); None without a reference (needs no ground truth)."""
     plt = _pyplot()
     ref = ev.disagreement_reference
     if ref is None or not ev.disagreements:

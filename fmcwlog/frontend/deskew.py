@@ -5,9 +5,15 @@ capture time* ``t`` (N,) (s after the sweep stamp); the result is expressed in
 the lidar frame at ``t_ref``. The base_link twist ``(v, ω)`` (m/s, rad/s;
 ``v_y`` defaults to 0, the non-holonomic rear axle) is held constant over the
 sweep; ``mount = (lidar_x, lidar_y, lidar_yaw)`` places the lidar in base_link.
+Nothing is checked: a NaN gives NaN, and ``xy`` and ``t`` of different lengths raise
+numpy's ``ValueError``.
 
-NOTES.md "Motion distortion": a 75 ms sweep at 1.5 m/s spans 11 cm, so every
-point is moved to the reference time before matching or mapping.
+Departure from the paper: Wang et al. match each sweep as it was seen. A 270° sweep at
+10 Hz lasts 75 ms, and at 1.5 m/s the robot moves 11 cm during it, so here every point is
+moved to the reference time before matching or mapping (the physics notes, docs/physics.md).
+Without it the improved method's ATE on the 30 s crowd sample log is 2.7 cm against 0.5 cm
+(``fmcwlog process sample_logs/crowd_30s.mcap -o OUT --method improved --set frontend.deskew=false``;
+``tests/test_ablation.py``).
 
 Speed, with results bit-for-bit those of the plain formulas (``tests/test_deskew.py`` checks
 both paths against ``np.sinc``, :func:`~fmcwlog.geometry.compose` and
@@ -15,8 +21,9 @@ both paths against ``np.sinc``, :func:`~fmcwlog.geometry.compose` and
 predictions, three a sweep) runs on Python floats; over many it evaluates ``np.sinc``'s own
 operations in place and fills its output rather than stacking it; :func:`deskew` chains the
 exponential, the two compositions with the mount and the transform column by column instead of
-through three (N, 3) pose arrays: 231 -> 174 µs a sweep of 1,079 points (the 120 s corridor
-log, CPU time, best of 7 alternating runs), and one ``dt`` 28.7 -> 2.1 µs.
+through three (N, 3) pose arrays: 174 µs a sweep of 1,079 points against 231 µs through the
+arrays, and one ``dt`` 2.1 against 28.7 µs (the 120 s corridor log, CPU time, best of 7
+alternating runs).
 """
 
 from __future__ import annotations
@@ -64,7 +71,8 @@ def sinc_of_float(x: float) -> float:
 def se2_exp(
     vx: float | np.ndarray, vy: float | np.ndarray, omega: float | np.ndarray, dt: np.ndarray
 ) -> np.ndarray:
-    """Pose (..., 3) reached after ``dt`` (s) under a constant body twist, from the identity.
+    """Pose (..., 3) (m, m, rad) reached after ``dt`` (s) under a constant body twist
+    ``(vx, vy)`` (m/s, the body's own axes) and ``omega`` (rad/s), from the identity.
 
     Exact SE(2) exponential: with ``θ = ω dt``,
     ``[x, y] = V(θ) [vx, vy] dt``, ``V = [[sinθ/θ, -(1-cosθ)/θ], [(1-cosθ)/θ, sinθ/θ]]``.
@@ -120,10 +128,11 @@ def lidar_motion(
     t_ref: float = 0.0,
     v_y: float = 0.0,
 ) -> np.ndarray:
-    """Poses (N, 3) of the lidar at times ``t`` expressed in the lidar frame at ``t_ref``.
+    """Poses (N, 3) (m, m, rad) of the lidar at times ``t`` (N,, s) expressed in the lidar
+    frame at ``t_ref`` (s).
 
-    ``L⁻¹ ⊕ exp((t - t_ref) ξ) ⊕ L`` with ``L`` the mounting and ``ξ = (v, v_y, ω)``
-    the base_link twist.
+    ``L⁻¹ ⊕ exp((t - t_ref) ξ) ⊕ L`` with ``L`` the mounting (lidar in base_link: m, m, rad)
+    and ``ξ = (v, v_y, ω)`` the base_link twist (m/s, m/s, rad/s).
     """
     mount = np.asarray(mount, dtype=float)
     dt = np.asarray(t, dtype=float) - t_ref
@@ -170,9 +179,14 @@ def deskew(
 ) -> np.ndarray:
     """Move every point (N, 2) to the lidar frame at ``t_ref``; returns (N, 2) in m.
 
+    ``xy`` (N, 2), m, in the lidar frame at each point's capture time ``t`` (N,), s after
+    the sweep's stamp; ``v``, ``v_y`` (m/s) and ``omega`` (rad/s): base_link's twist,
+    constant over the sweep; ``mount``: the lidar in base_link (m, m, rad); ``t_ref`` (s,
+    on ``t``'s clock): the time whose lidar frame the result is in.
     A point seen at ``t_i`` from the lidar pose ``P(t_i)`` (relative to the lidar
     at ``t_ref``) is ``P(t_i) · p_i`` in the reference frame; one exact SE(2)
-    exponential per point, fully vectorised.
+    exponential per point, fully vectorised. ``t`` of another length than ``xy``
+    raises ``ValueError``.
     """
     xy = np.asarray(xy, dtype=float)
     if xy.shape[0] == 0:

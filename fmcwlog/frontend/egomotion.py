@@ -1,15 +1,20 @@
-"""The sensor's own velocity from one sweep's Doppler field (NOTES.md).
+"""The sensor's own velocity from one sweep's Doppler field (the physics notes, docs/physics.md).
 
 Frames and units: ``xy`` (N, 2) in the ``lidar`` frame (m); ``v_r`` (N,) radial
 Doppler velocity (m/s), positive when the range grows; ``v_sensor`` (2,) the
 velocity of the lidar's origin expressed in the lidar frame (m/s).
 
-A static point along the unit bearing ``u`` has ``v_r = -uᵀ v_s`` (NOTES
-"Doppler of a static point"; the sensor's rotation does not change a range).
+A static point along the unit bearing ``u`` has ``v_r = -uᵀ v_s`` (the sensor's
+rotation about its own origin does not change a range, so only its translation appears).
 Moving points are outliers to that two-parameter linear model, so it is fit by
 RANSAC on pairs followed by least squares on the inliers. The compensated
 velocity ``ε = v_r + uᵀ v_s`` is then ~0 for static points and is what the
-segmentation thresholds (NOTES corrects eq. 18-19, which use the raw ``v_r``).
+segmentation thresholds.
+
+Departure from the paper: Wang et al. threshold the raw ``v_r`` (eq. 18-19), which holds
+only while the robot stands still; a moving sensor sees every static point with
+``v_r ≠ 0``. The paper estimates no sensor velocity at all; this module is what makes the
+threshold on ``ε`` possible.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ class EgoMotion:
 
     @property
     def n_inliers(self) -> int:
+        """Points consistent with a static world."""
         return int(self.inliers.sum())
 
 
@@ -71,8 +77,10 @@ def unit_bearings(xy: np.ndarray) -> np.ndarray:
 
 def compensated_velocity(xy: np.ndarray, v_r: np.ndarray, v_sensor: np.ndarray,
                           bearings: np.ndarray | None = None) -> np.ndarray:
-    """Ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (N,), m/s (NOTES).
-    ``bearings``: ``unit_bearings(xy)`` if the caller has them already."""
+    """Ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (N,), m/s: ~0 for a static point.
+
+    ``xy`` (N, 2) lidar frame (m), ``v_r`` (N,) m/s, ``v_sensor`` (2,) the lidar origin's velocity
+    in the lidar frame (m/s). ``bearings``: ``unit_bearings(xy)`` if the caller has them already."""
     u = unit_bearings(xy) if bearings is None else bearings
     return v_r + u @ np.asarray(v_sensor, dtype=float)
 
@@ -87,7 +95,7 @@ def _lstsq_2(u: np.ndarray, v_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def usable(u: np.ndarray, v_r: np.ndarray) -> np.ndarray:
     """(N,) points with a finite Doppler and a bearing (not at zero range): ``np.isfinite(v_r) &
-    np.any(u != 0, axis=1)``, the two columns compared apart (25 -> 5 µs for 1,080 points)."""
+    np.any(u != 0, axis=1)``, the two columns compared apart (5 µs for 1,080 points, against 25 µs)."""
     return np.isfinite(v_r) & ((u[:, 0] != 0.0) | (u[:, 1] != 0.0))
 
 
@@ -105,7 +113,13 @@ def fit_sensor_velocity(
     prior_gate: float = 0.3,
     bearings: np.ndarray | None = None,
 ) -> EgoMotion:
-    """Robust fit of the lidar's velocity from static points' Doppler (NOTES).
+    """Robust fit of the lidar's velocity from static points' Doppler (``v_r = -uᵀ v_s``).
+
+    ``xy`` (N, 2): the sweep's points in the lidar frame (m); ``v_r`` (N,): their radial
+    Doppler velocity (m/s, positive when the range grows); non-finite ``v_r`` and zero-range
+    points are left out. Returns an :class:`EgoMotion` whose ``v_sensor`` is NaN (and no
+    inliers) when fewer than 3 points fit or no pair of bearings is far enough from
+    parallel; raises nothing of its own.
 
     1. RANSAC on pairs: ``n_hypotheses`` random pairs drawn at once; each pair's
        2x2 system ``[-u_i; -u_j] v = [v_ri; v_rj]`` is solved in closed form
@@ -220,9 +234,10 @@ def _refine(u: np.ndarray, v_r: np.ndarray, valid: np.ndarray, v: np.ndarray, in
 def sensor_velocity_from_base_twist(
     v: float, omega: float, lidar_x: float, lidar_y: float, lidar_yaw: float
 ) -> np.ndarray:
-    """Velocity (2,) of the lidar origin in the lidar frame for base twist (v, ω), v_by = 0.
+    """Velocity (2,) (m/s) of the lidar origin in the lidar frame for base twist (v, ω), v_by = 0.
 
-    NOTES: in base_link axes ``v_s = (v - ω l_y, ω l_x)``, then rotated by ``-l_yaw``.
+    ``v`` m/s, ``omega`` rad/s, mount in base_link (m, m, rad). In base_link axes
+    ``v_s = v_b + ω × l = (v - ω l_y, ω l_x)``, then rotated by ``-l_yaw``.
     """
     vb = np.array([v - omega * lidar_y, omega * lidar_x])
     c, s = np.cos(lidar_yaw), np.sin(lidar_yaw)
@@ -237,7 +252,7 @@ def base_twist_from_sensor_velocity(
     covariance: np.ndarray | None = None,
     min_lever: float = 0.05,
 ) -> BaseTwist:
-    """Invert :func:`sensor_velocity_from_base_twist` using ``v_by = 0`` (NOTES).
+    """Invert :func:`sensor_velocity_from_base_twist` using ``v_by = 0``.
 
     ``v_sensor`` (2,) in the lidar frame (m/s); mounting in base_link (m, rad).
     With ``w = R(l_yaw) v_s`` (base_link axes): ``ω = w_y / l_x``,
@@ -245,8 +260,8 @@ def base_twist_from_sensor_velocity(
     ``|l_x| < min_lever`` ω is NaN; ``v`` is then ``w_x`` if ``|l_y| < min_lever``
     (error ``ω l_y``), else NaN. The covariance is propagated linearly from
     ``covariance`` (2x2 of ``v_sensor``) if given, else NaN.
-    The constraint fails when the rear wheels slide sideways (NOTES): treat
-    the result as a measurement, not truth. The front end no longer inverts the
+    The constraint fails when the rear wheels slide sideways: treat
+    the result as a measurement, not truth. The front end does not invert the
     mount this way (it has no answer over the axle); it fuses Doppler with the
     wheels instead (:mod:`.twist_fusion`).
     """

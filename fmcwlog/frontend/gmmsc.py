@@ -4,11 +4,11 @@ Units: distances in metres (any non-negative scale works). A K-component 1-D
 Gaussian mixture (eq. 20) is fit by EM (:func:`_em_1d`: sklearn's
 ``GaussianMixture`` algorithm, diagonal covariances, written out for one
 dimension: a few (K, N) array operations per iteration, 0.03-0.1 ms a fit where
-sklearn took 1-3 ms and 1.5 s of imports; ``tests/test_gmmsc.py`` checks it
+sklearn's takes 1-3 ms and 1.5 s of imports; ``tests/test_gmmsc.py`` checks it
 against sklearn); each pair is weighted by its posterior of the inlier component (eq. 21). The
-paper leaves ``k`` in eq. 21 open; NOTES.md fixes it to the inlier component,
-the one with the smallest mean distance. Pairs with weight below ``w_th`` are
-rejected.
+paper leaves ``k`` in eq. 21 open; here it is the inlier component, the one with the
+smallest mean distance (the physics notes, docs/physics.md). Pairs with weight below
+``w_th`` are rejected.
 
 Two additions to eq. 21, stated here because they change results.
 
@@ -56,7 +56,7 @@ class GMMSCParams(Checked):
     reg_covar: variance floor added to each component's variance, m².
     max_fit_samples: distances used for the EM fit (strided subsample; weights
         are still computed for all pairs). Keeps the fit cost bounded.
-    random_state: kept for config files written before EM was done here; the fit
+    random_state: accepted so that config files that set it still load; the fit
         draws nothing (its initial guess is deterministic).
     """
 
@@ -92,7 +92,7 @@ class DistanceMixture:
     # writes the instance's __dict__, which a frozen dataclass allows), not at every ICP iteration
     @cached_property
     def inlier(self) -> int:
-        """Index of the inlier component: the smallest mean (NOTES on eq. 21)."""
+        """Index of the inlier component: the smallest mean (eq. 21's ``k``, which the paper leaves open)."""
         return int(np.argmin(self.means))
 
     @cached_property
@@ -198,9 +198,11 @@ def fit_distance_mixture(
     params: GMMSCParams = GMMSCParams(),
     init: DistanceMixture | None = None,
 ) -> DistanceMixture | None:
-    """EM fit of eq. 20 to distances (N,); None when degenerate (too few / all equal).
+    """EM fit of eq. 20 to distances (N,), m; None when degenerate (fewer than
+    ``max(min_pairs, n_components)`` finite distances, or all within ``min_spread``).
 
-    ``init`` warm-starts EM from a previous fit (e.g. the previous ICP iteration).
+    Non-finite distances are left out. ``init`` warm-starts EM from a previous fit (e.g. the
+    previous ICP iteration) when it has ``n_components`` components. Raises nothing of its own.
     """
     d = np.asarray(distances, dtype=float)
     d = d[np.isfinite(d)]
@@ -229,7 +231,7 @@ def gmmsc_weights(
     mixture: DistanceMixture | None = None,
     refit: bool = True,
 ) -> GMMSCResult:
-    """Weights and keep mask of correspondence pairs from their distances (N,).
+    """Weights and keep mask of correspondence pairs from their distances (N,), m (eq. 20-21).
 
     With ``refit`` a mixture is fit (warm-started from ``mixture`` if given);
     without it the given ``mixture`` is only evaluated (eq. 21), which costs

@@ -4,9 +4,10 @@ Frames and units: poses are ``(x, y, yaw)`` of ``base_link`` (rear-axle
 midpoint) in the odometry frame, metres and radians; stamps in seconds.
 
 Eq. 9 turns encoder pulses into wheel arc length, ``Δs = 2π r n / k``.
-Eq. 13 is the differential-drive model of the (unsteered) rear axle; NOTES.md
-gives it as ``v = (r_L ω_L + r_R ω_R) / 2``, ``ω = (r_R ω_R - r_L ω_L) / b``,
-which is what we implement (per interval, on arc lengths rather than rates).
+Eq. 13 is the differential-drive model ``v = (r_L ω_L + r_R ω_R) / 2``,
+``ω = (r_R ω_R - r_L ω_L) / b``; it holds for the Ackermann chassis because its rear
+wheels are not steered (the physics notes, docs/physics.md). It is applied per interval,
+on arc lengths rather than rates.
 """
 
 from __future__ import annotations
@@ -44,8 +45,9 @@ def body_increments(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-interval travelled arc ``Δs`` (m) and heading change ``Δθ`` (rad) of base_link.
 
-    Eq. 13 as corrected in NOTES.md, applied to arc lengths:
-    ``Δs = (Δs_L + Δs_R) / 2``, ``Δθ = (Δs_R - Δs_L) / b``.
+    Eq. 13 applied to arc lengths: ``Δs = (Δs_L + Δs_R) / 2``, ``Δθ = (Δs_R - Δs_L) / b``.
+    ``left_ticks``/``right_ticks``: cumulative int64 counts (N,) as for
+    :func:`wheel_arc_lengths`; returns two (N-1,) arrays. Raises nothing of its own.
     """
     if _two_readings(left_ticks) and _two_readings(right_ticks):
         dl = int(left_ticks[1]) - int(left_ticks[0])
@@ -60,7 +62,7 @@ def body_increments(
 
 
 def _body(ds_l, ds_r, calib: WheelCalibration):
-    """Eq. 13 (NOTES.md) on the wheels' arcs, floats or arrays alike: ``Δs`` and ``Δθ``."""
+    """Eq. 13 on the wheels' arcs (m), floats or arrays alike: ``Δs`` (m) and ``Δθ`` (rad)."""
     return 0.5 * (ds_l + ds_r), (ds_r - ds_l) / calib.track_width
 
 
@@ -76,6 +78,10 @@ def integrate_arcs(
     ds: np.ndarray, dtheta: np.ndarray, initial_pose: np.ndarray | tuple = (0.0, 0.0, 0.0)
 ) -> np.ndarray:
     """Chain constant-curvature arcs into poses (N+1, 3), exactly and vectorised.
+
+    ``ds`` (N,) arc lengths (m) and ``dtheta`` (N,) heading changes (rad), as
+    :func:`body_increments` gives them; ``initial_pose`` ``(x, y, yaw)`` (m, m, rad) is the
+    first row of the result, in the same odometry frame.
 
     Over an arc of length ``Δs`` turning by ``Δθ`` from heading ``θ_k`` the chord
     has length ``Δs · sin(Δθ/2)/(Δθ/2)`` and direction ``θ_k + Δθ/2``; ``np.sinc``

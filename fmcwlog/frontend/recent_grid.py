@@ -5,11 +5,10 @@ Frames and units: the method's odometry frame (``map``), metres; path lengths in
 The front end's occupancy grid holds every scan since the start, each drawn at the pose the
 front end had then. Since the front end matches against its recent keyframes only
 (:mod:`.keyframe_map`), its pose drifts against what it drew a lap ago: on the 2-minute corridor
-with the LiDAR sideways the yaw between the two grew to 0.015-0.02 rad, which puts a wall 24 m
-away 0.3-0.5 m into space the grid had seen free many times (log-odds at the clamp). The
-tracker's free-space detections (:mod:`.tracking`) fired on those walls: 705 static points judged
-moving on that log, 234 of them as free-space clusters and 471 claimed by the tracks those
-clusters started, all at 20-25 m, all after the first corner.
+with the LiDAR sideways the yaw between the two grows to 0.015-0.02 rad, which puts a wall 24 m
+away 0.3-0.5 m into space the grid has seen free many times (log-odds at the clamp), and the
+tracker's free-space detections (:mod:`.tracking`) would fire on those walls (705 static points
+judged moving on that log with free space from the whole grid; docs/design/moving-points.md).
 
 So the tracker reads free space from scans of the last stretch of path only, drawn at poses
 consistent with the current one to the drift of that stretch: ``2`` grids, a new one begun every
@@ -17,17 +16,13 @@ consistent with the current one to the drift of that stretch: ``2`` grids, a new
 both, i.e. that of the scans of the last ``window / 2`` to ``window`` m.
 
 The scans are those the front end gives its own grid, handed over as the same
-:class:`.occupancy.Scan` objects: each is ray-cast once for both (:mod:`.occupancy`), where
-the recent grids used to cast every scan a second time (0.37 s of a 6.9 s run on the 20 s
-crowd log).
+:class:`.occupancy.Scan` objects: each is ray-cast once for both (:mod:`.occupancy`); a second
+cast of every scan for the recent grids would cost 0.37 s of a 6.9 s run on the 20 s crowd log.
 
-How often the free space is cast (issue 14): the recent grids take every scan the front end's grid
-takes, one every ``grid_distance`` of path (0.5 m). Giving the recent grids only every third of those
-scans (a scan every 1.5 m of path) was measured and not kept: the cast is shared, so the skipped
-scans are cast for the front end's grid all the same (120 s corridor: 231 -> 226 casts, front-end
-CPU unchanged; the tracker's share of it only moved into the map update), while dense-crowd's
-moving-point F1 fell from 0.9876 to 0.9830 (60 s, seed 0). Casting less for both, i.e. a larger
-``grid_distance``, does cut the casting; its measurements are beside it in :mod:`.params`.
+The recent grids take every scan the front end's grid takes, one every ``grid_distance`` of path
+(0.5 m): the cast is shared, so giving them fewer scans saves no casting, and it costs recall
+(every third scan: dense-crowd's moving-point F1 0.9830 against 0.9876, 60 s, seed 0;
+docs/design/moving-points.md).
 """
 
 from __future__ import annotations
@@ -39,9 +34,9 @@ from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan, lattice_ce
 
 class RecentOccupancy:
     """Log-odds of the scans of the last ``window`` (m, > 0) of path, at ``resolution`` (m), in
-    ``epochs`` (≥ 1) grids of ``window / epochs`` m each. Four epochs (the evidence of the last
-    34-45 m instead of 22-45 m) took dense-crowd's recall from 0.9834 to 0.9779 (free space at
-    -1.2); why was not looked into."""
+    ``epochs`` (≥ 1) grids of ``window / epochs`` m each. Two by default: four (the evidence of
+    the last 34-45 m instead of 22-45 m) give dense-crowd a recall of 0.9779 against 0.9834
+    (free space at -1.2; docs/design/moving-points.md)."""
 
     def __init__(self, window: float, resolution: float, epochs: int = 2):
         self.window = window

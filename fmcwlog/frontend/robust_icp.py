@@ -6,9 +6,18 @@ Frames and units as in :mod:`fmcwlog.frontend.icp`.
 eq. 22 ``Σ w_ij ρ(‖R p_i + t - q_j‖)`` with ``w_ij`` the GMMSC weights
 (eq. 20-21, :mod:`fmcwlog.frontend.gmmsc`) and ρ the Huber kernel applied as
 iteratively reweighted least squares (weight 1 for ``|r| ≤ δ``, ``δ/|r|``
-beyond). The step is ``Δ = -(JᵀWJ)⁻¹ JᵀWe`` — NOTES.md: eq. 26 drops the
-``Jᵀ``. The paper's steps 1-2 (centroid pre-alignment) are not done (NOTES:
-harmful when movers pull the centroid; the odometry prior is the start).
+beyond).
+
+Departures from Wang et al. (the physics notes, docs/physics.md, give the corrections):
+
+- The step is the Gauss-Newton step ``Δ = -(JᵀWJ)⁻¹ JᵀWe`` (``e = R p + t - q``: eq. 24 with
+  the opposite sign; ``J`` of eq. 25); eq. 26 as printed, ``H⁻¹ Σ wᵢ eᵢ``, drops the ``Jᵀ``.
+  ``W`` is the product of the GMMSC and the Huber weights.
+- The paper's steps 1-2 (centroid pre-alignment) are not done: they are unnecessary with a
+  good odometry prior, which is the start, and harmful when moving objects pull the centroid.
+- The coarse match is the nearest neighbours in the local map under the prior, not FPFH/SHOT
+  features (§4.2): for a planar scan with an odometry prior that is the usual coarse match.
+
 Two additions, both measured on the tests' room scans: GMMSC starts only once
 Huber-only steps are small (fitting the mixture to misaligned distances
 rejects whole walls and stalls the pose), and successive collinear GN steps
@@ -48,7 +57,7 @@ def median(x: np.ndarray) -> float:
 
 def _kept(c: Correspondences, keep: np.ndarray | None, gmm_weights: np.ndarray | None, p: ICPParams
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Distances, moved source, target points and weights ``W = GMM × Huber`` (NOTES) of the pairs
+    """Distances, moved source, target points and weights ``W = GMM × Huber`` of the pairs
     ``keep`` (None: all of them, GMMSC not yet on: no copies, and a GMM weight of 1 is no product)."""
     if keep is None or gmm_weights is None:
         d = c.distances
@@ -90,6 +99,12 @@ def register(
     prior_information: np.ndarray | None = None,
 ) -> ICPResult:
     """Robust ICP: GMMSC weights × Huber weights, Gauss-Newton on SE(2) (eq. 22-26).
+
+    ``source_xy`` (N, 2), m, in the source frame (the de-skewed sweep); ``target_xy`` (M, 2),
+    m, in the target frame, and ``target_tree`` its ``cKDTree``; ``initial_pose`` (3,) the
+    source-to-target pose to start from (m, m, rad; the odometry prior). Returns an
+    :class:`~fmcwlog.frontend.icp.ICPResult`; raises nothing of its own: fewer than
+    ``min_correspondences`` pairs end the iterations (``converged`` False).
 
     Each iteration: nearest neighbours under the current pose (distance gate),
     weights, one GN step ``Δ = -(JᵀWJ)⁻¹ JᵀWe``; stop when the step is below

@@ -5,12 +5,14 @@ ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (m/s) from
 :func:`fmcwlog.frontend.egomotion.compensated_velocity`.
 
 Eq. 17 clusters with DBSCAN under ``dist² = Δx² + Δy² + α Δv²``; embedding each
-point as ``(x, y, √α·v)`` makes that the plain Euclidean metric. Eq. 18-19
-threshold the raw Doppler ``v_r``, which only works while the robot stands
-still: a moving sensor sees every static point with ``v_r = -uᵀ v_s ≠ 0``.
-NOTES.md corrects this: cluster and threshold the compensated ``ε`` instead,
-and decide per cluster, so the clearly moving points of an object carry its
-points whose motion is perpendicular to the beam (``ε ≈ 0``).
+point as ``(x, y, √α·v)`` makes that the plain Euclidean metric.
+
+Departure from the paper: Wang et al.'s eq. 18-19 threshold the raw Doppler ``v_r``,
+which only works while the robot stands still: a moving sensor sees every static point
+with ``v_r = -uᵀ v_s ≠ 0``. Here the clustering and the threshold use the compensated
+``ε`` instead, and the decision is per cluster, so the clearly moving points of an object
+carry its points whose motion is perpendicular to the beam (``ε ≈ 0``; the physics notes,
+docs/physics.md).
 
 DBSCAN is :func:`dbscan` here rather than sklearn's: the neighbourhood graph from
 one ``cKDTree.query_pairs`` and its components by hooking roots under the lowest node
@@ -18,11 +20,8 @@ and following pointers (:func:`_lowest_connected`), which gives
 sklearn's labels exactly (``tests/test_segmentation.py`` compares them) at 0.56
 against 2.0 ms per sweep on the corridor log and 2.0 against 5.2 ms on the crowd
 log (the same machine, busy; the order of the two held on repeats), and saves the
-1.5 s import of sklearn. The components were found by lowering labels along every edge until
-stable (two ``minimum.at`` over all edges a round, and a last round to see nothing change); hooking
-the roots and dropping the edges already inside one tree takes :func:`dbscan` on the corridor log's
-925 calls from 0.27-0.31 to 0.22-0.23 s CPU, on the crowd log's 200 from 0.14-0.24 to 0.11-0.16 s
-(5 runs each, alternating; the same labels, ``tests/test_segmentation.py``).
+1.5 s import of sklearn. How the components are found, and what the alternatives cost:
+docs/design/speed-experiments.md.
 """
 
 from __future__ import annotations
@@ -56,10 +55,11 @@ class SegmentationParams(Checked):
     neighbourhood: DBSCAN only looks at points within this distance (m) of a
         point with ``|ε| ≥ v_th`` (see :func:`segment_moving`); 0 looks at all.
         2 m keeps whole any object up to the tracker's ``max_object_radius`` (0.8 m) around
-        one of its points. 1 m (issue 14) took the tracker's clustering on the 120 s corridor
-        from 0.50 to 0.42 s CPU (of a 5.75 s front end; 102 points clustered a sweep on average,
-        the cost is mostly per call) and judged 26 more static points moving there (F1 0.99846
-        -> 0.99801; crowd 20 s 0.98995 -> 0.99010, dense-crowd 60 s 0.98760 -> 0.98795): not taken.
+        one of its points. 1 m saves little and judges more static points moving: on the 120 s
+        corridor (``fmcwlog process --method improved --set segmentation.neighbourhood=1``) the
+        tracker's clustering takes 0.42 against 0.50 s CPU of a 5.75 s front end, and the
+        moving-point F1 is 0.99801 against 0.99846 (26 more static points judged moving;
+        docs/design/moving-points.md).
     """
 
     # 0 clusters by position alone; at 100 s² one Doppler quantum (0.1 m/s) already counts as 1 m
@@ -75,7 +75,8 @@ class SegmentationParams(Checked):
 def cluster_points(
     xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
 ) -> np.ndarray:
-    """DBSCAN labels (N,) over ``(x, y, √α·ε)`` (eq. 17); -1 marks noise."""
+    """DBSCAN labels (N,) over ``(x, y, √α·ε)`` (eq. 17, with the compensated ``ε`` in place of
+    ``v_r``); -1 marks noise. ``xy`` (N, 2) m, ``epsilon`` (N,) m/s."""
     feats = np.column_stack([xy, np.sqrt(params.alpha) * np.asarray(epsilon, float)])
     return dbscan(feats, params.eps, params.min_samples)
 
@@ -199,8 +200,8 @@ def segment_clusters(
         centres = xy[centre] if seeds is None or len(seeds) == 0 else np.concatenate([xy[centre], seeds])
         # only points inside the centres' bounding box grown by the neighbourhood can be near one,
         # and a centre is near itself: the KD-tree is asked about the others inside the box alone
-        # (segmentation 0.38 -> 0.29 ms a sweep on the corridor log; the centres' own points left
-        # out, 0.52 -> 0.32 ms on the crowd log's, where a third of the points are centres)
+        # (segmentation 0.29 ms a sweep on the corridor log against 0.38 ms asking about every
+        # point; 0.32 against 0.52 ms on the crowd log, where a third of the points are centres)
         lo, hi = centres.min(axis=0) - params.neighbourhood, centres.max(axis=0) + params.neighbourhood
         near = (xy[:, 0] >= lo[0]) & (xy[:, 0] <= hi[0]) & (xy[:, 1] >= lo[1]) & (xy[:, 1] <= hi[1])
         inside = np.flatnonzero(near & ~centre)
@@ -228,7 +229,10 @@ def segment_moving(
     when ``neighbourhood`` is 0). With none, nothing is moving and DBSCAN is
     skipped. The cut can only shorten a cluster that reaches farther than
     ``neighbourhood`` from every moving point: a wall, whose share of moving
-    points is nil either way. On the corridor log this takes segmentation from
-    3.9 to about 1 ms per sweep.
+    points is nil either way. On the corridor log segmentation takes about 1 ms per
+    sweep this way, against 3.9 ms with DBSCAN over every point.
+
+    ``xy`` (N, 2): the sweep in the lidar frame (m); ``epsilon`` (N,): compensated Doppler
+    (m/s). Raises nothing of its own.
     """
     return segment_clusters(xy, epsilon, params).moving

@@ -1,12 +1,15 @@
 """The lidar's mount and the wheels' effective radii, estimated from the log itself.
 
+Not in the paper (Wang et al. take the calibration as given).
+
 What each sweep contributes (per-sweep sums, never points):
 
 - Doppler: the lidar origin's velocity ``z`` (lidar frame, m/s) and its covariance, over
   the sweep's span ``τ`` (s); the wheels' rotations ``φ_L``, ``φ_R`` (rad, from the ticks)
-  over the same span. With the differential-drive model of the rear axle (paper eq. 13
-  as NOTES.md corrects it) and the no-slide constraint (NOTES "From the sensor's
-  velocity to the robot's"):
+  over the same span. With the differential-drive model of the rear axle (paper eq. 13,
+  which holds because the rear wheels are not steered) and the no-slide constraint
+  ``v_by = 0``, under which the lidar moves at ``v_s = v_b + ω × l`` (the physics notes,
+  docs/physics.md):
 
       v = (r_L φ_L + r_R φ_R) / (2τ),   ω = (r_R φ_R - r_L φ_L) / (b τ)
       z = R(-l_yaw) (v - ω l_y,  ω l_x)
@@ -26,10 +29,11 @@ says so. Driving straight fixes ``l_yaw`` (the direction of ``z``) and ``r_L + r
 no lever arm) is reported as not observable, never as a number. That is decided twice:
 before the fit, from what the log's motion could fix at the calibration's values
 (:func:`_excitation_sigmas`), holding what it cannot at the calibration's value so that it
-cannot soak up what the others explain; and after it, from the estimate's own σ. Without the
-first, a near-straight drive's heading rows were fitted with a track width run off to infinity
-(the README's first run, 10 s: 1629 m ± 17.7 m, a false warning); with it the same log gives the
-radii (0.10065 and 0.10048 m against 0.1005 and 0.1003 true) and the track width as not observable.
+cannot soak up what the others explain; and after it, from the estimate's own σ. The first is
+needed: a near-straight drive's heading rows alone fit a track width run off to infinity (on
+the 10 s log of ``fmcwlog run --duration 10``, 1629 m ± 17.7 m, a false warning); with it that
+log gives the radii (0.10065 and 0.10048 m against 0.1005 and 0.1003 true) and the track width
+as not observable.
 
 Estimation: :func:`scipy.optimize.least_squares` (trust region, ``soft_l1`` loss so
 that wheel slip, a sweep whose Doppler fit caught a crowd, or a failed registration
@@ -136,9 +140,14 @@ class CalibrationSamples:
 
     def add_doppler(self, stamp: float, z: np.ndarray, cov: np.ndarray, turns: tuple[float, float],
                     span: float) -> None:
+        """One sweep's Doppler row: ``z`` (2,) the lidar origin's velocity (lidar frame, m/s),
+        ``cov`` its (2, 2) covariance ((m/s)²), ``turns`` the wheels' rotations ``(φ_L, φ_R)`` (rad)
+        over the sweep's ``span`` (s), ``stamp`` (s)."""
         self.doppler.append((float(z[0]), float(z[1]), float(cov[0, 0]), float(cov[1, 1]), *turns, span, stamp))
 
     def add_yaw(self, stamp: float, dyaw: float, turns: tuple[float, float], dt: float) -> None:
+        """One heading row: the scan-matched heading change ``dyaw`` (rad) between two consecutive
+        registered sweeps ``dt`` (s) apart, the wheels' rotations ``(φ_L, φ_R)`` (rad) over it, ``stamp`` (s)."""
         self.yaw.append((float(dyaw), *turns, dt, stamp))
 
 
@@ -164,7 +173,7 @@ def _calibration_vector(cal: Calibration) -> np.ndarray:
 
 
 def _wheel_twist(p: np.ndarray, phi_l: np.ndarray, phi_r: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``v`` (m/s) and ``ω`` (rad/s) over ``τ`` from wheel rotations (eq. 13 as NOTES corrects it)."""
+    """``v`` (m/s) and ``ω`` (rad/s) over ``τ`` (s) from wheel rotations (rad), eq. 13."""
     r_l, r_r, b = p[3], p[4], p[5]
     return (r_l * phi_l + r_r * phi_r) / (2.0 * tau), (r_r * phi_r - r_l * phi_l) / (b * tau)
 
@@ -200,7 +209,7 @@ def _excitation_sigmas(fun, x: np.ndarray) -> np.ndarray:
     This is the test of what the log *can* fix. At the fitted values it fails on a near-straight
     drive: the heading rows' ``(r_R φ_R - r_L φ_L) / b`` is matched as well by a radius ratio as by a
     track width run off to infinity, and there the track width's σ is a small fraction of its
-    runaway value (measured: the first run's 10 s log, 1629 m ± 17.7 m, a false warning). At the
+    runaway value (on the 10 s log of ``fmcwlog run --duration 10``: 1629 m ± 17.7 m). At the
     calibration's values the wheels' rotation difference, which is tick quantisation when the robot
     drives straight, gives it no information (σ 0.24 m on that log). The robust weights are left
     out on purpose: they shrink where the calibration is wrong, which would let a wrong value pass
@@ -216,7 +225,7 @@ def _inverse(h: np.ndarray, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarra
     (by more than 1e-6 of their unit direction) along a direction it carries no information on.
 
     ``np.linalg.pinv`` gives such a direction zero variance, so a parameter the log cannot fix
-    came out with only its systematic σ: on a synthetic 10 s straight drive, lidar_x 385 m ± 5 mm.
+    would come out with only its systematic σ: on a synthetic 10 s straight drive, lidar_x 385 m ± 5 mm.
     The matrix is scaled to a unit diagonal first so that ``rcond`` compares like with like (radii
     in m beside a yaw in rad)."""
     scale = np.sqrt(np.diag(h))
@@ -254,7 +263,10 @@ def estimate_calibration(samples: CalibrationSamples, cal: Calibration,
                          prm: SelfCalibrationParams) -> CalibrationEstimate | None:
     """Least-squares estimate of the mount and the wheels from ``samples``, starting at ``cal``.
 
-    None when there are fewer than ``min_samples`` moving sweeps with Doppler, or no wheels.
+    The values are in the calibration record's units (:data:`UNITS`: m and rad). None when
+    there are fewer than ``min_samples`` moving sweeps with Doppler, or ``cal`` has no wheels;
+    what the log cannot fix is None in the estimate, with the reason in ``fixed``. Raises
+    nothing of its own.
     """
     if cal.wheels is None:
         return None
@@ -339,7 +351,7 @@ def adopt(check: dict[str, dict], adopted: set[str]) -> set[str]:
 
     A value that agrees with the calibration within its uncertainty keeps the calibration's: the
     estimate carries a systematic error of its own (``sys_*``), and a lidar_y off by 5 mm from a
-    right one costs more than it mends (measured: ATE 1.4 -> 2.7 cm on a 2-minute corridor). The
+    right one costs more than it mends (on a 2-minute corridor, ATE 2.7 cm against 1.4 cm). The
     radii go together because their ratio, which sets the odometry's heading drift, is what the
     estimate fixes best."""
     names = adopted | {n for n, c in check.items() if c["differs"]}

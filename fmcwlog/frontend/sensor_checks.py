@@ -1,8 +1,8 @@
 """Sanity checks of the sensors against each other: Doppler, the wheels, and the scans as arbiter.
 
-Issue 11 ("Faults of the sensor itself"): a Doppler sign flipped on every point, wheel
-ticks counting the wrong way (left and right swapped, or negated), a mount far off. Each
-leaves the log self-consistent in one source and at odds with the others:
+Not in the paper. The faults looked for are the sensors' own: a Doppler sign flipped on every
+point, wheel ticks counting the wrong way (left and right swapped, or negated), a mount far off.
+Each leaves the log self-consistent in one source and at odds with the others:
 
 - The Doppler fit is held within ``doppler_prior_gate`` of the wheels' prediction
   (:func:`fmcwlog.frontend.egomotion.fit_sensor_velocity`); when the gate throws away a
@@ -106,7 +106,12 @@ class SensorChecks:
 
     def judge(self, stamp: float, xy: np.ndarray, ego: EgoMotion, wheel_twist: tuple[float, float] | None) -> str:
         """Which source to believe for this sweep: :data:`KEEP` (the gated fit), :data:`DOPPLER`
-        (``ego.unconstrained``, without the wheels) or :data:`WHEELS` (without Doppler)."""
+        (``ego.unconstrained``, without the wheels) or :data:`WHEELS` (without Doppler).
+
+        ``stamp`` (s): the sweep's; ``xy`` (N, 2): its points in the lidar frame (m), kept as the
+        next call's previous sweep; ``ego``: its Doppler fit with the wheels' prior
+        (:func:`.egomotion.fit_sensor_velocity`); ``wheel_twist``: the wheels' ``(v, ω)`` over the
+        sweep (m/s, rad/s), None without wheels. Call once per sweep, in time order."""
         prev, self._prev, self._prev_tree = self._prev, (stamp, xy), None
         if self._t0 is None:
             self._t0 = stamp

@@ -1,12 +1,13 @@
 """Movers followed from sweep to sweep, so that one seen moving keeps its label while Doppler is blind to it.
 
-NOTES.md "Doppler of a static point": a mover whose motion is perpendicular to the
-beam has ``ε ≈ 0``. Per-sweep clustering (:mod:`.segmentation`) carries such points
+A mover whose motion is perpendicular to the beam has ``ε ≈ 0``: Doppler cannot see it.
+Per-sweep clustering (:mod:`.segmentation`) carries such points
 only when the same object shows Doppler elsewhere; a person walking across the
 beams shows none at all (at 1.2 m/s, ``|uᵀV| < v_th = 0.3 m/s`` within ±14° of
 broadside, for seconds when it crosses far ahead of the robot) and is then
 labelled static and mapped. But it was seen moving in the sweeps before, and it
-stands where the map has seen free space: this module uses both.
+stands where the map has seen free space: this module uses both. Not in the paper, whose
+verdict is per sweep (Wang et al. §4.1; ``tracking.enabled = false`` gives that verdict alone).
 
 Frames and units: tracks live in the method's odometry frame (called ``map`` here,
 where its occupancy grid is), positions in m, velocities in m/s, times in s on the
@@ -43,7 +44,7 @@ in ``min_moving_hits`` sweeps and its speed is at least ``min_speed``. Static
 structure never births a track (it shows no Doppler and is not in free space).
 
 The map enters twice, through the largest log-odds of a point's cell and its 8 neighbours
-("points far from any static structure seen repeatedly", issue 12):
+(points far from any static structure seen repeatedly):
 
 - free space, from the scans of the last ``free_window`` m of path only
   (:class:`.recent_grid.RecentOccupancy`, fed by the front end through :meth:`MoverTracker.add_scan`):
@@ -58,54 +59,22 @@ The map enters twice, through the largest log-odds of a point's cell and its 8 n
 
 Why free space is read from recent scans only: the front end matches against its recent
 keyframes, so its pose drifts against what its grid drew a lap ago (0.015-0.02 rad on the
-corridor with the LiDAR sideways), and walls 20-25 m away landed in cells seen free at the
-clamp. With the whole grid that log had 705 static points judged moving (234 in free-space
-clusters, the rest claimed by the tracks those started), all at 20-25 m, all after the first
-corner. Measured with ``fmcwlog record --duration 120`` (seed 0), ``--method improved``:
+corridor with the LiDAR sideways), and walls 20-25 m away land in cells seen free at the
+clamp. On that log (``fmcwlog record --duration 120 --set sensor.mount_x=0 --set
+sensor.mount_y=0.25``, processed with ``--method improved``) free space from the whole grid
+judges 705 static points moving, from the last 45 m 31, at the same recall (0.9995).
 
-==========================================  ===========================  ===========================
-free space from                             corridor, LiDAR sideways     dense-crowd
-==========================================  ===========================  ===========================
-the whole grid, ≤ -1.2 (before)             0.9995 / 0.9790 / 705        0.9840 / 0.9991 / 506
-none (``free_log_odds = 0``)                0.9991 / 0.9991 / 31         —
-last 10 m, ≤ -1.2                           0.9991 / 0.9991 / 31         0.9646 / 0.9991 / 495
-last 30 m, ≤ -1.2                           0.9995 / 0.9991 / 31         0.9793 / 0.9991 / 505
-last 45 m, ≤ -1.2 (default)                 0.9995 / 0.9991 / 31         0.9834 / 0.9991 / 505
-last 60 m, ≤ -1.2                           0.9996 / 0.9951 / 161        0.9843 / 0.9991 / 498
-last 45 m, ≤ -0.8                           0.9995 / 0.9991 / 31         0.9874 / 0.9991 / 525
-last 60 m, ≤ -0.8                           0.9996 / 0.9942 / 190        —
-whole grid, structure also from the last    0.9994 / 0.9882 / 392        0.9835 / 0.9992 / 492
-10 m (free space as before)
-==========================================  ===========================  ===========================
+What each part adds, on the 2-minute logs, seed 0 (recall / precision / static points judged
+moving; ``dense-crowd``: 46 % of the returns on movers; ``fmcwlog record --scenario dense-crowd
+--duration 120``, then ``fmcwlog process --method improved``, ``--set tracking.enabled=false``
+for the first): Doppler clusters alone 0.857 / 1.0000 /
+17, with the tracker and free space 0.985 / 0.9998 / 114; without the structure check the
+precision falls to 0.988 (6,915 static points judged moving). Every variant measured, and the
+choice of ``free_window`` and ``free_log_odds``: docs/design/moving-points.md.
 
-(recall / precision / static points judged moving.) The window is a trade: the corridor's loop
-is 90 m and its far walls drift out of place within 45-60 m of path; dense-crowd's is 64 m and
-its crowd hides the floor, so its free space needs the evidence of most of a lap. -0.8 (two
-traversals) would lift dense-crowd's recall over its earlier 0.984, but on the corridor processed
-with ``lidar_x`` 0.30 m off (``bench/robustness.py``) it judged 597 static points moving
-(precision 0.9798) against 268 (0.9908) at -1.2; after ``fmcwlog calibrate`` 84 and 95. So -1.2
-stays, and dense-crowd's recall is 0.0006 under what the whole grid gave.
-
-Measured on the 2-minute logs, seed 0, recall / precision / false positives of the
-moving points (``dense-crowd``: 46 % of the returns on movers; ``crowd``: 30 %):
-
-=============================  ============================  ============================
-                               dense-crowd                   crowd
-=============================  ============================  ============================
-Doppler clusters alone         0.857 / 1.0000 / 17           0.851 / 0.9999 / 25
-+ tracker, no free space       0.923 / 0.9999 / 62           0.916 / 0.9998 / 56
-+ free space (all on)          0.985 / 0.9998 / 114          0.991 / 0.9998 / 65
-all on, no structure check     0.984 / 0.988 / 6915          0.991 / 0.989 / 4186
-all on, no point claims        0.982 / 0.9998 / 99           0.989 / 0.9999 / 53
-=============================  ============================  ============================
-
-An earlier ``max_blind`` (a track labels only so long after its last Doppler or
-free-space match) was meant to stop tracks sliding along unmapped walls; with the
-structure check at one hit it cost recall and added false positives (2 s: dense
-0.9843 / 125, crowd 0.9915 / 76), so it is gone. The pose used to place a sweep is
-the last pose moved by the last sweep's twist, which spans most of the time since;
-this sweep's own twist put pillars into free space at the end of corners (yaw error
-up to 0.05 rad on dense-crowd, 0.014 with the last twist).
+The pose used to place a sweep is the last pose moved by the last sweep's twist, which spans
+most of the time since: at the end of corners on dense-crowd its yaw error is up to 0.014 rad,
+against 0.05 rad with this sweep's own twist, which puts pillars into free space.
 """
 
 from __future__ import annotations
@@ -156,16 +125,15 @@ class TrackingParams(Checked):
         over the recent grids (< 0; ≥ 0 disables free space), lies where the scans of the last
         ``free_window`` have seen free space (-1.2: three traversals more than hits).
     free_window: free space is read from the scans of the last this much path (m, > 0), drawn
-        at poses consistent with the current one (module docstring: 45 m, between the 64 m
-        loop of dense-crowd and the 90 m one of the corridor).
+        at poses consistent with the current one (45 m, between the 64 m loop of dense-crowd and
+        the 90 m one of the corridor: docs/design/moving-points.md).
     free_fraction: a cluster no larger than ``max_object_radius`` with at least this
         fraction (0-1] of its points in free space is moving and may birth a track.
     map_tolerance: free space is used only where the predicted pose's yaw error moves a
         point by at most this much (m, ≥ 0; one grid cell): at the end of a corner the
         sweep's yaw is uncertain by ``|Δω|·Δt`` and far walls would land in free space.
-        (A floor of 0.002 / 0.003 / 0.005 rad under that error, i.e. no free space beyond
-        25 / 17 / 10 m, took crowd seed 0 from 76 to 77 / 71 / 67 false positives but its
-        recall from 0.9915 to 0.9888 / 0.9812 / 0.9648: not done.)
+        The yaw error has no floor: a floor costs more recall than it saves false positives
+        (docs/design/moving-points.md).
     max_tracks: at most this many tracks (≥ 1; the least recently updated are dropped).
     """
 
@@ -240,7 +208,7 @@ def detections(map_xy: np.ndarray, origin: np.ndarray, times: np.ndarray, epsilo
 def middle_time(t: np.ndarray) -> float:
     """``np.median(t)`` (s) of a sweep's capture times: where they are sorted, as a sweep's beams
     come, its middle value (or the mean of its two middle values) read directly: the same value
-    without the partition (23 -> 7 µs a sweep of 1,080 points); else ``np.median`` itself."""
+    without the partition (7 µs a sweep of 1,080 points, against 23 µs); else ``np.median`` itself."""
     n = len(t)
     if n and t.dtype == np.float64 and bool(np.all(t[1:] >= t[:-1])):  # False with a NaN
         # np.mean's sum starts from +0.0 (so a -0.0 comes back as 0.0), then its division
@@ -266,6 +234,7 @@ class MoverTracker:
         self.recent.integrate(scan, path_m)
 
     def reset(self) -> None:
+        """Drop every track (the free-space grids are kept)."""
         self.x = np.zeros((0, 4))  # (T, 4) x, y, vx, vy
         self.cov = np.zeros((0, 4, 4))
         self.time = np.zeros(0)  # s, the time the state refers to

@@ -1,15 +1,17 @@
 """The robot's twist from Doppler and the wheels together, at any mount.
 
-NOTES.md "From the sensor's velocity to the robot's": with the lidar at ``l = (l_x, l_y)``
-and yaw ``l_yaw`` in base_link, and the rear axle not sliding sideways (``v_by = 0``),
-the lidar origin's velocity in the lidar frame is
+Not in the paper (Wang et al. use Doppler to segment, and odometry as the prior). With the
+lidar at ``l = (l_x, l_y)`` and yaw ``l_yaw`` in base_link, the lidar origin moves at
+``v_s = v_b + ω × l`` (base_link axes); with the rear axle not sliding sideways
+(``v_by = 0``), the lidar origin's velocity in the lidar frame is (the physics notes,
+docs/physics.md)
 
     z = A x,   A = R(-l_yaw) [[1, -l_y], [0, l_x]],   x = (v, ω)
 
 ``det A = l_x``: ahead of or behind the axle Doppler observes both ``v`` and ``ω``; over
 the axle (``l_x = 0``) it observes only ``v - ω l_y`` (its second equation reads
 ``0 = 0``: it tests ``v_by = 0`` and nothing else). Inverting ``A`` blows up as
-``l_x → 0``, which is how a NaN once reached the ICP's prior. Instead the twist is the
+``l_x → 0`` (over the axle it hands the ICP's prior a NaN). Instead the twist is the
 weighted least-squares solution of the two Doppler equations (covariance ``C_d``) together
 with the wheels' own ``(v, ω)`` (covariance ``C_w``, :func:`wheel_covariance`):
 
@@ -42,9 +44,11 @@ class WheelNoise(Checked):
 
     speed_rel: standard deviation of ``v`` as a fraction of ``|v|``, in [0, 1]. The wheels'
         error is mostly a bias (radii off by a fraction of a percent), which a per-sweep
-        variance cannot express and which does not average out: at 1 % the wheels took 7 %
-        of ``v`` and their -0.4 % bias doubled the improved method's ATE in the 100 m bare
-        corridor (1.4 -> 2.8 cm, 2-minute long-corridor log); at 5 % it is 1.36 cm.
+        variance cannot express and which does not average out. 0.05: on the 2-minute
+        ``long-corridor`` log (seed 0; ``fmcwlog record --scenario long-corridor --duration 120``,
+        then ``fmcwlog process --method improved --set wheel_noise.speed_rel=0.01``), at 1 %
+        the wheels take 7 % of ``v`` and their -0.4 % bias doubles the improved method's ATE
+        in the 100 m bare corridor (2.8 against 1.4 cm); at 5 % it is 1.36 cm.
         speed_min: its floor (m/s; tick quantisation), > 0.
     yaw_rate_per_speed: standard deviation of ``ω`` per m/s of speed (rad/m), >= 0; 0.05
         for the same reason (a 0.2 % difference of the radii over a 0.45 m track is a
@@ -79,7 +83,10 @@ class FusedTwist:
 
 
 def doppler_design(mount: tuple[float, float, float] | np.ndarray) -> np.ndarray:
-    """``A`` (2, 2): the lidar's velocity in its frame per unit ``(v, ω)`` of base_link (v_by = 0)."""
+    """``A`` (2, 2): the lidar's velocity in its frame per unit ``(v, ω)`` of base_link (v_by = 0).
+
+    ``mount``: ``(lidar_x, lidar_y, lidar_yaw)``, the lidar in base_link (m, m, rad).
+    """
     lx, ly, yaw = (float(m) for m in mount)
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, s], [-s, c]]) @ np.array([[1.0, -ly], [0.0, lx]])
@@ -94,6 +101,7 @@ def wheel_covariance(twist: tuple[float, float] | np.ndarray, noise: WheelNoise)
 
 
 def hold_covariance(noise: WheelNoise) -> np.ndarray:
+    """Diagonal covariance (2, 2) of the constant-velocity hold's ``(v, ω)`` ((m/s)², (rad/s)²)."""
     return np.diag([noise.hold_speed**2, noise.hold_yaw_rate**2])
 
 
@@ -110,8 +118,11 @@ def fuse_twist(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
                x_w: np.ndarray, c_w: np.ndarray) -> FusedTwist:
     """Weighted least squares of the Doppler equations ``z = A x`` (``z`` None: no Doppler) and ``x = x_w``.
 
+    ``z`` (2,): the lidar origin's velocity in the lidar frame (m/s); ``a``: :func:`doppler_design`;
+    ``x_w`` (2,): the wheels' (or the hold's) ``(v, ω)`` of base_link (m/s, rad/s).
     ``c_d`` (2, 2) is ``z``'s covariance ((m/s)²), positive definite; ``c_w`` that of ``x_w``
     (positive definite). A singular ``c_d`` (a degenerate fit) counts as no Doppler.
+    Raises ``ValueError`` when ``c_w`` is singular or not finite.
     """
     x_w = np.asarray(x_w, dtype=float)
     info_w = _inv2(c_w)

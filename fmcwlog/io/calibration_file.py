@@ -3,7 +3,7 @@
 ``fmcwlog calibrate LOG -o calib.yaml`` writes one (the log's record with the values the
 log itself shows in place of its own, each with its uncertainty in a comment), and
 ``fmcwlog process LOG --calibration calib.yaml`` takes it instead of the log's record.
-The keys and units are the record's (LOG_FORMAT.md: metres, radians); a file may also be
+The keys and units are the record's (metres, radians; docs/log-format.md); a file may also be
 written by hand, in YAML, JSON or TOML (by its suffix), with numbers or numeric strings.
 """
 

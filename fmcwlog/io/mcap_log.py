@@ -1,9 +1,9 @@
 """Reading and writing MCAP logs: with :mod:`fmcwlog.io.mcap_scan`, the only code that knows the MCAP container.
 
-The log format is the contract in ``LOG_FORMAT.md`` (kept beside the project
-in ``shared/``): MCAP with the ``ros2`` profile, CDR-encoded messages whose
-``ros2msg`` schemas are the ``.msg`` texts in ``schemas/``
-(:mod:`fmcwlog.io.schemas`).
+The log format is a contract (docs/log-format.md): MCAP with the ``ros2`` profile,
+CDR-encoded messages whose ``ros2msg`` schemas are the ``.msg`` texts in ``schemas/``
+(:mod:`fmcwlog.io.schemas`), ``log_time`` equal to ``header.stamp``, times in nanoseconds
+since the epoch.
 
 Writing goes through ``mcap``'s writer with ``mcap_ros2``'s CDR encoders;
 reading through :class:`fmcwlog.io.mcap_scan.McapScan` (``mcap``'s record parsers under
@@ -160,7 +160,7 @@ class PathEntries(Protocol):
 def path_cdr(stamp: Stamp, frame_id: str, poses: PathEntries) -> bytes:
     """``nav_msgs/Path``: its header, the count, then per pose its header and 7 float64. ``process``
     publishes each method's whole path every few seconds of log; through mcap_ros2's generic encoder
-    that was 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose
+    that is 2.8 s of a 42 s ``process --method improved`` of the 200 s ring (cProfile). A 2,000-pose
     path: 26.3 ms there, 4.2 ms from dicts, 1.5 ms from numbers here."""
     out = bytearray(_CDR_LE)
     out += _STAMP.pack(*stamp)
@@ -258,7 +258,7 @@ def _pointcloud2_cdr(m: dict) -> bytes:
 
 # Many messages of one fixed layout at once. ``record`` writes ground truth at 50 Hz (wheel ticks,
 # odometry, tf: 18,000 of the 20,400 messages of 120 s); one message at a time through the encoders
-# above, from dicts, that was ~20 % of its time. A message whose strings are the same every time
+# above, from dicts, that would be ~20 % of its time. A message whose strings are the same every time
 # has the same length and the same bytes but for its leading stamp and its trailing numbers, so the
 # batch is one template (the single-message encoder's output, which the tests hold to mcap_ros2's)
 # repeated, with the stamps and numbers written in by numpy.
@@ -355,7 +355,7 @@ class LogWriter:
         if datatype in _ENCODERS:
             return _ENCODERS[datatype](message)
         encoder = self._generic.get(datatype)
-        if encoder is None:  # built on first use only: parsing the schema took 2 ms a type, 9 of record's 22 ms
+        if encoder is None:  # built on first use only: parsing the schema takes 2 ms a type, 9 of record's 22 ms
             encoder = self._generic[datatype] = serialize_dynamic(datatype, message_definition(datatype))[datatype]
         tail = _RAW_TAIL.get(datatype)
         if tail is not None and isinstance(message.get(tail), np.ndarray):
@@ -365,7 +365,8 @@ class LogWriter:
         return encoder(message)
 
     def write(self, topic: str, datatype: str, message: dict, log_time_ns: int) -> None:
-        """Write one message; ``log_time`` is the message's ``header.stamp`` (LOG_FORMAT.md)."""
+        """Write one message; ``log_time_ns`` (ns since the epoch) must be the message's
+        ``header.stamp``, as the log format requires."""
         self.write_cdr(topic, datatype, self.encode(datatype, message), log_time_ns)
 
     def write_cdr(self, topic: str, datatype: str, data: bytes, log_time_ns: int) -> None:
@@ -377,6 +378,7 @@ class LogWriter:
         self._writer.add_message(channel, log_time=log_time_ns, data=data, publish_time=log_time_ns)
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        """One MCAP metadata record ``name`` (e.g. ``fmcwlog.calibration``) of string keys and values."""
         self._writer.add_metadata(name, values)
 
     def close(self) -> Path:
@@ -512,10 +514,12 @@ class LogReader:
 
     @property
     def metadata(self) -> dict[str, dict[str, str]]:
+        """The first metadata record of each name (:attr:`LogContents.metadata`)."""
         return self.contents.metadata
 
     @property
     def topics(self) -> dict[str, str]:
+        """Topic -> schema name, of every channel found so far."""
         return self.contents.topics
 
     def metadata_all(self, name: str) -> list[dict[str, str]]:
@@ -558,7 +562,7 @@ class LogReader:
         """Undecoded messages on ``topics`` (all when None), in file order; :meth:`decode` decodes one.
 
         Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
-        indexed reader held ~87 MB at its peak over a 5-minute log, growing with length.)
+        indexed reader holds ~87 MB at its peak over a 5-minute log, growing with length.)
         """
         return self._records(None if topics is None else set(topics))
 
@@ -566,7 +570,7 @@ class LogReader:
                              hold_bytes: int = MERGE_HOLD_BYTES) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """Undecoded messages on ``topics`` in ``log_time`` order across them, each topic in its own file order.
 
-        LOG_FORMAT.md leaves free how a writer interleaves topics (MCAP orders nothing), and one
+        The log format leaves free how a writer interleaves topics (MCAP orders nothing), and one
         that writes a topic at a time (every wheel tick, then every sweep) is as valid as one that
         writes in time order; a reader that takes file order for time order would give the sweeps
         a motion prior from the wrong time. So the topics' messages are merged by ``log_time``
@@ -628,7 +632,7 @@ class LogReader:
             except Exception as exc:  # mcap_ros2 raises several types for a schema it cannot parse
                 raise LogError(f"{self.path}: topic {channel.topic}: its schema {schema.name!r} "
                                f"cannot be parsed ({exc})") from None
-            if dec is None:  # mcap_ros2 decodes CDR messages with ros2msg schemas only (LOG_FORMAT.md)
+            if dec is None:  # mcap_ros2 decodes CDR messages with ros2msg schemas only, which the log format requires
                 what = (f"is encoded as {channel.message_encoding!r}, expected 'cdr'"
                         if channel.message_encoding != "cdr" else
                         f"has its schema {schema.name!r} as {schema.encoding!r}, expected 'ros2msg'")

@@ -92,6 +92,7 @@ def parse(cls: Any, body: bytes, *args: Any) -> Any:
 
 
 def record_name(opcode: int) -> str:
+    """An MCAP opcode in words, for messages ("chunk record")."""
     try:
         return Opcode(opcode).name.lower().replace("_", " ") + " record"
     except ValueError:
@@ -141,7 +142,7 @@ def _chunk_records(data: bytes, partial: bool) -> list[Schema | Channel | Messag
             raise Damaged(f"a {record_name(op)} inside it runs past its end")
         if op == Opcode.MESSAGE:
             # the specification's fixed layout, unpacked here: mcap's parser reads it field by field
-            # through a stream, which was a third of the reading time
+            # through a stream, which costs a third of the reading time
             if length < _MESSAGE_HEAD.size:
                 raise Damaged("a message record shorter than its fields")
             channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, start)

@@ -1,7 +1,7 @@
 """ROS 2 messages of the log format as Python dicts (for writing) and numpy arrays (when read).
 
 ``sensor_msgs/PointCloud2`` fields are located by name and offset, never by an
-assumed layout (LOG_FORMAT.md); ``nav_msgs/Odometry`` carries a planar pose in
+assumed layout, as the log format requires (docs/log-format.md); ``nav_msgs/Odometry`` carries a planar pose in
 its ``header.frame_id`` and a twist in its ``child_frame_id``.
 """
 
@@ -59,7 +59,9 @@ def pointcloud_message(stamp_ns_: int, frame_id: str, columns: dict[str, np.ndar
 def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[str, np.ndarray]:
     """Columns of a decoded PointCloud2 as float64 arrays, located by field name and offset.
 
-    Extra fields are ignored; a missing requested field raises ``KeyError``.
+    Extra fields are ignored; a missing requested field raises ``KeyError``; a big-endian cloud,
+    data shorter than ``width × height × point_step`` or a field of unknown datatype raises
+    ``ValueError``. Units are the message's (the log format: m, m/s, s after ``header.stamp``).
     """
     if msg.is_bigendian:
         raise ValueError("big-endian PointCloud2 is not supported")

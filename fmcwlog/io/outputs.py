@@ -54,14 +54,17 @@ from .topics import TF_STATIC_TOPIC, TF_TOPIC
 
 
 def odom_frame(name: str) -> str:
+    """Trajectory ``name``'s fixed frame, where it starts at the origin: ``<name>/odom``."""
     return f"{name}/odom"
 
 
 def base_frame(name: str) -> str:
+    """Trajectory ``name``'s robot frame (the rear-axle midpoint): ``<name>/base_link``."""
     return f"{name}/base_link"
 
 
 def lidar_frame(name: str) -> str:
+    """Trajectory ``name``'s sensor frame: ``<name>/lidar``."""
     return f"{name}/lidar"
 
 
@@ -181,6 +184,7 @@ class TrajectoryRows:
         return len(self.method)
 
     def add(self, values: dict) -> None:
+        """One row: ``values`` by column name (units in the schema's metadata); a column left out is null."""
         ints = [values.get(k) for k in self.INTS]
         floats = [values.get(k) for k in self.FLOATS]
         self.method.append(values["method"])
@@ -202,6 +206,7 @@ class TrajectoryRows:
         self._floats.values[np.asarray(rows, np.int64)[:, None], cols] = poses
 
     def arrow(self, name: str, kind: pa.DataType) -> pa.Array:
+        """Column ``name`` as an Arrow array of type ``kind``, nulls where no value was given."""
         if name == "method":
             return _arrow_strings(self.method, np.ones(len(self.method), bool))
         if name == "t":
@@ -226,7 +231,7 @@ def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
 def write_grid(folder: Path, name: str, grid: OccupancyGrid) -> None:
     """``name.pgm`` + ``name.yaml`` (map_server) and ``name.png`` (a picture of the same, 8-bit grey).
 
-    Pillow writes the PNG: matplotlib's ``imsave`` took 0.5 s a run to import and 0.2 s a map.
+    Pillow writes the PNG: matplotlib's ``imsave`` takes 0.5 s a run to import and 0.2 s a map.
     """
     from PIL import Image
 
@@ -279,6 +284,7 @@ class PathPoses:
         self._poses = GrowingArray(np.float64, (7,))
 
     def append(self, stamp_ns: int, pose: Pose7) -> None:
+        """One pose (the 7 numbers of a ``geometry_msgs/Pose``, m) at ``stamp_ns`` (ns since the epoch)."""
         self._stamps.append(stamp_ns)
         self._poses.append(pose)
 
@@ -448,6 +454,7 @@ class ProcessOutputs:
         self.rows.set_pose(np.array(rows, np.int64), poses[: len(rows)])
 
     def ms_median(self) -> dict[str, float]:
+        """Per trajectory, the median processing time of its sweeps (ms); those never timed are left out."""
         method = np.asarray(self.rows.method)
         values, valid = self.rows.column("ms")
         ms = np.where(valid, values, np.nan)
@@ -471,4 +478,5 @@ class ProcessOutputs:
         write_trajectories_parquet(self.folder / "trajectories.parquet", self.rows)
 
     def abort(self) -> None:
+        """Drop ``processed.mcap``'s partial file (after a failure)."""
         self.writer.abort()

@@ -1,4 +1,4 @@
-"""Names the log format fixes (LOG_FORMAT.md): topics, metadata records and frames.
+"""Names the log format fixes (docs/log-format.md): topics, metadata records and frames.
 
 Names only: reading what is under ``/ground_truth/`` or in ``fmcwlog.world`` is
 evaluation's business (:mod:`fmcwlog.evaluation.ground_truth`), never estimation's.

@@ -26,16 +26,16 @@ differs from the best by more than ``peak_separation`` m or ``peak_separation_de
 near-equal second peak means the scene does not fix the pose (a corridor along its axis, or
 two look-alike places), which the loop-closure verification uses.
 
-Cost (CPU time, the 235 verification searches of the 200 s ``ring`` log's back ends, seed 0, the old
-and new code alternating on a shared 2-core machine; every pose, score, second peak and count the
-same): 5.3 s before the search was tuned, 2.5 s after. What changed visits nothing else and keeps
-every number: a candidate's children (2-D and flat) are built once per (level, offset) rather than
-per yaw sample; the children of the next 32 top candidates are scored in one gather (each score's
-float32 sum runs over the points in the same order as one at a time, checked bit for bit), and each
-set once for both the best and the second-peak search; a set whose largest score cannot beat the
-best is skipped unsorted; the second peak's separation is read from a lattice computed once. The
-likelihood grid's distance transform runs inside its frame only (the frame is zeroed anyway): 1.2 →
-0.5 s for those 235 grids, the same float32 grid.
+Cost: the 235 verification searches of the 200 s ``ring`` log's back ends (seed 0, CPU time)
+take 2.5 s, against 5.3 s for the same branch and bound without the following, which visit
+nothing else and keep every pose, score and count: a candidate's children (2-D and flat) are
+built once per (level, offset) rather than per yaw sample; the children of the next 32 top
+candidates are scored in one gather (each score's float32 sum runs over the points in the same
+order as one at a time, checked bit for bit), and each set once for both the best and the
+second-peak search; a set whose largest score cannot beat the best is skipped unsorted; the
+second peak's separation is read from a lattice computed once. The likelihood grid's distance
+transform runs inside its frame only (the frame is zeroed anyway): 0.5 s for those 235 grids
+against 1.2 s over the whole grid, the same float32 grid (docs/design/speed-experiments.md).
 """
 
 from __future__ import annotations
@@ -126,6 +126,7 @@ class LikelihoodGrid:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """The fine grid's (rows, columns), its frame included."""
         return (int(self.fine.shape[0]), int(self.fine.shape[1]))
 
     def cell(self, xy: np.ndarray) -> np.ndarray:
@@ -133,6 +134,8 @@ class LikelihoodGrid:
         return np.floor((xy - self.origin) / self.resolution).astype(np.int64)
 
     def coarse(self, k: int) -> np.ndarray:
+        """The grid of the maximum fine likelihood over each ``k`` × ``k`` block of translations (the
+        branch and bound's bound), framed as the fine one; computed once per ``k``."""
         if k not in self._coarse:
             from scipy import ndimage
 
@@ -355,8 +358,11 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
                       p: CorrelativeParams = CorrelativeParams()) -> CorrelativeResult:
     """The pose within the window around ``prior`` that best fits ``source_xy`` to the grid's targets.
 
-    Branch and bound over translations, ``levels`` levels of ``coarse_factor`` (module docstring);
-    every yaw sample at every level. Then the same search for the best pose separate from it.
+    ``grid``: :func:`grid_for` over the target points (target frame); ``source_xy`` (N, 2), m,
+    in the source frame (at most ``max_points`` of them are used); ``prior`` (3,): the
+    source-to-target pose the window is centred on (m, m, rad). Branch and bound over
+    translations, ``levels`` levels of ``coarse_factor`` (module docstring); every yaw sample at
+    every level. Then the same search for the best pose separate from it.
     """
     src = subsample(np.asarray(source_xy, float), p.max_points)
     prior = np.asarray(prior, float)

@@ -17,7 +17,7 @@ queues a scan (at most :data:`PENDING_SCANS` of them, then they are cast), and r
 grid (its arrays, size, origin or any export) casts the queue in arrival order first, which
 gives exactly the grid of casting each scan on arrival. A front end hands a scan over every
 0.5 m (``grid_distance``) and ``process`` reads its grid every 5 s of log, so the ray casting (3-8 ms a scan)
-leaves the per-sweep path, where it made the p95 (e.g. corridor, 20 s: p95/median 3.2),
+leaves the per-sweep path, where it would set the p95 (corridor, 20 s: p95/median 3.2),
 for the publishing of the map, and costs the same in all.
 
 A scan given to several grids (the front end's grid and the tracker's recent grids,
@@ -27,21 +27,18 @@ grid holding it is first read, and each grid adds those increments and clamps. T
 scan, so this is exactly casting into each grid. A grid applies, as the next scan arrives, the
 queued scans another grid has already cast (no casting then), so a shared cast is not held
 longer than that. The tracker reads its recent grids every sweep and the front end's grid for
-its structure check: before, each keyframe scan was cast twice (20 s crowd log: 158 casts in a
-run of both methods; now 123, the 35 free-space casts gone).
+its structure check: on the 20 s crowd log a run of both methods makes 123 casts, against 158
+with each keyframe scan cast twice.
 
-:func:`cast` does the same arithmetic as before on the same samples, with fewer passes over
-them: ``min(s, length)`` on each ray's last sample only (below it ``k·step < length``); a ray's
-extreme cells from its first and last samples (cells are monotone along a ray); the per-ray
-deduplication kept with ``np.compress`` (4x boolean indexing) on the float flat index, converted
-to int after; ``flatnonzero`` of a boolean mask (6x of the int64 counts); no end-cell exclusion
-where every ray hits and ``protect_hits`` clears the hit cells anyway. The grids, maps and
-outputs are bit-identical (``tests/test_occupancy.py`` checks the cast against a per-ray
-reference). The scans of the 20 s crowd log cast into one grid, one process alternating old and
-new (CPU time, best of 7): 1.37-2.21 s -> 0.70-1.21 s (1.8-2.0x; the machine was shared). In a
-whole ``process`` run (both methods, every output, two runs each alternating), casting and
-applying took 1.81-2.09 s -> 0.75-0.90 s CPU on the 20 s crowd log and 0.64-0.69 -> 0.34-0.38 s
-on the 20 s corridor log.
+:func:`cast` makes few passes over the samples: ``min(s, length)`` on each ray's last sample
+only (below it ``k·step < length``); a ray's extreme cells from its first and last samples (cells
+are monotone along a ray); the per-ray deduplication kept with ``np.compress`` (4x boolean
+indexing) on the float flat index, converted to int after; ``flatnonzero`` of a boolean mask (6x
+of the int64 counts); no end-cell exclusion where every ray hits and ``protect_hits`` clears the
+hit cells anyway. The grids, maps and outputs are bit-identical to a plain per-ray cast
+(``tests/test_occupancy.py`` checks the cast against a per-ray reference); in a whole ``process``
+run of the 20 s crowd log (both methods), casting and applying take 0.75-0.90 s CPU against
+1.81-2.09 s with the plain passes (docs/design/speed-experiments.md).
 """
 
 from __future__ import annotations
@@ -275,14 +272,17 @@ class OccupancyGrid:
     # --- geometry -----------------------------------------------------------------
     @property
     def resolution(self) -> float:
+        """Cell size, m."""
         return self.params.resolution
 
     @property
     def width(self) -> int:
+        """Cells along x (the queued scans cast first)."""
         return self.log_odds.shape[1]
 
     @property
     def height(self) -> int:
+        """Cells along y (the queued scans cast first)."""
         return self.log_odds.shape[0]
 
     @property
@@ -335,13 +335,15 @@ class OccupancyGrid:
         """Ray-cast one scan: free along each beam from the sensor, occupied at its end.
 
         ``sensor_origin_xy`` (2,) and ``points_map_xy`` (N, 2) in the map frame (m). The
-        grid grows to hold the scan now (a map outgrowing ``max_cells`` raises here); the
-        rays are cast when the grid is next read (module docstring).
+        grid grows to hold the scan now: a map outgrowing ``max_cells`` raises
+        :class:`~fmcwlog.errors.MapSizeError` here; the rays are cast when the grid is next read
+        (module docstring).
         """
         self.add(Scan(sensor_origin_xy, points_map_xy))
 
     def add(self, scan: Scan) -> None:
-        """:meth:`integrate` for a scan that other grids may receive too: they share its cast."""
+        """:meth:`integrate` for a scan that other grids may receive too: they share its cast
+        (raises :class:`~fmcwlog.errors.MapSizeError` as it does)."""
         if len(scan.points) == 0:
             return
         d, _, _ = rays(scan.origin, scan.points, self.params)

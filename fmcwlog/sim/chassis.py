@@ -2,7 +2,7 @@
 
 ``base_link`` is the midpoint of the rear axle. On an Ackermann chassis the
 rear wheels are not steered, so the rear axle moves like a differential
-drive's (NOTES.md on eq. 13): it never slides sideways, its yaw rate is
+drive's (paper eq. 13): it never slides sideways, its yaw rate is
 ``ω = v·κ`` and the wheels at ``±b/2`` roll ``s ∓ (b/2)·Δθ``. Encoders count
 ``ticks_per_revolution`` per turn of a wheel (paper eq. 9); the wheels'
 true radii differ from the calibrated ones and they slip a little, so
@@ -33,6 +33,7 @@ class BodyState:
 
     @property
     def poses(self) -> np.ndarray:
+        """(N, 3) ``(x, y, yaw)`` of base_link in ``map`` (m, m, rad; yaw unwrapped)."""
         return np.stack([self.x, self.y, self.yaw], -1)
 
 
@@ -46,13 +47,14 @@ class Chassis:
         self._yaw0 = float(route.at(np.zeros(1))[2][0])
 
     def state(self, t: np.ndarray) -> BodyState:
+        """Ground truth of base_link at times ``t`` (N,, s from the start of the log)."""
         t = np.asarray(t, dtype=float)
         s, v, _ = self.profile.distance_speed_accel(t)
         x, y, yaw, kappa = self.route.at(s)
         return BodyState(t, x, y, yaw, v, v * kappa, s)
 
     def wheel_travel(self, state: BodyState) -> tuple[np.ndarray, np.ndarray]:
-        """Distance (m) each rear wheel's contact point has rolled since the start."""
+        """Distance (m, (N,) each, left and right) each rear wheel's contact point has rolled since the start."""
         dyaw = state.yaw - self._yaw0
         half = 0.5 * self.cfg.track_width
         return state.s - half * dyaw, state.s + half * dyaw

@@ -17,7 +17,8 @@ from ..errors import ConfigError
 
 # Ranges: what a planar robot LiDAR and a small ground robot can physically be, wide enough
 # for any real one, and bounded on every side so that a typo cannot make the simulator run
-# for days or allocate without limit (``--set sensor.scan_rate=1e6`` used to hang: 3e7 sweeps).
+# for days or allocate without limit (``--set sensor.scan_rate=1e6`` would make the default 30 s
+# log 3e7 sweeps).
 MAX_SEED = 2**32 - 1  # numpy seeds any non-negative integer; 32 bits is what every tool prints and takes
 
 
@@ -45,6 +46,7 @@ class SensorConfig(Checked):
 
     @property
     def n_beams(self) -> int:
+        """Beams per sweep: the field of view over the beam spacing, both ends included (1081 by default)."""
         return int(round(self.fov_deg / self.resolution_deg)) + 1
 
     @property
@@ -54,6 +56,7 @@ class SensorConfig(Checked):
 
     @property
     def mount(self) -> tuple[float, float, float]:
+        """The lidar's pose in base_link, ``(x, y, yaw)`` in m, m and rad."""
         return (self.mount_x, self.mount_y, math.radians(self.mount_yaw_deg))
 
 
@@ -76,6 +79,8 @@ class RobotConfig(Checked):
 
 @dataclass(frozen=True)
 class RunConfig(Checked):
+    """The run: its length (s), seed, first stamp (ns since the epoch) and the log's compression."""
+
     # a day; the default sensor writes about 0.2 GB of log per hour (zstd)
     duration: float = param(30.0, "s", gt=0.0, le=86400.0)
     seed: int = param(0, "", ge=0, le=MAX_SEED)
@@ -87,11 +92,14 @@ class RunConfig(Checked):
 
 @dataclass(frozen=True)
 class SimConfig:
+    """Every parameter of ``fmcwlog record``: the ``[sensor]``, ``[robot]`` and ``[run]`` tables."""
+
     sensor: SensorConfig = field(default_factory=SensorConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
     def as_dict(self) -> dict[str, Any]:
+        """The tables as nested dicts (as JSON, the ``fmcwlog.sim`` record's ``config``), in the fields' units."""
         return asdict(self)
 
     def validate(self) -> SimConfig:

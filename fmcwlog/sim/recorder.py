@@ -1,4 +1,4 @@
-"""Runs a simulation and writes it as a log (LOG_FORMAT.md).
+"""Runs a simulation and writes it as a log (the log format, docs/log-format.md).
 
 Messages go out in log-time order, a sweep period at a time: the sweep and
 its ground-truth labels at its first beam's stamp, then the encoder counts
@@ -56,6 +56,9 @@ from .world import World
 
 @dataclass(frozen=True)
 class RecordSummary:
+    """What :func:`record` wrote: the log's path, its sweeps, the simulated seconds, whether Ctrl-C
+    cut it short, and how many points (and of them on movers) it holds."""
+
     path: Path
     sweeps: int
     seconds: float  # simulated time written
@@ -65,11 +68,13 @@ class RecordSummary:
 
     @property
     def moving_fraction(self) -> float:
+        """The share of the points that hit a mover (0 with no points)."""
         return self.moving_points / self.points if self.points else 0.0
 
 
 def calibration_metadata(cfg: SimConfig) -> dict[str, str]:
-    """The ``fmcwlog.calibration`` record: what the robot *believes* (nominal radii)."""
+    """The ``fmcwlog.calibration`` record: what the robot *believes* (nominal radii), each value a
+    decimal string in SI units (m, rad, Hz, m/s) under the log format's keys (docs/log-format.md)."""
     s, r = cfg.sensor, cfg.robot
     values = {
         "wheel_radius_left": r.wheel_radius,
@@ -112,12 +117,10 @@ class _StopFlag:
             signal.signal(signal.SIGINT, self._old)
 
 
-# Sweeps simulated in one numpy pass: 10 shares the per-call overhead that dominated a sweep
-# (record of 20 s of crowd: 3.5 ms a sweep one at a time, 2.2 ms ten at a time, 2.3 ms 25 at a
-# time, loaded 2-core machine) and holds only 10 x 1081 beams at once. Once encoding and the
-# lidar's fixed costs had shrunk, 20 did better (record of 120 s, CPU, 3 runs each, alternating in
-# one process: crowd 1.31-1.34 s at 10, 1.13-1.22 at 20, 1.21-1.56 at 40; corridor 1.15-1.17,
-# 1.00-1.16, 1.24-1.40). The log's bytes do not depend on it.
+# Sweeps simulated in one numpy pass: 20 share the per-call overhead that dominates a sweep and
+# hold only 20 x 1081 beams at once. CPU time of ``fmcwlog record --scenario crowd --duration 120``:
+# 1.13-1.22 s CPU at 20, 1.31-1.34 s at 10, 1.21-1.56 s at 40 (docs/design/speed-experiments.md).
+# The log's bytes do not depend on it.
 SWEEPS_AT_ONCE = 20
 
 
@@ -158,8 +161,10 @@ def record(world: World, cfg: SimConfig, out: str | Path,
     """Simulate ``cfg.run.duration`` seconds of ``world`` and write the log to ``out`` (and the
     folders it needs: removed again if the recording fails).
 
-    ``on_progress`` is called with the number of sweeps done after each one. A full disk or an
-    unwritable folder is one :class:`~fmcwlog.errors.OutputError` naming ``out``.
+    ``on_progress`` is called with the number of sweeps done after each one. ``cfg`` is validated
+    first (:class:`~fmcwlog.errors.ConfigError` naming the parameter at fault); the log is written
+    under a temporary name and moved to ``out`` only when complete, so a failure leaves nothing at ``out``
+    (a full disk or an unwritable folder: one :class:`~fmcwlog.errors.OutputError` naming ``out``).
     """
     with reported_write_errors(out), created_parents(out):
         return _record(world, cfg, out, on_progress)

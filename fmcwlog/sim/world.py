@@ -47,21 +47,28 @@ class Feature:
 
     @property
     def length(self) -> float:
+        """The true length, m."""
         return float(np.hypot(self.b[0] - self.a[0], self.b[1] - self.a[1]))
 
 
 @dataclass(frozen=True)
 class RouteSpec:
+    """The route of base_link as the world file gives it: waypoints (K, 2) in ``map`` (m), whether
+    it loops, and the radius (m) of the arcs that round its corners."""
+
     waypoints: np.ndarray
     loop: bool = True
     corner_radius: float = 1.0
 
     def build(self) -> Route:
+        """The route itself (:func:`.route.build_route`)."""
         return build_route(self.waypoints, self.loop, self.corner_radius)
 
 
 @dataclass(frozen=True)
 class World:
+    """A floor: its walls (``map``, m), the robot's route, the labelled features and the movers."""
+
     name: str
     walls: np.ndarray  # (M, 4) segments x1, y1, x2, y2
     route: RouteSpec
@@ -69,7 +76,9 @@ class World:
     movers: list[Mover] = field(default_factory=list)
 
     def metadata(self) -> dict[str, str]:
-        """The ``fmcwlog.world`` metadata record (LOG_FORMAT.md)."""
+        """The ``fmcwlog.world`` metadata record: ``features``, a JSON list of ``{id, name, a, b}``
+        (ends in ``map``, m), and ``walls``, a JSON list of ``[x1, y1, x2, y2]`` (m); see the log
+        format, docs/log-format.md."""
         return {
             "features": json.dumps(
                 [{"id": f.id, "name": f.name, "a": list(f.a), "b": list(f.b)} for f in self.features]
@@ -78,6 +87,7 @@ class World:
         }
 
     def without_movers(self, name: str | None = None) -> World:
+        """The same floor with nothing moving (renamed ``name`` if given)."""
         return World(name or self.name, self.walls, self.route, self.features, [])
 
 
@@ -114,7 +124,9 @@ def _number(value: Any, where: str, lo: float, hi: float, lo_open: bool = False,
 
 
 def world_from_dict(data: Any, source: str = "world") -> World:
-    """Validate a parsed world description; errors name ``source`` and the bad entry."""
+    """Validate a parsed world description (metres, ``map``); a bad one raises
+    :class:`~fmcwlog.errors.WorldError` naming ``source`` and the bad entry, as does a route that
+    crosses a wall."""
     if not isinstance(data, dict):
         raise WorldError(f"{source}: expected a mapping with walls, route (and optionally features, movers)")
     unknown = set(data) - {"name", "walls", "features", "movers", "route"}
@@ -235,5 +247,8 @@ def _mover(m: Any, where: str) -> Mover:
 
 
 def load_world(path: str | Path) -> World:
-    """Read a YAML (.yaml/.yml, or any other suffix) or JSON (.json) world file."""
+    """Read a YAML (.yaml/.yml, or any other suffix) or JSON (.json) world file (metres, ``map``).
+
+    A file that cannot be read or parsed, or a description that :func:`world_from_dict` refuses,
+    raises :class:`~fmcwlog.errors.WorldError` naming the file and the entry at fault."""
     return world_from_dict(read_structured_file(path, WorldError, default_format="yaml"), str(path))

@@ -22,11 +22,11 @@ import pyarrow.parquet as pq
 import pytest
 from helpers import assert_one_line_error, run_cli_here
 
-from fmcwlog.pipeline import method_process
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.backend import PoseGraphBackend
 from fmcwlog.errors import LogError, MapSizeError, MethodProcessError, OutputError
 from fmcwlog.frontend.methods import BaselineFrontEnd
+from fmcwlog.pipeline import method_process
 
 TIMINGS = {"wall_seconds", "seconds", "ms_per_sweep_median"}
 needs_fork = pytest.mark.skipif(method_process.START_METHOD != "fork",
@@ -89,7 +89,7 @@ def test_two_processes_write_the_bytes_of_one(crowd_log, tmp_path, monkeypatch, 
 
 def test_spawned_child_writes_the_same_bytes(crowd_log, tmp_path, monkeypatch):
     """Where fork is not available the child is a fresh interpreter (spawn): the same outputs."""
-    monkeypatch.setattr(parallel_methods, "START_METHOD", "spawn")
+    monkeypatch.setattr(method_process, "START_METHOD", "spawn")
     process(crowd_log, tmp_path / "one", jobs=1)
     process(crowd_log, tmp_path / "two", jobs=2)
     assert_same_outputs(tmp_path / "one", tmp_path / "two")
@@ -97,10 +97,10 @@ def test_spawned_child_writes_the_same_bytes(crowd_log, tmp_path, monkeypatch):
 
 def test_one_process_where_one_method_or_one_cpu_or_asked(monkeypatch):
     both = ("improved", "baseline")
-    monkeypatch.setattr(parallel_methods, "usable_cpus", lambda: 1)
+    monkeypatch.setattr(method_process, "usable_cpus", lambda: 1)
     assert method_process.child_methods(both, None) == ()
     assert method_process.child_methods(both, 2) == ("baseline",)  # asked for
-    monkeypatch.setattr(parallel_methods, "usable_cpus", lambda: 2)
+    monkeypatch.setattr(method_process, "usable_cpus", lambda: 2)
     assert method_process.child_methods(both, None) == ("baseline",)
     assert method_process.child_methods(both, 1) == ()
     assert method_process.child_methods(("baseline",), None) == ()

@@ -20,15 +20,15 @@ from typing import Any
 
 import click
 
-from . import __version__, api
-from .config import check_params, naming, parse_set_option, read_config_file
-from .errors import FmcwlogError
-from .evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
-from .fleet.tasks import Limits
-from .io.atomic import check_output_file, os_reason, replacing_folder
-from .sim.config import SimConfig, apply_overrides
-from .sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
-from .sim.world import load_world
+from .. import __version__, api
+from ..config import check_params, naming, parse_set_option, read_config_file
+from ..errors import FmcwlogError
+from ..evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
+from ..fleet.tasks import Limits
+from ..io.atomic import check_output_file, os_reason, replacing_folder
+from ..sim.config import SimConfig, apply_overrides
+from ..sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
+from ..sim.world import load_world
 
 console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (-q, -v)
 
@@ -311,7 +311,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
-    from .frontend.params import frontend_params_toml
+    from ..frontend.params import frontend_params_toml
 
     params = _frontend_params(config_file, set_items)
     if show_config:
@@ -413,7 +413,7 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     console.info(f"wrote {summary.output}")
 def _frontend_params(config_file: Path | None, set_items: tuple[str, ...]):
     """--config FILE, then each --set; an error in the file's own values names the file."""
-    from .frontend.params import load_frontend_params
+    from ..frontend.params import load_frontend_params
 
     file_values = read_config_file(config_file) if config_file else None
     with naming(config_file):
@@ -513,7 +513,7 @@ errors; without, where the two methods disagree most or ICP ran out of correspon
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
 def report_cmd(out_dirs, log, comparison_dir, relations=None):
-    from .evaluation.pages import comparison_rows, terminal_table
+    from ..evaluation.pages import comparison_rows, terminal_table
 
     if log is not None and len(out_dirs) > 1:
         raise UserError("--log goes with a single output folder")
@@ -532,7 +532,7 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
 
 
 def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
-    from .evaluation.pages import (
+    from ..evaluation.pages import (
         DISAGREEMENT_HEADER,
         RELATIONS_HEADER,
         TRAJECTORY_HEADER,
@@ -567,8 +567,8 @@ def _report(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
 
 
 def _report_fleet(out_dir: Path) -> None:
-    from .evaluation.fleet import FLEET_HEADER, fleet_rows
-    from .evaluation.pages import terminal_table
+    from ..evaluation.fleet import FLEET_HEADER, fleet_rows
+    from ..evaluation.pages import terminal_table
 
     with _progress(None, "reporting") as bar:  # on a terminal; a batch's logs take several seconds each
         def reported(done: int, total: int, name: str) -> None:

@@ -7,34 +7,24 @@ partial output.
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
-import signal
 import sys
-import threading
 import warnings
-from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 import click
 
 from .. import __version__, api
 from ..config import check_params, naming, parse_set_option, read_config_file
-from ..errors import FmcwlogError
 from ..evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from ..fleet.tasks import Limits
-from ..io.atomic import check_output_file, os_reason, replacing_folder
+from ..io.atomic import check_output_file, replacing_folder
 from ..sim.config import SimConfig, apply_overrides
 from ..sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from ..sim.world import load_world
+from .exits import SomeFailed, UserError, run_command_line
 
 console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (-q, -v)
-
-
-class UserError(click.ClickException):
-    exit_code = 2
 
 
 def _path(ctx: click.Context, param: click.Parameter, value: str | None) -> Path | None:
@@ -456,12 +446,8 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
     console.info(f"wrote {out_dir}/<log>/ for each log and {out_dir / 'batch.json'}; "
                  f"'fmcwlog report {out_dir}' for the fleet page")
     if failed:
-        raise _SomeFailed(f"{len(failed)} of {len(summary.outcomes)} logs failed (reasons above, details in "
+        raise SomeFailed(f"{len(failed)} of {len(summary.outcomes)} logs failed (reasons above, details in "
                           f"{out_dir / 'batch.json'})")
-
-
-class _SomeFailed(click.ClickException):
-    exit_code = 1  # not 2: the command and its input were fine, some logs were not
 
 
 def _outcome_line(p) -> str:
@@ -661,10 +647,6 @@ def import_carmen_cmd(sources, output, force):
                    f"(first: line {summary.bad_lines[0][0]}: {summary.bad_lines[0][1]})")
 
 
-def _one_line(message: str) -> str:
-    """A message as one printable line: a line break or control character a user's input carried in
-    (a file name, a key) is shown escaped, never breaking the line."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise UserError(f"{out_dir}: exists and is not a folder (several sources go into a folder)")
@@ -679,72 +661,12 @@ def _import_many(sources: list[Path], out_dir: Path, force: bool) -> None:
             console.warning(o.reason)
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:
-        raise _SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, ``timeout``, a job scheduler) ends a command as Ctrl-C does: its temporary
-    outputs removed, an earlier output put back. Python's default ends at once, leaving them behind."""
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise _Terminated
-
-
-def _deliver_again(previous: Callable[[Any], object]) -> Callable[[Any], None]:
-    """An unraisable-exception hook that raises a swallowed interrupt's signal once more.
-
-    A signal handler's exception lands in whatever bytecode runs, and where that is a callback
-    Python cannot raise from (an import lock's, a ``__del__``) it is printed as 'Exception
-    ignored' and the command went on to finish, exit 0 and replace the output it was told to
-    stop writing (seen under load: SIGTERM mid-import). The signal is sent again from a timer
-    thread 10 ms later, when the main thread has left that callback (raised from here, its
-    handler would run inside the hook, and be ignored again); should it land in one again,
-    this repeats."""
-    def hook(unraisable: Any) -> None:
-        if isinstance(unraisable.exc_value, KeyboardInterrupt):
-            signum = signal.SIGTERM if isinstance(unraisable.exc_value, _Terminated) else signal.SIGINT
-            threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
-        else:
-            previous(unraisable)
-    return hook
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old, old_hook = signal.signal(signal.SIGTERM, _terminate), sys.unraisablehook
-    sys.unraisablehook = _deliver_again(old_hook)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-        sys.unraisablehook = old_hook
+        raise SomeFailed(f"{len(failed)} of {len(outcomes)} sources failed (reasons above)")
 
 
 def main() -> None:
-    try:
-        with _sigterm_as_interrupt():
-            cli.main(standalone_mode=False, prog_name="fmcwlog")
-    except click.exceptions.NoArgsIsHelpError as exc:  # bare 'fmcwlog' (or a bare group): its help, no error
-        click.echo(exc.ctx.get_help() if exc.ctx else exc.format_message())
-        sys.exit(0)
-    except click.exceptions.Abort as exc:
-        terminated = isinstance(exc.__cause__, _Terminated)
-        click.echo("fmcwlog: terminated" if terminated else "fmcwlog: aborted", err=True)
-        sys.exit(128 + signal.SIGTERM if terminated else 130)
-    except click.ClickException as exc:
-        click.echo(f"fmcwlog: error: {_one_line(exc.format_message())}", err=True)
-        sys.exit(2 if isinstance(exc, (click.UsageError, UserError)) else exc.exit_code)
-    except FmcwlogError as exc:  # bad input or parameters: the message names the file or parameter
-        click.echo(f"fmcwlog: error: {_one_line(str(exc))}", err=True)
-        sys.exit(2)
-    except OSError as exc:  # a file system refusal no command caught: still one line
-        where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"fmcwlog: error: {_one_line(where + os_reason(exc))}", err=True)
-        sys.exit(2)
+    """The ``fmcwlog`` command: ``fmcwlog.__main__`` runs this once the modules are loaded."""
+    run_command_line(cli)
 
 
 if __name__ == "__main__":

@@ -7,86 +7,22 @@ partial output.
 
 from __future__ import annotations
 
-import logging
-import sys
-import warnings
 from pathlib import Path
 
 import click
 
 from .. import __version__, api
-from ..config import check_params, naming, parse_set_option, read_config_file
 from ..evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from ..fleet.tasks import Limits
 from ..io.atomic import check_output_file, replacing_folder
-from ..sim.config import SimConfig, apply_overrides
+from ..sim.config import SimConfig
 from ..sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from ..sim.world import load_world
+from .console import configure_logging, console
 from .exits import SomeFailed, UserError, run_command_line
-
-console = logging.getLogger("fmcwlog")  # what the CLI prints, through logging (-q, -v)
-
-
-def _path(ctx: click.Context, param: click.Parameter, value: str | None) -> Path | None:
-    """A path option or argument as a Path; an empty one is refused (``Path('')`` would be ``.``)."""
-    if value is None:
-        return None
-    if not value.strip():
-        raise click.BadParameter("empty path", ctx=ctx, param=param)
-    return Path(value)
-
-
-def _paths(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[Path, ...]:
-    """Several path arguments as Paths; an empty one is refused, as by :func:`_path`."""
-    return tuple(p for p in (_path(ctx, param, v) for v in value) if p is not None)
-
-
-class _ConsoleHandler(logging.Handler):
-    """Information to stdout as it is; warnings and errors to stderr as ``fmcwlog: warning: ...``."""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        msg = record.getMessage()
-        if record.levelno >= logging.WARNING:
-            click.echo(f"fmcwlog: {record.levelname.lower()}: {msg}", err=True)
-        else:
-            click.echo(msg)
-
-
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """A library's ``warnings.warn`` (a damaged log read by ``report``, say): one line, no source line."""
-    console.warning(str(message))
-
-
-def _configure_logging(quiet: bool, verbose: int) -> None:
-    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
-    warnings.showwarning = _show_warning
-    console.handlers[:] = [_ConsoleHandler()]
-    console.setLevel(level)
-    console.propagate = False
-
-
-class _NoBar:
-    current_item = None
-
-    def update(self, n: int, current_item=None) -> None:
-        pass
-
-    def render_progress(self) -> None:
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        pass
-
-
-def _progress(total: int | None, label: str, rate_label=None, show_eta: bool = True):
-    """A progress bar on stderr when it is a terminal (and not --quiet); silent in pipes and CI logs."""
-    if not sys.stderr.isatty() or not console.isEnabledFor(logging.INFO):
-        return _NoBar()
-    return click.progressbar(length=total or 0, label=label, file=sys.stderr, show_pos=True, show_eta=show_eta,
-                             item_show_func=rate_label or (lambda _: None))
+from .parameters import frontend_params, simulation_config
+from .paths import as_path, as_paths
+from .progress import NoBar, progress
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -110,7 +46,7 @@ def cli(quiet: bool, verbose: int) -> None:
     Shell completion (bash; zsh_source, fish_source for the others):
       eval "$(_FMCWLOG_COMPLETE=bash_source fmcwlog)"
     """
-    _configure_logging(quiet, verbose)
+    configure_logging(quiet, verbose)
 
 
 _RECORD_HELP = f"""Simulate a car-like robot with an FMCW LiDAR among moving people and carts,
@@ -146,7 +82,7 @@ valid, shorter log.
 
 
 @cli.command("record", help=_RECORD_HELP)
-@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=_path, help="Log to write (.mcap).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), callback=as_path, help="Log to write (.mcap).")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=None,
               help=f"Built-in world.  [default: {DEFAULT_SCENARIO}]")
 @click.option("--world", "world_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -165,19 +101,7 @@ valid, shorter log.
 def record_cmd(output, scenario, world_file, duration, seed, speed, config_file, set_items, force, show_config):
     if scenario and world_file:
         raise UserError("give --scenario or --world, not both")
-    cfg = SimConfig()
-    if config_file:
-        with naming(config_file):  # each of the file's values checked against its range, so that an error names it
-            cfg = check_params(apply_overrides(cfg, read_config_file(config_file)))
-    flags: dict[str, dict] = {"run": {}, "robot": {}}
-    if duration is not None:
-        flags["run"]["duration"] = duration
-    if seed is not None:
-        flags["run"]["seed"] = seed
-    if speed is not None:
-        flags["robot"]["speed"] = speed
-    cfg = apply_overrides(cfg, flags)
-    cfg = apply_overrides(cfg, parse_set_option(set_items)).validate()
+    cfg = simulation_config(config_file, set_items, duration=duration, seed=seed, speed=speed)
     world = load_world(world_file) if world_file else api.scenario(scenario or DEFAULT_SCENARIO)
     if show_config:
         click.echo(cfg.toml(), nl=False)
@@ -190,7 +114,7 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
 
 def _record(world, cfg: SimConfig, output: Path) -> None:
     n = int(cfg.run.duration * cfg.sensor.scan_rate + 1e-9)
-    with _progress(n, f"recording {world.name}") as bar:
+    with progress(n, f"recording {world.name}") as bar:
         last = [0]
 
         def step(done: int) -> None:
@@ -260,8 +184,8 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 
 
 @cli.command("process", help=_PROCESS_HELP)
-@click.argument("logs", nargs=-1, type=click.Path(), callback=_paths)
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path,
+@click.argument("logs", nargs=-1, type=click.Path(), callback=as_paths)
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=as_path,
               help="Output folder (created; must be empty unless --force).")
 @click.option("--method", type=click.Choice(["improved", "baseline", "all"]), default="all", show_default=True,
               help="Which front end(s) to run; 'all' runs both in one pass over the log.")
@@ -303,7 +227,7 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
                 backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from ..frontend.params import frontend_params_toml
 
-    params = _frontend_params(config_file, set_items)
+    params = frontend_params(config_file, set_items)
     if show_config:
         click.echo(frontend_params_toml(params), nl=False)
         return
@@ -334,7 +258,7 @@ def _process(log: Path, out_dir: Path, opts: api.ProcessOptions, force: bool, jo
     def on_sweep(done: int, total: int | None) -> None:
         nonlocal bar
         if bar is None:
-            bar = _progress(total, "processing",
+            bar = progress(total, "processing",
                             lambda d: f"{(d or 0) / max(time.perf_counter() - started, 1e-9):.0f} sweeps/s")
             bar.__enter__()
         bar.update(1, current_item=done)
@@ -389,7 +313,7 @@ the file. Units: metres and radians, the record's keys (LOG_FORMAT.md).
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
 def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     check_output_file(output, force, (log, calibration_file, config_file))  # --force never overwrites an input
-    params = _frontend_params(config_file, set_items)
+    params = frontend_params(config_file, set_items)
     summary = api.calibrate(log, output, api.ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
     for name, c in summary.check["values"].items():
@@ -401,16 +325,6 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.output}")
-def _frontend_params(config_file: Path | None, set_items: tuple[str, ...]):
-    """--config FILE, then each --set; an error in the file's own values names the file."""
-    from ..frontend.params import load_frontend_params
-
-    file_values = read_config_file(config_file) if config_file else None
-    with naming(config_file):
-        load_frontend_params(file_values)
-    return load_frontend_params(file_values, parse_set_option(set_items))
-
-
 def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, force: bool, jobs: int | None,
                   limits: Limits, ray_address: str | None, retries: int) -> None:
     bar, shown = None, 0
@@ -418,12 +332,12 @@ def _process_many(logs: list[Path], out_dir: Path, opts: api.ProcessOptions, for
     def on_progress(p) -> None:
         nonlocal bar, shown
         if bar is None:  # logs done of those to run, then: done, failed, sweeps/s over all workers, time left
-            bar = _progress(p.total, "logs", lambda p: p and _progress_line(p), show_eta=False)
+            bar = progress(p.total, "logs", lambda p: p and _progress_line(p), show_eta=False)
             bar.__enter__()
         if p.finished > shown:
             bar.update(p.finished - shown, current_item=p)
             shown = p.finished
-            if isinstance(bar, _NoBar) and p.last is not None:  # a pipe or CI log: a line as each log ends
+            if isinstance(bar, NoBar) and p.last is not None:  # a pipe or CI log: a line as each log ends
                 console.info(_outcome_line(p))
         else:  # a worker's sweeps: the same count of logs, new figures
             bar.current_item = p
@@ -491,11 +405,11 @@ errors; without, where the two methods disagree most or ICP ran out of correspon
 
 @cli.command("report", help=_REPORT_HELP)
 @click.argument("out_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--log", "log", type=click.Path(dir_okay=False), callback=_path, default=None,
+@click.option("--log", "log", type=click.Path(dir_okay=False), callback=as_path, default=None,
               help="The log the folder was processed from (default: the one run.json names).")
-@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=_path, default=None,
+@click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=as_path, default=None,
               help="Where comparison.md/.json go when several folders are given.  [default: .]")
-@click.option("--relations", type=click.Path(dir_okay=False), callback=_path, default=None,
+@click.option("--relations", type=click.Path(dir_okay=False), callback=as_path, default=None,
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
 def report_cmd(out_dirs, log, comparison_dir, relations=None):
@@ -556,7 +470,7 @@ def _report_fleet(out_dir: Path) -> None:
     from ..evaluation.fleet import FLEET_HEADER, fleet_rows
     from ..evaluation.pages import terminal_table
 
-    with _progress(None, "reporting") as bar:  # on a terminal; a batch's logs take several seconds each
+    with progress(None, "reporting") as bar:  # on a terminal; a batch's logs take several seconds each
         def reported(done: int, total: int, name: str) -> None:
             bar.length = total
             bar.update(1, name)
@@ -577,7 +491,7 @@ def _report_fleet(out_dir: Path) -> None:
 
 
 @cli.command("run")
-@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=_path, default="fmcwlog-run",
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=as_path, default="fmcwlog-run",
               show_default=True, help="Folder for the log, the results and the report.")
 @click.option("--scenario", type=click.Choice(sorted(SCENARIOS)), default=DEFAULT_SCENARIO, show_default=True,
               help="Built-in world (see 'fmcwlog record --help').")
@@ -593,7 +507,7 @@ def run_cmd(out_dir, scenario, duration, seed, force):
     e.g.  fmcwlog run                                   # 2 min of corridor -> fmcwlog-run/
           fmcwlog run --scenario crowd --seed 3 -o crowd-run
     """
-    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}}).validate()
+    cfg = simulation_config(duration=duration, seed=seed)
     with replacing_folder(out_dir, force, "fmcwlog run") as folder:
         log = folder / "log.mcap"
         _record(api.scenario(scenario), cfg, log)
@@ -608,8 +522,8 @@ def import_group() -> None:
 
 
 @import_group.command("carmen")
-@click.argument("sources", nargs=-1, required=True, type=click.Path(), callback=_paths)
-@click.option("-o", "--output", type=click.Path(), callback=_path, required=True,
+@click.argument("sources", nargs=-1, required=True, type=click.Path(), callback=as_paths)
+@click.option("-o", "--output", type=click.Path(), callback=as_path, required=True,
               help="Log to write (.mcap); with several sources or a folder, the folder to write them into.")
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists (never a SOURCE).")
 def import_carmen_cmd(sources, output, force):

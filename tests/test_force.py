@@ -283,17 +283,17 @@ def test_an_interrupt_swallowed_where_it_landed_is_delivered_again():
 
     assert run_python(textwrap.dedent("""
         import time, weakref
-        from fmcwlog import cli
+        from fmcwlog.cli import interrupts
         class X: pass
         try:
-            with cli._sigterm_as_interrupt():
+            with interrupts.sigterm_as_interrupt():
                 x = X()
-                ref = weakref.ref(x, lambda r: cli._terminate(15, None))  # the handler, run in the callback
+                ref = weakref.ref(x, lambda r: interrupts.terminate(15, None))  # the handler, run in the callback
                 del x
                 t = time.time()
                 while time.time() - t < 30:
                     pass
             print('went on')
-        except cli._Terminated:
+        except interrupts.Terminated:
             print('terminated')
     """)) == (0, "terminated\n", "")

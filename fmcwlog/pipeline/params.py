@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ..backend.params import BackendParams
-from ..config import apply_to_dataclass, toml_table
+from ..config import apply_to_dataclass, naming, parse_set_option, read_config_file, toml_table
 from ..errors import ConfigError
 from ..frontend.params import FrontEndParams
 
@@ -64,3 +65,13 @@ def params_toml(params: ProcessParams) -> str:
         if dataclasses.is_dataclass(stage):
             lines += toml_table(f.name, stage)
     return "\n".join(lines).rstrip() + "\n"
+
+
+def params_from(config_file: Path | None = None, set_items: tuple[str, ...] = ()) -> ProcessParams:
+    """A run's parameters from a config file (TOML, YAML, JSON or a run.json) and then each ``--set``
+    item (``TABLE.NAME=VALUE``). Raises :class:`~fmcwlog.errors.ConfigError`: an error in the
+    file's own values names the file, one in a ``--set`` item names the item."""
+    file_values = read_config_file(config_file) if config_file else None
+    with naming(config_file):
+        load_params(file_values)
+    return load_params(file_values, parse_set_option(set_items))

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
-from ..config import Checked, apply_to_dataclass, check_params, param, toml_table
+from ..config import Checked, apply_to_dataclass, check_params, naming, param, parse_set_option, read_config_file, toml_table
 from ..errors import ConfigError
 
 # Ranges: what a planar robot LiDAR and a small ground robot can physically be, wide enough
@@ -134,3 +135,25 @@ def apply_overrides(cfg: SimConfig, overrides: dict[str, dict[str, Any]]) -> Sim
             raise ConfigError(f"[{section}] must be a table of parameters")
         parts[section] = apply_to_dataclass(parts[section], values, section)
     return SimConfig(**parts)
+
+
+def simulation_config(config_file: Path | None = None, set_items: tuple[str, ...] = (), *, duration: float | None = None,
+                      seed: int | None = None, speed: float | None = None) -> SimConfig:
+    """The recording's parameters: the defaults, then ``config_file`` (TOML, YAML or JSON with
+    ``[sensor]``, ``[robot]``, ``[run]`` tables), then ``duration`` (s), ``seed`` and ``speed`` (m/s)
+    where given (None: not given), then each ``--set`` item (``TABLE.NAME=VALUE``); each value
+    checked against its range. Raises :class:`~fmcwlog.errors.ConfigError`, naming the file for an
+    error in its own values."""
+    cfg = SimConfig()
+    if config_file:
+        with naming(config_file):  # each of the file's values checked against its range, so that an error names it
+            cfg = check_params(apply_overrides(cfg, read_config_file(config_file)))
+    flags: dict[str, dict] = {"run": {}, "robot": {}}
+    if duration is not None:
+        flags["run"]["duration"] = duration
+    if seed is not None:
+        flags["run"]["seed"] = seed
+    if speed is not None:
+        flags["robot"]["speed"] = speed
+    cfg = apply_overrides(cfg, flags)
+    return apply_overrides(cfg, parse_set_option(set_items)).validate()

@@ -221,11 +221,11 @@ def test_a_straight_drive_leaves_the_track_width_unestimated_not_wrong():
     infinity and warn about it (the README's first run, 10 s: 1629 m ± 17.7 m against 0.45 m)."""
     for seed in range(4):  # 10 s, the first run's length (before the fix seed 1 gave 2304 m ± 33 m)
         report, warnings = _check(_drive_samples(lambda t: 0.0 * t, TRUE, seconds=10.0, seed=seed), 0.45)
-        assert warnings == [] and report["disagrees"] == []
+        assert warnings == [] and report.disagrees == []
         for name in ("track_width", "lidar_x", "lidar_y"):
-            assert "needs turns" in report["not_estimated"][name] and name not in report["values"]
+            assert "needs turns" in report.not_estimated[name] and name not in report.values
         # what straight driving does fix (the module docstring): the radii (measured within 0.08 %)
-        got = {n: v["estimate"] for n, v in report["values"].items()}
+        got = {n: v.estimate for n, v in report.values.items()}
         for side in ("left", "right"):
             assert got[f"wheel_radius_{side}"] == pytest.approx(TRUE[f"wheel_radius_{side}"], rel=0.002)
 
@@ -235,10 +235,10 @@ def test_turns_fix_the_track_width_and_a_wrong_one_is_flagged():
     the straight-drive rule must not hide a wrong value as "not observable"."""
     turning = _drive_samples(lambda t: 0.4 * np.sin(2 * np.pi * t / 8.0), TRUE)
     right, said = _check(turning, 0.45)
-    assert said == [] and right["values"]["track_width"]["estimate"] == pytest.approx(0.45, rel=0.01)
+    assert said == [] and right.values["track_width"].estimate == pytest.approx(0.45, rel=0.01)
     wrong, said = _check(turning, 0.55)
-    assert "track_width" in wrong["disagrees"] and len(said) == 1
-    assert wrong["values"]["track_width"]["estimate"] == pytest.approx(0.45, rel=0.01)
+    assert "track_width" in wrong.disagrees and len(said) == 1
+    assert wrong.values["track_width"].estimate == pytest.approx(0.45, rel=0.01)
 
 
 def test_a_direction_without_information_has_no_finite_variance():

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from ..io.atomic import check_output_file
 from .console import console
+
+if TYPE_CHECKING:
+    from ..pipeline.calibrate import CalibrateSummary
 
 _CALIBRATE_HELP = """Estimate the LiDAR's mount (lidar_x, lidar_y, lidar_yaw) and the wheels' effective
 radii and track width from LOG itself, and write them as a calibration file that
@@ -48,17 +52,17 @@ def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
     params = params_from(config_file, set_items)
     summary = calibrate(log, output, ProcessOptions(methods=("improved",), params=params,
                                                              calibration=calibration_file), force=force)
-    _print_estimates(summary.check)
+    _print_estimates(summary)
     for w in summary.warnings:
         console.warning(w)
     console.info(f"wrote {summary.output}")
 
 
-def _print_estimates(check: dict) -> None:
+def _print_estimates(summary: CalibrateSummary) -> None:
     """A line per calibration value: written or kept, the estimate and its sigma, the value it replaces."""
-    for name, c in check["values"].items():
-        flag = "  <- disagrees" if c["disagrees"] else ""
-        what = "written" if name in check["adopted"] else "kept   "
-        console.info(f"  {name:18s} {what} {c['estimate']:+.5f} +- {c['sigma']:.5f}   (was {c['calibration']:+.5f}){flag}")
-    for name, why in check["not_estimated"].items():
+    for name, c in summary.check.values.items():
+        flag = "  <- disagrees" if c.disagrees else ""
+        what = "written" if name in summary.adopted else "kept   "
+        console.info(f"  {name:18s} {what} {c.estimate:+.5f} +- {c.sigma:.5f}   (was {c.calibration:+.5f}){flag}")
+    for name, why in summary.check.not_estimated.items():
         console.info(f"  {name:18s} kept: {why}")

@@ -166,6 +166,64 @@ class CalibrationEstimate:
     fixed: dict[str, str]
 
 
+@dataclass(frozen=True)
+class Estimate:
+    """One value estimated from the log: ``estimate`` and its standard deviation ``sigma``, in the
+    value's unit (m for the mount's x, y, the radii and the track; rad for the mount's yaw)."""
+
+    estimate: float
+    sigma: float
+
+
+@dataclass(frozen=True)
+class ValueCheck(Estimate):
+    """An :class:`Estimate` against the calibration's value.
+
+    calibration: the value checked against; difference: ``estimate - calibration`` (same unit).
+    differs: by more than ``check_sigmas`` standard deviations (the estimate is adopted).
+    disagrees: out of its tolerance with ``check_sigmas`` confidence (the user is warned).
+    """
+
+    calibration: float
+    difference: float
+    differs: bool
+    disagrees: bool
+
+    def to_json(self) -> dict[str, float | bool]:
+        return {"estimate": self.estimate, "sigma": self.sigma, "calibration": self.calibration,
+                "difference": self.difference, "differs": self.differs, "disagrees": self.disagrees}
+
+
+@dataclass(frozen=True)
+class CalibrationCheck:
+    """The calibration check of one run (``run.json``'s ``calibration_check``).
+
+    checked: whether anything could be estimated; reason: why not, when not.
+    sweeps_used: (moving sweeps with Doppler, scan-matched heading changes) the estimate used.
+    outlier_fraction: the share of residuals beyond the robust loss's scale (0-1).
+    values: per estimated name, its :class:`ValueCheck`; not_estimated: per other name, why not.
+    """
+
+    checked: bool
+    reason: str | None = None
+    sweeps_used: tuple[int, int] = (0, 0)
+    outlier_fraction: float = 0.0
+    values: dict[str, ValueCheck] = field(default_factory=dict)
+    not_estimated: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def disagrees(self) -> list[str]:
+        """The names whose value disagrees with the calibration, sorted."""
+        return sorted(name for name, c in self.values.items() if c.disagrees)
+
+    def to_json(self) -> dict:
+        if not self.checked:
+            return {"checked": False, "reason": self.reason}
+        return {"checked": True, "sweeps_used": {"doppler": self.sweeps_used[0], "heading_changes": self.sweeps_used[1]},
+                "outlier_fraction": self.outlier_fraction, "values": {n: c.to_json() for n, c in self.values.items()},
+                "not_estimated": self.not_estimated, "disagrees": self.disagrees}
+
+
 def _calibration_vector(cal: Calibration) -> np.ndarray:
     assert cal.wheels is not None
     w = cal.wheels
@@ -335,16 +393,16 @@ def _systematic(p: np.ndarray, prm: SelfCalibrationParams) -> np.ndarray:
                      prm.sys_radius_rel * p[3], prm.sys_radius_rel * p[4], prm.sys_track_rel * p[5]])
 
 
-def with_estimate(cal: Calibration, check: dict[str, dict]) -> Calibration:
+def with_estimate(cal: Calibration, check: dict[str, ValueCheck]) -> Calibration:
     """``cal`` with the estimated values of a :func:`check_calibration` result in place of its own."""
     assert cal.wheels is not None
-    est = {name: c["estimate"] for name, c in check.items()}
+    est = {name: c.estimate for name, c in check.items()}
     mount = tuple(est.get(n, m) for n, m in zip(MOUNT_NAMES, cal.mount))
     wheels = dataclasses.replace(cal.wheels, **{n: est[n] for n in WHEEL_NAMES if n in est})
     return dataclasses.replace(cal, wheels=wheels, mount=mount)
 
 
-def adopt(check: dict[str, dict], adopted: set[str]) -> set[str]:
+def adopt(check: dict[str, ValueCheck], adopted: set[str]) -> set[str]:
     """The names whose estimate should replace the calibration's value: those adopted before, those
     that differ from it beyond their uncertainty, and the whole wheel set (radii, track) when any
     of them does.
@@ -354,15 +412,15 @@ def adopt(check: dict[str, dict], adopted: set[str]) -> set[str]:
     right one costs more than it mends (on a 2-minute corridor, ATE 2.7 cm against 1.4 cm). The
     radii go together because their ratio, which sets the odometry's heading drift, is what the
     estimate fixes best."""
-    names = adopted | {n for n, c in check.items() if c["differs"]}
+    names = adopted | {n for n, c in check.items() if c.differs}
     if names & set(WHEEL_NAMES):
         names |= set(WHEEL_NAMES)
     return names & set(check)
 
 
-def converged(check: dict[str, dict], names: set[str]) -> bool:
+def converged(check: dict[str, ValueCheck], names: set[str]) -> bool:
     """Every value in ``names`` estimated within one standard deviation of the calibration it started from."""
-    return all(abs(check[n]["difference"]) <= check[n]["sigma"] for n in names)
+    return all(abs(check[n].difference) <= check[n].sigma for n in names)
 
 
 def _observable(name: str, value: float, sigma: float, prm: SelfCalibrationParams) -> bool:
@@ -383,13 +441,13 @@ def _tolerance(name: str, value: float, prm: SelfCalibrationParams) -> float:
     return (prm.tol_track_rel if name == "track_width" else prm.tol_radius_rel) * abs(value)
 
 
-def check_calibration(est: CalibrationEstimate, cal: Calibration, prm: SelfCalibrationParams) -> dict[str, dict]:
+def check_calibration(est: CalibrationEstimate, cal: Calibration, prm: SelfCalibrationParams) -> dict[str, ValueCheck]:
     """Per estimated value: the calibration's, the estimate, its σ, the difference and whether it disagrees.
 
     A value disagrees when it is off by more than its tolerance plus ``check_sigmas`` σ: out of
     tolerance with that confidence.
     """
-    found = {n: {"estimate": v, "sigma": est.sigmas[n]} for n, v in est.values.items()
+    found = {n: Estimate(v, est.sigmas[n]) for n, v in est.values.items()
              if v is not None and est.sigmas[n] is not None}
     return recheck(found, cal, prm)
 
@@ -398,10 +456,10 @@ def _fmt(name: str, x: float) -> str:
     return f"{math.degrees(x):.2f} deg" if name == "lidar_yaw" else f"{x * 1000:.1f} mm"
 
 
-def check_warning(check: dict[str, dict]) -> str | None:
+def check_warning(check: dict[str, ValueCheck]) -> str | None:
     """One line naming every value that disagrees, with its numbers; None when all agree."""
-    parts = [f"{name} {_fmt(name, c['estimate'])} ± {_fmt(name, c['sigma'])} (calibration {_fmt(name, c['calibration'])}, "
-             f"off by {_fmt(name, c['difference'])})" for name, c in check.items() if c["disagrees"]]
+    parts = [f"{name} {_fmt(name, c.estimate)} ± {_fmt(name, c.sigma)} (calibration {_fmt(name, c.calibration)}, "
+             f"off by {_fmt(name, c.difference)})" for name, c in check.items() if c.disagrees]
     if not parts:
         return None
     return ("the calibration disagrees with what Doppler, the wheel ticks and scan matching show: " + "; ".join(parts)
@@ -409,35 +467,28 @@ def check_warning(check: dict[str, dict]) -> str | None:
 
 
 def calibration_report(est: CalibrationEstimate | None, cal: Calibration, prm: SelfCalibrationParams,
-                       why_not: str | None) -> tuple[dict, list[str]]:
-    """``run.json``'s ``calibration_check`` and the warning, if any: the estimate, each value
-    against the calibration, or why nothing could be estimated."""
+                       why_not: str | None) -> tuple[CalibrationCheck, list[str]]:
+    """The calibration check (``run.json``'s ``calibration_check``) and the warning, if any: the
+    estimate, each value against the calibration, or why nothing could be estimated."""
     if est is None:
-        return {"checked": False, "reason": why_not or f"fewer than {prm.min_samples} moving sweeps with Doppler"}, []
+        return CalibrationCheck(False, why_not or f"fewer than {prm.min_samples} moving sweeps with Doppler"), []
     check = check_calibration(est, cal, prm)
     warning = check_warning(check)
-    return {
-        "checked": True,
-        "sweeps_used": {"doppler": est.used[0], "heading_changes": est.used[1]},
-        "outlier_fraction": round(est.outlier_fraction, 4),
-        "values": check,
-        "not_estimated": est.fixed,
-        "disagrees": sorted(name for name, c in check.items() if c["disagrees"]),
-    }, [warning] if warning else []
+    return CalibrationCheck(True, None, (est.used[0], est.used[1]), round(est.outlier_fraction, 4), check,
+                            est.fixed), [warning] if warning else []
 
 
-def recheck(check: dict[str, dict], cal: Calibration, prm: SelfCalibrationParams) -> dict[str, dict]:
+def recheck(check: dict[str, Estimate], cal: Calibration, prm: SelfCalibrationParams) -> dict[str, ValueCheck]:
     """A :func:`check_calibration` result compared again, with the same estimates, against ``cal``."""
     p0 = dict(zip(PARAM_NAMES, _calibration_vector(cal)))
     out = {}
     for name, c in check.items():
-        diff = c["estimate"] - float(p0[name])
-        differs = abs(diff) > prm.check_sigmas * c["sigma"]
+        diff = c.estimate - float(p0[name])
+        differs = abs(diff) > prm.check_sigmas * c.sigma
         # out of tolerance with check_sigmas confidence, not merely beyond each: on the other
         # writer's 20 s log the track width came out 491.5 ± 2.5 mm against 500 recorded and
         # 496.5 true (its ground truth and true radii): 3.4 σ off the record, though the record
         # is within its 1 % tolerance of the truth
-        bad = abs(diff) - prm.check_sigmas * c["sigma"] > _tolerance(name, c["estimate"], prm)
-        out[name] = {**c, "calibration": float(p0[name]), "difference": diff, "differs": bool(differs),
-                     "disagrees": bool(bad)}
+        bad = abs(diff) - prm.check_sigmas * c.sigma > _tolerance(name, c.estimate, prm)
+        out[name] = ValueCheck(c.estimate, c.sigma, float(p0[name]), diff, bool(differs), bool(bad))
     return out

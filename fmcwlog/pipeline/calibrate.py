@@ -8,13 +8,14 @@ written as a calibration file that ``process --calibration`` takes.
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 from .. import __version__
 from ..errors import LogError, OutputError
-from ..frontend.self_calibration import adopt, converged, recheck, with_estimate
+from ..frontend.self_calibration import CalibrationCheck, adopt, converged, recheck, with_estimate
 from ..io.atomic import check_output_file, reported_write_errors
 from ..io.calibration import load_calibration
 from ..io.calibration_file import read_calibration_file, write_calibration_file
@@ -26,12 +27,16 @@ from .options import ProcessOptions
 from .runner import LogRunner
 
 
-@dataclass
+@dataclass(frozen=True)
 class CalibrateSummary:
-    """What :func:`calibrate` found: the file written, the check (as in ``run.json``) and warnings."""
+    """What :func:`calibrate` found: the file written; the last pass's check, each value against the
+    calibration the run started from; the names whose estimate was written (adopted); how many
+    passes ran; the warnings."""
 
     output: Path
-    check: dict
+    check: CalibrationCheck
+    adopted: list[str]
+    passes: int
     warnings: list[str]
 
 
@@ -57,28 +62,27 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
             raise LogError(f"{log}: no wheel ticks: the wheels' radii and the mount are estimated against them")
         cal0, cal_source = load_calibration(reader, log, True, opts.calibration)
         check, adopted, passes, notes = _self_calibrate(reader, topics, cal0, opts)
-    first = recheck(check["values"], cal0, opts.params.self_calibration)  # against the calibration we started from
+    first = recheck(check.values, cal0, opts.params.self_calibration)  # against the calibration we started from
     values: dict[str, str | float] = dict(read_calibration_file(opts.calibration) if opts.calibration
                                           else reader.metadata.get(CALIBRATION_KEY, {}))
-    lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check['sweeps_used']['doppler']} moving "
-             f"sweeps, {check['sweeps_used']['heading_changes']} scan-matched heading changes, {passes} "
+    lines = [f"fmcwlog {__version__} calibrate: estimated from {log.name} ({check.sweeps_used[0]} moving "
+             f"sweeps, {check.sweeps_used[1]} scan-matched heading changes, {passes} "
              f"pass{'es' if passes > 1 else ''}), "
              f"starting from the {cal_source}"]
     for name, c in first.items():
         if name in adopted:
-            values[name] = c["estimate"]
+            values[name] = c.estimate
         kept = "" if name in adopted else "; kept the calibration's: it agrees within 3 standard deviations"
-        lines.append(f"{name}: {c['estimate']:.6g} +- {c['sigma']:.2g} (was {c['calibration']:.6g}){kept}")
-    lines += [f"{name}: kept the calibration's: {why}" for name, why in check["not_estimated"].items()]
+        lines.append(f"{name}: {c.estimate:.6g} +- {c.sigma:.2g} (was {c.calibration:.6g}){kept}")
+    lines += [f"{name}: kept the calibration's: {why}" for name, why in check.not_estimated.items()]
     with reported_write_errors(output):
         write_calibration_file(output, values, lines)
-    check = {**check, "values": first, "disagrees": sorted(n for n, c in first.items() if c["disagrees"]),
-             "adopted": sorted(adopted), "passes": passes}
-    return CalibrateSummary(output, check, [str(w.message) for w in caught] + notes)
+    return CalibrateSummary(output, dataclasses.replace(check, values=first), sorted(adopted), passes,
+                            [str(w.message) for w in caught] + notes)
 
 
 def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
-                    opts: ProcessOptions) -> tuple[dict, set[str], int, list[str]]:
+                    opts: ProcessOptions) -> tuple[CalibrationCheck, set[str], int, list[str]]:
     """The calibration check over the whole log, repeated with the values it adopts
     (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most
     ``self_calibration.passes`` times); returns the last check, the adopted names, the passes, the notes."""
@@ -90,10 +94,10 @@ def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
         for _ in runner.run(LogInputs(reader, topics, cal)):
             pass
         diagnostics, notes = runner.diagnostics()
-        check = diagnostics.get("calibration_check", {})
-        if not check.get("checked"):
-            raise LogError(f"{reader.path}: cannot estimate the calibration: {check.get('reason', 'no Doppler')}")
-        adopted = adopt(check["values"], adopted)
-        if not adopted or converged(check["values"], adopted) or passes >= prm.passes:
+        check = diagnostics.get("calibration_check") or CalibrationCheck(False, "no Doppler")
+        if not check.checked:
+            raise LogError(f"{reader.path}: cannot estimate the calibration: {check.reason}")
+        adopted = adopt(check.values, adopted)
+        if not adopted or converged(check.values, adopted) or passes >= prm.passes:
             return check, adopted, passes, notes
-        cal = with_estimate(cal, {n: check["values"][n] for n in adopted})
+        cal = with_estimate(cal, {n: check.values[n] for n in adopted})

@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..frontend.self_calibration import CalibrationCheck
+
 
 @dataclass(frozen=True)
 class RunRecord:
@@ -60,13 +62,13 @@ class RunRecord:
     correlative_searches: dict[str, dict[str, int]]
     backend: dict[str, Any]
     wall_seconds: float
-    calibration_check: dict[str, Any] | None = field(default=None)
+    calibration_check: CalibrationCheck | None = field(default=None)
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
         diagnostics: dict[str, Any] = {"motion_sources": self.motion_sources}
         if self.calibration_check is not None:
-            diagnostics["calibration_check"] = self.calibration_check
+            diagnostics["calibration_check"] = self.calibration_check.to_json()
         return {
             "fmcwlog_version": self.fmcwlog_version,
             "log": self.log,

@@ -25,8 +25,9 @@ sys.path.insert(0, str(Path.cwd()))
 from fmcwlog.config import parse_set_option  # noqa: E402
 from fmcwlog.frontend import methods  # noqa: E402
 from fmcwlog.io.calibration import load_calibration  # noqa: E402
-from fmcwlog.io.inputs import LogInputs, choose_topics  # noqa: E402
+from fmcwlog.io.inputs import LogInputs  # noqa: E402
 from fmcwlog.io.mcap_log import LogReader  # noqa: E402
+from fmcwlog.io.topic_choice import choose_topics  # noqa: E402
 from fmcwlog.pipeline.params import load_params  # noqa: E402
 from fmcwlog.pipeline.runner import LogRunner  # noqa: E402
 

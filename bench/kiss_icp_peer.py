@@ -26,9 +26,9 @@ import pyarrow.parquet as pq
 
 from fmcwlog.geometry import compose, inverse
 from fmcwlog.io.calibration import parse_calibration
-from fmcwlog.io.inputs import sweep_from_pointcloud
 from fmcwlog.io.mcap_log import LogReader
 from fmcwlog.io.outputs import write_tum
+from fmcwlog.io.sweeps import sweep_from_pointcloud
 from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
 
 

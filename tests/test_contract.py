@@ -313,7 +313,7 @@ def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, 
     log = _rewritten(crowd_log, tmp_path / "encoders.mcap", encoders)
     with pytest.raises(LogError) as info:
         process(log, tmp_path / "out", ProcessOptions(methods=("baseline",), backend="none"), jobs=1)
-    expected = f"{log}: {words} (LOG_FORMAT.md)" if "without" in words else f"{log}: {words}"
+    expected = f"{log}: {words} (docs/log-format.md)" if "without" in words else f"{log}: {words}"
     assert str(info.value) == expected
     assert not (tmp_path / "out").exists()
 

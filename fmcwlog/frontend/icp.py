@@ -111,7 +111,7 @@ def gauss_newton_step(
 
     ``moved`` = ``R p + t`` (K, 2) under ``pose``; residual ``e = moved - target``
     (eq. 24 with the opposite sign); ``∂e/∂(x, y, θ) = [I | (-(Rp)_y, (Rp)_x)]``
-    (eq. 25). Returns ``Δ = -(JᵀWJ)⁻¹ JᵀWe`` (eq. 26 as corrected in NOTES.md)
+    (eq. 25). Returns ``Δ = -(JᵀWJ)⁻¹ JᵀWe`` (eq. 26 with the ``Jᵀ`` the paper drops; docs/physics.md)
     and ``H = JᵀWJ``. Sums are formed in closed form, no (K, 3) Jacobian.
 
     Optional Gaussian prior (not in the paper): adds ``(x - x_p)ᵀ Λ (x - x_p)``

@@ -2,7 +2,7 @@
 
 For every sweep (stamp ``t_k`` = its first beam):
 
-improved (paper §4, with NOTES.md's corrections)
+improved (paper §4, with the corrections in docs/physics.md)
   1. ego-motion from Doppler: the sensor's velocity fitted robustly to the
      static points' radial velocities (:mod:`.egomotion`), fused with the wheels'
      ``(v, ω)`` through the rear axle's no-slide constraint by weighted least squares
@@ -17,7 +17,7 @@ improved (paper §4, with NOTES.md's corrections)
   4. prior: the previous pose moved by the fused twist over ``t_k - t_{k-1}``,
      also used (with the fused covariance) as a soft constraint in the ICP so that
      a geometrically degenerate scene (a bare corridor) cannot slide along its axis;
-  5. correspondences by nearest neighbour in the voxel map (:mod:`.local_map`),
+  5. correspondences by nearest neighbour in the voxel map (:mod:`.keyframe_map`),
      GMMSC rejection (eq. 20-21, :mod:`.gmmsc`), Huber-robust Gauss-Newton ICP
      (eq. 22-26, :mod:`.robust_icp`).
 
@@ -36,20 +36,13 @@ Both maps take a keyframe's points when the robot has moved or turned enough
 since the last one, which also bounds the KD-tree rebuilds.
 
 Only registration's input is thinned, as KISS-ICP thins each deskewed frame: the first point
-in beam order of each ``source_voxel`` (10 cm) voxel (:func:`.local_map.voxel_downsample`),
+in beam order of each ``source_voxel`` (10 cm) voxel (:func:`fmcwlog.kernels.voxel.voxel_downsample`),
 for both methods (thinning the source is the classic ICP pipeline's practice too). The map,
 the occupancy grid, segmentation, the Doppler fit and the published clouds keep every point.
-Coarser voxels were measured for speed (issue 14) and not taken. On the 120 s corridor (front
-ends alone, CPU, two alternating runs, the lesser of each) 20 cm voxels (150 points a sweep
-instead of 344) cut the improved method's registration 1.31 -> 1.18 ms, under the run-to-run
-spread of its 4.7 ms sweep, and the baseline's sweep 3.0 -> 2.3 ms (mean); but on six
-scenarios x 3 seeds x 20 s (``bench/suite.py --quick --seeds 0 1 2``) the improved ATE grew
-+25 to +111 % (15 cm: +9 to +32 %) and the baseline's up to +81 % (15 cm: +15 %). The
-thinner source also triples the error on the tests' known room (0.2-0.7 -> 1.2-1.5 mm).
-Without thinning (``source_voxel = 0``) the near walls' dense points outweigh the far ones
-(the 30 s corridor sample: 0.92 -> 1.62 cm). Finer, 5 cm voxels (registration +0.27 ms) cut the
-improved ATE on four of those scenarios (-5 to -44 %, ring most) and raised the baseline's on
-four (up to +129 %): an accuracy trade for the improved method, not taken here.
+The 10 cm voxel is an accuracy choice: coarser voxels cost the improved method's ATE +25 to
++111 % at 20 cm on six scenarios x 3 seeds x 20 s (``python bench/suite.py --quick --seeds 0 1 2``),
+no thinning lets the near walls' dense points outweigh the far ones (the 30 s corridor sample:
+0.92 -> 1.62 cm); the measurements are in docs/design/frontend-params.md.
 
 The two methods are two classes, :class:`ImprovedFrontEnd` and
 :class:`BaselineFrontEnd`, over one :class:`FrontEnd` that holds what they
@@ -356,7 +349,7 @@ class ImprovedFrontEnd(FrontEnd):
         ego = self.doppler_fit(sweep, prior_twist, bearings)
         if ego is None:
             return Doppler(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(len(sweep.xy), bool))
-        eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor, bearings)  # NOTES: threshold this, not v_r
+        eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor, bearings)  # thresholded, not v_r (docs/physics.md)
         # the twist only places this sweep's points in the map for tracking: the wheels' (their
         # 0.5 % bias moves a point < 1 mm over a sweep), else the last scan-matched one
         twist = prior_twist if prior_twist is not None and all(np.isfinite(prior_twist)) else self.scan_twist

@@ -5,7 +5,10 @@
 - ``messages``         ROS 2 messages as dicts and numpy arrays (PointCloud2, Odometry, ...)
 - ``mcap_log``         the MCAP container: :class:`LogReader`, :class:`LogWriter`
 - ``mcap_scan``        reading an MCAP file's records in one time-ordered pass
-- ``inputs``           what estimation reads: decoded, checked sweeps, wheel ticks, odometry poses
+- ``topic_choice``     which topics a run reads: a scan topic and at most one motion prior
+- ``sweeps``           a scan message decoded into a sweep, checked against physical bounds
+- ``prior_gates``      the motion prior's impossible jumps, caught as they are read
+- ``inputs``           what estimation reads, in time order: damaged messages skipped and counted
 - ``calibration``      the ``fmcwlog.calibration`` record (or a calibration file) as numbers
 - ``calibration_file`` calibration files, read and written
 - ``carmen``           real 2-D laser logs (CARMEN, CMU course format), parsed

@@ -1,4 +1,4 @@
-"""The ``fmcwlog.calibration`` metadata record as numbers (LOG_FORMAT.md), each checked against its
+"""The ``fmcwlog.calibration`` metadata record as numbers (docs/log-format.md), each checked against its
 physical range.
 
 MCAP allows several metadata records of one name: identical copies are one calibration (with a
@@ -95,7 +95,7 @@ def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: 
 
     A log without a calibration record (e.g. an imported laser log) gets the
     lidar at the origin of base_link. So does a record without the mount's keys, with a
-    warning naming ``source`` and the keys: LOG_FORMAT.md lists them, and a writer that left
+    warning naming ``source`` and the keys: the log format (docs/log-format.md) lists them, and a writer that left
     them out would otherwise have its lidar moved to the rear axle without a word (a 12 s crowd
     log so rewritten: the baseline's trajectory 11 cm off). Every value read must lie in its
     range (:data:`RANGES`).

@@ -19,8 +19,9 @@ from ..frontend.self_calibration import CalibrationCheck, adopt, converged, rech
 from ..io.atomic import check_output_file, reported_write_errors
 from ..io.calibration import load_calibration
 from ..io.calibration_file import read_calibration_file, write_calibration_file
-from ..io.inputs import LogInputs, choose_topics
+from ..io.inputs import LogInputs
 from ..io.mcap_log import LogReader
+from ..io.topic_choice import choose_topics
 from ..io.topics import CALIBRATION_KEY
 from ..types import Calibration, InputTopics
 from .options import ProcessOptions

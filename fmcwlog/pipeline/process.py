@@ -34,9 +34,10 @@ from ..errors import ConfigError, LogError, MapSizeError
 from ..io.atomic import atomic_folder, reported_write_errors, write_json
 from ..io.calibration import load_calibration
 from ..io.digest import file_sha256
-from ..io.inputs import LogInputs, choose_topics
+from ..io.inputs import LogInputs
 from ..io.mcap_log import LogReader
 from ..io.outputs import ProcessOutputs, odom_frame
+from ..io.topic_choice import choose_topics
 from ..types import WHEEL_ODOMETRY, Calibration, InputTopics
 from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest

@@ -12,7 +12,7 @@ increasing per topic, so a sweep that breaks that is a bug upstream (a
 :class:`LogError` here, not a skip). One policy is the runner's, because the
 queue is: a motion prior that stops mid-log (its clock checked at the start by
 the inputs) would hold every later sweep in the queue until the log ends, so a
-sweep waits at most :data:`fmcwlog.io.inputs.MAX_CLOCK_GAP_S` of log and is then
+sweep waits at most :data:`fmcwlog.types.MAX_CLOCK_GAP_S` of log and is then
 processed with the prior held at its last pose. Sweeps that begin after the prior's
 last message are counted (a warning), whether they waited or came at the end of the log;
 so are sweeps that begin before its first message (a prior that starts late, or whose

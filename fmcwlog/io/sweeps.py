@@ -1,0 +1,164 @@
+"""A scan message (PointCloud2 or LaserScan) decoded into a :class:`~fmcwlog.types.SweepInput`,
+checked against physical bounds as it is decoded.
+
+The bounds (:class:`InputLimits`) and why:
+
+- point times ``t`` in ``[0, 1/scan_rate]``: ``header.stamp`` is the first beam's
+  time (docs/log-format.md) and a sweep ends before the next begins; 1 s where the
+  calibration gives no rate (no scanning LiDAR sweeps slower than 1 Hz);
+- points within twice the calibration's ``max_range`` of the sensor (bright targets
+  return beyond the rated range; the logs here reach 30.0000004 m of 30 m), else 1 km
+  (beyond every planar LiDAR; the longest-range ones reach ~300 m): a damaged
+  coordinate would otherwise grow the occupancy grid to terabytes;
+- radial (Doppler) velocities within ±2·MAX_SPEED: a target and the sensor each
+  move at most :data:`MAX_SPEED` (100 m/s, beyond any wheeled robot carrying a 2-D LiDAR).
+
+A message outside them raises :class:`Rejected`, which :class:`fmcwlog.io.inputs.LogInputs`
+counts and skips.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import LogError
+from ..types import Calibration, SweepInput
+from .messages import POINTFIELD_DTYPES, pointcloud_columns, stamp_ns
+
+MAX_SPEED = 100.0  # m/s: beyond any wheeled robot carrying a 2-D LiDAR
+MAX_ODOM_POSITION = 1e8  # m: beyond any map frame on Earth (UTM northings reach 1e7 m)
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """Bounds beyond which a decoded value is damage, not a measurement (module docstring).
+
+    max_sweep_s: latest point time in a sweep, s. max_range_m: farthest point from the sensor, m.
+    """
+
+    max_sweep_s: float = 1.0
+    max_range_m: float = 1000.0
+
+    @classmethod
+    def from_calibration(cls, cal: Calibration) -> InputLimits:
+        return cls(1.0 / cal.scan_rate if cal.scan_rate else 1.0,
+                   2.0 * cal.max_range if cal.max_range else 1000.0)
+
+
+class Rejected(LogError):
+    """A message that cannot be used: ``kind`` names the check it failed, ``detail`` how."""
+
+    def __init__(self, path: Path, what: str, ns: int | None, kind: str, detail: str):
+        at = f"at {ns * 1e-9:.3f} s: " if ns is not None else ""
+        super().__init__(f"{path}: {what} {at}{detail}")
+        self.kind = kind
+        self.detail = at + detail
+
+
+def header_stamp(path: Path, what: str, header: Any) -> int:
+    sec, nsec = int(header.stamp.sec), int(header.stamp.nanosec)
+    if sec < 0 or not 0 <= nsec < 1_000_000_000:
+        raise Rejected(path, what, None, "stamp", f"invalid stamp {sec} s {nsec} ns")
+    return stamp_ns(header.stamp)
+
+
+def _cloud_layout_problem(msg: Any, wanted: list[str]) -> str | None:
+    """Why a PointCloud2's layout cannot be read (None: it can): fields against point_step and data."""
+    if msg.is_bigendian:
+        return "big-endian PointCloud2 is not supported"
+    step, n = int(msg.point_step), int(msg.width) * int(msg.height)
+    spans = []
+    for f in msg.fields:
+        dtype = POINTFIELD_DTYPES.get(f.datatype)
+        if dtype is None:
+            if f.name in wanted:
+                return f"field {f.name!r} has unknown datatype {f.datatype}"
+            continue
+        if f.name in wanted and f.count < 1:
+            return f"field {f.name!r} has count {f.count}"
+        spans.append((int(f.offset), int(f.offset) + np.dtype(dtype).itemsize * max(int(f.count), 1), f.name))
+    spans.sort()
+    end = max((e for _, e, _ in spans), default=0)
+    if step < end or step == 0:
+        return f"point_step {step} is smaller than its fields ({end} bytes)"
+    for (_, e0, a), (s1, _, b) in zip(spans, spans[1:]):
+        if s1 < e0:
+            return f"fields {a!r} and {b!r} overlap"
+    if int(msg.height) > 1 and int(msg.row_step) != int(msg.width) * step:
+        return f"rows padded (row_step {msg.row_step}, width × point_step {int(msg.width) * step}) are not supported"
+    if len(msg.data) < n * step:
+        return f"data holds {len(msg.data)} bytes, width × height × point_step is {n * step}"
+    return None
+
+
+def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray, velocity: np.ndarray | None,
+                  limits: InputLimits) -> None:
+    """Finite values, point times within the sweep, points within the sensor's reach."""
+    if len(t) == 0:
+        raise Rejected(path, what, ns, "empty", "no points")
+    for name, a in (("x or y", xy), ("t", t), ("velocity", velocity)):
+        if a is not None and not np.all(np.isfinite(a)):
+            raise Rejected(path, what, ns, "nonfinite", f"{name} holds NaN or infinite values")
+    if t.min() < 0.0 or t.max() > limits.max_sweep_s:
+        raise Rejected(path, what, ns, "times", f"point times span [{t.min():g}, {t.max():g}] s")
+    reach = float(np.max(np.hypot(xy[:, 0], xy[:, 1])))
+    if reach > limits.max_range_m:
+        raise Rejected(path, what, ns, "range", f"a point lies {reach:.4g} m from the sensor")
+    if velocity is not None and float(np.max(np.abs(velocity))) > 2 * MAX_SPEED:
+        raise Rejected(path, what, ns, "velocity", f"a radial velocity of {float(np.max(np.abs(velocity))):.4g} m/s")
+
+
+def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
+    """A PointCloud2 of the log format to a :class:`SweepInput` (fields by name and offset);
+    :class:`Rejected` if its layout or values cannot be used."""
+    ns = header_stamp(path, "PointCloud2", msg.header)
+    names = {f.name for f in msg.fields}
+    missing = {"x", "y"} - names
+    if missing:
+        raise Rejected(path, "PointCloud2", ns, "layout", f"no field {sorted(missing)[0]!r}")
+    wanted = [n for n in ("x", "y", "t", "velocity", "intensity") if n in names]
+    problem = _cloud_layout_problem(msg, wanted)
+    if problem is not None:
+        raise Rejected(path, "PointCloud2", ns, "layout", problem)
+    try:
+        cols = pointcloud_columns(msg, wanted)
+    except (ValueError, KeyError) as exc:
+        raise Rejected(path, "PointCloud2", ns, "layout", str(exc)) from None
+    n = len(cols["x"])
+    t = cols.get("t", np.zeros(n))
+    vel, inten = cols.get("velocity"), cols.get("intensity")
+    xy = np.column_stack([cols["x"], cols["y"]])
+    _check_points(path, "PointCloud2", ns, xy, t, vel, limits)
+    return SweepInput(ns, xy, t, vel, inten)
+
+
+def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
+    """A ``sensor_msgs/LaserScan`` to a :class:`SweepInput` without Doppler.
+
+    Ranges outside ``[range_min, range_max]`` or not finite are no return (REP-117). Angles
+    must be finite, ``angle_increment`` non-zero, and ``angle_max`` within 1.5 beams of
+    ``angle_min + (n - 1)·angle_increment`` (drivers differ by one beam in how they count).
+    """
+    ns = header_stamp(path, "LaserScan", msg.header)
+    r = np.asarray(msg.ranges, dtype=float)
+    inc, a0, a1, dt = (float(v) for v in (msg.angle_increment, msg.angle_min, msg.angle_max, msg.time_increment))
+    if not all(math.isfinite(v) for v in (inc, a0, a1, dt, float(msg.range_min))) or inc == 0.0:
+        raise Rejected(path, "LaserScan", ns, "angles",
+                       f"angle_min {a0:g}, angle_max {a1:g}, angle_increment {inc:g}, time_increment {dt:g} "
+                       "must be finite and angle_increment non-zero")
+    if r.size and (abs(a0 + (r.size - 1) * inc - a1) > 1.5 * abs(inc) + 1e-6 or (r.size - 1) * abs(inc) > 2 * math.pi + abs(inc)):
+        raise Rejected(path, "LaserScan", ns, "angles",
+                       f"{r.size} ranges from {a0:g} rad in steps of {inc:g} rad do not end at angle_max {a1:g} rad")
+    i = np.arange(r.size)
+    ang = a0 + i * inc
+    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
+    inten = np.asarray(msg.intensities, dtype=float)[ok] if len(msg.intensities) == r.size else None
+    xy = np.column_stack([r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok])])
+    t = (i * dt)[ok]
+    _check_points(path, "LaserScan", ns, xy, t, None, limits)
+    return SweepInput(ns, xy, t, None, inten)

@@ -73,8 +73,6 @@ class BackendParams(Checked):
     max_ambiguity: a separate peak scoring above this fraction of the best one, in a direction the
         scene determines, rejects the closure (0-1); along a direction it leaves free (a corridor's
         axis) it does not: the closure's covariance then leaves that direction free.
-    free_direction_chi2: a peak this cheap (Mahalanobis², 3 dof) under the match's information is
-        in a free direction.
     residual_sigma: standard deviation of a point-to-line residual (m) that scales the ICP's
         information into the closure's.
     effective_pairs: a match weighs as this many independent pairs at most (≥ 1).
@@ -130,7 +128,6 @@ class BackendParams(Checked):
     inlier_distance: float = param(0.1, "m", gt=0.0, le=10.0)
     min_inlier_fraction: float = param(0.6, "", ge=0.0, le=1.0)
     max_ambiguity: float = param(0.9, "", ge=0.0, le=1.0)
-    free_direction_chi2: float = param(9.0, "", gt=0.0, le=1000.0)
     residual_sigma: float = param(0.03, "m", gt=0.0, le=10.0)
     effective_pairs: float = param(25.0, "pairs", ge=1.0, le=1e6)
     closure_sigma_xy_floor: float = param(0.01, "m", gt=0.0, le=10.0)

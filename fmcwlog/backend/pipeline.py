@@ -71,11 +71,10 @@ class ClosureRecord:
 @dataclass
 class BackendResult:
     """poses: (S, 3) every sweep's optimised pose, in the order the sweeps were added;
-    frontend_poses: (S, 3) the front end's; node_stamps_ns, node_poses: the nodes; closures;
+    node_stamps_ns, node_poses: the nodes; closures;
     grid: the occupancy map rebuilt from the nodes; counts and the back end's time (s)."""
 
     poses: np.ndarray
-    frontend_poses: np.ndarray
     node_stamps_ns: np.ndarray
     node_poses: np.ndarray
     closures: list[ClosureRecord]
@@ -266,8 +265,7 @@ class PoseGraphBackend:
         poses = self._corrected_sweeps()
         grid = self._rebuild_map()
         self.seconds += time.perf_counter() - t0
-        return BackendResult(poses, self.sweeps.poses.values.copy(),
-                             np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
+        return BackendResult(poses, np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
                              self.records, grid, self.proposed, len(self.records),
                              sum(r.accepted for r in self.records), self.rejections, self.seconds,
                              self.local_edges, dict(self.local.rejected))

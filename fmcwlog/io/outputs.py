@@ -88,9 +88,6 @@ PARQUET_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
     "y_frontend": (pa.float64(), "m: the front end's own y (null for wheel_odometry)"),
     "yaw_frontend": (pa.float64(), "rad: the front end's own yaw (null for wheel_odometry)"),
 }
-TRAJECTORY_COLUMNS = tuple(PARQUET_COLUMNS)
-
-
 def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
     """TUM trajectory file: seconds (9 decimals), position (m), quaternion (x, y, z, w)."""
     q = yaw_to_quaternion(poses[:, 2])

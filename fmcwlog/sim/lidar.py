@@ -179,8 +179,6 @@ class FmcwLidar:
 
     def __init__(self, cfg: SensorConfig, walls: np.ndarray, movers: list[Mover]):
         self.cfg = cfg
-        self.walls_p = walls[:, 0:2].copy()
-        self.walls_q = walls[:, 2:4].copy()
         self._walls = tuple(np.ascontiguousarray(c) for c in walls.T)  # px, py, qx, qy (M,)
         # each wall as its start and direction (px, py, ex, ey), what a ray is cast against: static
         self._wall_rays = (*self._walls[:2], self._walls[2] - self._walls[0], self._walls[3] - self._walls[1])

@@ -262,14 +262,14 @@ def flag_logs(rows: list[FleetRow]) -> None:
                 r.flags.append(f"ICP ({m}) ran out of correspondences on {n} of {sweeps} sweeps")
 
 
-def _totals(rows: list[FleetRow], batch: FleetRow) -> FleetRow:
+def _totals(rows: list[FleetRow], batch: dict[str, Any]) -> dict[str, Any]:
     done = [r for r in rows if r.status == "done"]
     total = lambda key: float(sum(getattr(r, key) or 0 for r in done))
     sweeps = int(total("sweeps"))
     wall = batch.get("wall_s")  # the last 'fmcwlog process' run over this folder
     per_method: dict[str, dict[str, float | None]] = {}
     for m in sorted({m for r in done for m in r.ate_rmse_m}):
-        vals = [r.ate_rmse_m[m] for r in done if r.ate_rmse_m.get(m) is not None]
+        vals = [v for r in done if (v := r.ate_rmse_m.get(m)) is not None]
         if vals:
             per_method[m] = {"ate_rmse_m_median": float(np.median(vals)), "ate_rmse_m_max": float(np.max(vals)),
                              "logs": len(vals)}

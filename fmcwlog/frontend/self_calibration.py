@@ -51,13 +51,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..config import Checked, param
 from ..kernels.growing import GrowingArray
-from ..types import Calibration
+from ..types import Calibration, WheelCalibration
 
 MOUNT_NAMES = ("lidar_x", "lidar_y", "lidar_yaw")
 WHEEL_NAMES = ("wheel_radius_left", "wheel_radius_right", "track_width")
@@ -397,8 +398,12 @@ def with_estimate(cal: Calibration, check: dict[str, ValueCheck]) -> Calibration
     """``cal`` with the estimated values of a :func:`check_calibration` result in place of its own."""
     assert cal.wheels is not None
     est = {name: c.estimate for name, c in check.items()}
-    mount = tuple(est.get(n, m) for n, m in zip(MOUNT_NAMES, cal.mount))
-    wheels = dataclasses.replace(cal.wheels, **{n: est[n] for n in WHEEL_NAMES if n in est})
+    x, y, yaw = cal.mount
+    w = cal.wheels
+    wheels = WheelCalibration(est.get("wheel_radius_left", w.wheel_radius_left),
+                              est.get("wheel_radius_right", w.wheel_radius_right),
+                              est.get("track_width", w.track_width), w.ticks_per_revolution)
+    mount = (est.get("lidar_x", x), est.get("lidar_y", y), est.get("lidar_yaw", yaw))
     return dataclasses.replace(cal, wheels=wheels, mount=mount)
 
 
@@ -447,8 +452,7 @@ def check_calibration(est: CalibrationEstimate, cal: Calibration, prm: SelfCalib
     A value disagrees when it is off by more than its tolerance plus ``check_sigmas`` σ: out of
     tolerance with that confidence.
     """
-    found = {n: Estimate(v, est.sigmas[n]) for n, v in est.values.items()
-             if v is not None and est.sigmas[n] is not None}
+    found = {n: Estimate(v, sigma) for n, v in est.values.items() if v is not None and (sigma := est.sigmas[n]) is not None}
     return recheck(found, cal, prm)
 
 
@@ -478,7 +482,7 @@ def calibration_report(est: CalibrationEstimate | None, cal: Calibration, prm: S
                             est.fixed), [warning] if warning else []
 
 
-def recheck(check: dict[str, Estimate], cal: Calibration, prm: SelfCalibrationParams) -> dict[str, ValueCheck]:
+def recheck(check: Mapping[str, Estimate], cal: Calibration, prm: SelfCalibrationParams) -> dict[str, ValueCheck]:
     """A :func:`check_calibration` result compared again, with the same estimates, against ``cal``."""
     p0 = dict(zip(PARAM_NAMES, _calibration_vector(cal)))
     out = {}

@@ -88,7 +88,7 @@ def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
     (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most
     ``self_calibration.passes`` times); returns the last check, the adopted names, the passes, the notes."""
     prm = opts.params.self_calibration
-    passes, adopted = 0, set()
+    passes, adopted = 0, set[str]()
     while True:
         passes += 1
         runner = LogRunner(("improved",), opts.params, cal, topics, reader.path)

@@ -190,7 +190,8 @@ class MethodProcess:
         results_in, results_out = ctx.Pipe(duplex=False)
         schedule_in, schedule_out = ctx.Pipe(duplex=False)
         own_ends = (results_in, schedule_out) if START_METHOD == "fork" else ()
-        self._proc = ctx.Process(target=_child_main, args=(task, results_out, schedule_in, own_ends),
+        self._proc = ctx.Process(target=  # type: ignore[attr-defined]  # typeshed's BaseContext lacks it
+                                 _child_main, args=(task, results_out, schedule_in, own_ends),
                                  name=f"fmcwlog {'+'.join(task.methods)}", daemon=True)
         # SIGINT blocked while it starts (the child inherits the mask, then ignores SIGINT): Ctrl-C
         # is the parent's to handle, and it ends the child

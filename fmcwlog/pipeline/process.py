@@ -136,7 +136,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             record = RunRecord(
                 fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log.stat().st_size,
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
-                scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=tuple(cal.mount),
+                scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=cal.mount,
                 calibration_source=cal_source, motion_sources=diagnostics["motion_sources"],
                 calibration_check=diagnostics.get("calibration_check"),
                 frames={name: odom_frame(name) for name in trajectories}, params=dataclasses.asdict(opts.params),

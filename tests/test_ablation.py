@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import ate_rmse, ground_truth, tum
+from helpers import SAMPLE_LOGS, ate_rmse, ground_truth, tum
 
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.frontend.params import load_frontend_params

@@ -358,11 +358,11 @@ def test_search_parameters_outside_their_range_are_refused(bad):
 @pytest.fixture(scope="module")
 def ring_lap(tmp_path_factory):
     """110 s of the ring (a lap is about 95 s), the improved method with its back end."""
-    from conftest import _record
+    from helpers import record_scenario
 
     from fmcwlog.api import ProcessOptions, process
 
-    log = _record(tmp_path_factory, "ring", 110.0)
+    log = record_scenario(tmp_path_factory, "ring", 110.0)
     out = log.parent / "out"
     process(log, out, ProcessOptions(methods=("improved",)))
     return log, out

@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 SCAN_RATE_HZ = 10.0  # the simulated LiDAR's default (README, "What is simulated")
 
 

@@ -1,7 +1,7 @@
 """Real-log import (CARMEN, CMU course format) and the relations metric.
 
 Hand-written lines check the parser against the CARMEN conventions; the shared
-datasets (skipped where ../shared is absent) check it on real files.
+datasets (``needs_datasets``: skipped where ../shared/datasets is absent) check it on real files.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -90,7 +91,7 @@ def test_relations_metric_on_known_motion():
 
 
 @pytest.fixture(scope="module")
-def intel(shared_dir, tmp_path_factory):
+def intel(tmp_path_factory):
     """The Intel subset imported and processed once."""
     from fmcwlog.api import ProcessOptions
     from fmcwlog.api import process as process_log
@@ -98,7 +99,7 @@ def intel(shared_dir, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("intel")
     log = tmp / "intel.mcap"
     proc = subprocess.run([sys.executable, "-m", "fmcwlog", "import", "carmen",
-                           str(shared_dir / "datasets" / "intel_lab_subset910" / "intel_subset910_rawodom.clf.xz"),
+                           str(shared_file("datasets/intel_lab_subset910/intel_subset910_rawodom.clf.xz")),
                            "-o", str(log)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     out = tmp / "out"
@@ -106,24 +107,28 @@ def intel(shared_dir, tmp_path_factory):
     return log, out, summary
 
 
-def test_intel_subset_imports_with_its_own_stamps(intel, shared_dir):
+@pytest.mark.slow
+@pytest.mark.needs_datasets
+def test_intel_subset_imports_with_its_own_stamps(intel):
     log, out, summary = intel
     with open(log, "rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         stamps = [m.log_time for _, c, m, _ in reader.iter_decoded_messages(topics=["/scan"])]
     assert len(stamps) == 910
-    rel = read_relations(shared_dir / "datasets" / "freiburg_relations" / "intel.relations")
+    rel = read_relations(shared_file("datasets/freiburg_relations/intel.relations"))
     ours = {round(s * 1e-9, 6) for s in stamps}
     both = [(round(a, 6) in ours and round(b, 6) in ours) for a, b in rel[:, :2]]
     assert sum(both) == 90  # as SOURCE.md says (stamps equal to the microsecond)
     assert not summary.doppler and summary.prior == "odometry (/odom)"
 
 
-def test_intel_relations_report_beats_raw_odometry(intel, shared_dir):
+@pytest.mark.slow
+@pytest.mark.needs_datasets
+def test_intel_relations_report_beats_raw_odometry(intel):
     from fmcwlog.evaluation.evaluate import evaluate
 
     log, out, _ = intel
-    r = evaluate(out, relations=shared_dir / "datasets" / "freiburg_relations" / "intel.relations").result
+    r = evaluate(out, relations=shared_file("datasets/freiburg_relations/intel.relations")).result
     odo = r["methods"]["wheel_odometry"]["relations"]
     imp = r["methods"]["improved"]["relations"]
     assert odo["n"] == imp["n"] >= 85
@@ -131,11 +136,12 @@ def test_intel_relations_report_beats_raw_odometry(intel, shared_dir):
     assert r["relations_published"][0]["trans_mean_m"] == 0.220
 
 
-def test_fr079_sample_and_wean_hall_parse(shared_dir):
-    fr = parse_log(shared_dir / "datasets" / "freiburg_relations" / "fr079_head_sample.clf")
+@pytest.mark.needs_datasets
+def test_fr079_sample_and_wean_hall_parse():
+    fr = parse_log(shared_file("datasets/freiburg_relations/fr079_head_sample.clf"))
     assert len(fr.scans) == 7 and len(fr.odometry) == 15 and fr.scans[0].laser_pose == (-0.04, 0.0, 0.0)
     assert len(fr.scans[0].ranges) == 360 and fr.scans[0].angle_increment == pytest.approx(math.pi / 360)
-    wean = parse_log(shared_dir / "datasets" / "cmu_wean_hall" / "robotdata1.log.xz")
+    wean = parse_log(shared_file("datasets/cmu_wean_hall/robotdata1.log.xz"))
     assert wean.format == "cmu" and len(wean.scans) == 713 and len(wean.odometry) == 1505 and not wean.bad_lines
 
 

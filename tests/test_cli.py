@@ -7,8 +7,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import SAMPLE_LOGS
-from helpers import run_python
+from helpers import SAMPLE_LOGS, run_python
 
 
 def _fmcwlog(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:

@@ -148,6 +148,8 @@ def test_the_builtin_routes_and_the_readme_world_stay_clear_of_their_walls():
     for name, make in scenarios.SCENARIOS.items():
         w = make()
         assert route_crossing(w.walls, w.route.build()) is None, name
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    from helpers import ROOT
+
+    readme = (ROOT / "README.md").read_text()
     text = re.search(r"```yaml\n(name: my-floor.*?)```", readme, re.S)[1]
     world_from_dict(yaml.safe_load(text), "README")  # raises if its route crossed a wall

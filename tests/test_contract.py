@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
+from helpers import ROOT, SAMPLE_LOGS, ate_rmse, copy_log, decoded, ground_truth, tum
 from mcap.reader import make_reader
 from mcap_ros2.writer import Writer
 
@@ -133,7 +132,7 @@ def test_laserscan_with_the_robots_own_odometry(tmp_path):
     """No Doppler, no ground truth in the prior: the robot's drifting wheel odometry on /odom."""
     src = CORRIDOR
     dst = tmp_path / "scan.mcap"
-    schemas = Path(__file__).parents[1] / "schemas"
+    schemas = ROOT / "schemas"
     header = ("=" * 80 + "\nMSG: std_msgs/msg/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
               + "=" * 80 + "\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n")
     odometry = _wheel_odometry(src)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import copy_log, run_cli, run_cli_here
+from helpers import copy_log, run_cli, run_cli_here, shared_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
@@ -716,12 +716,13 @@ def test_fuzz_bytes_flipped_anywhere(short_logs, intact, kind, method, flips):
         _fuzz_case(flip(log, flips, Path(tmp)), Path(tmp), method, None if unprotected else intact[kind])
 
 
+@pytest.mark.needs_conformance
 @settings(FUZZ, max_examples=6)
 @given(name=st.sampled_from(["other-writer-lz4.mcap", "other-writer-cut-off.mcap"]), fraction=st.floats(0.0, 0.3),
        method=METHODS, flips=st.lists(st.tuples(st.integers(0, 2**31), st.integers(1, 255)), max_size=2))
-def test_fuzz_the_other_writers_logs_cut_and_flipped(shared_dir, name, fraction, method, flips):
+def test_fuzz_the_other_writers_logs_cut_and_flipped(name, fraction, method, flips):
     """Cut to its first 30 % at most (what is left takes a second to process), then flipped."""
-    log = shared_dir / "conformance" / name
+    log = shared_file(f"conformance/{name}")
     with tempfile.TemporaryDirectory() as tmp:
         part = cut(log, int(fraction * log.stat().st_size), Path(tmp))
         _fuzz_case(flip(part, flips, Path(tmp)) if flips and part.stat().st_size else part, Path(tmp), method)

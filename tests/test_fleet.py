@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
-from helpers import ate_rmse, copy_log, decoded, ground_truth, tum
+from helpers import ROOT, ate_rmse, copy_log, decoded, ground_truth, tum
 
 from fmcwlog import api
 from fmcwlog.cli import cli
@@ -40,7 +40,6 @@ from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import SimConfig, apply_overrides
 from fmcwlog.sim.recorder import record
 
-ROOT = Path(__file__).resolve().parents[1]
 IDENTICAL = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "improved_map.yaml",
              "improved_map.png", "baseline_map.pgm", "baseline_map.yaml", "baseline_map.png", "processed.mcap")
 GROUND_TRUTH_TOPICS = ("/ground_truth/odom", "/ground_truth/point_labels")

@@ -11,8 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import assert_one_line_error, copy_log, run_cli_here
+from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, run_cli_here
 
 from fmcwlog.io.atomic import MARKER
 

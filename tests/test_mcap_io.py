@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import shared_file
 from mcap.reader import make_reader
 
 from fmcwlog.errors import LogError
@@ -22,8 +23,9 @@ def _counts(reader: LogReader) -> dict[str, int]:
     return counts
 
 
-def test_reads_the_other_writers_lz4_log(shared_dir):
-    reader = LogReader(shared_dir / "conformance" / "other-writer-lz4.mcap")
+@pytest.mark.needs_conformance
+def test_reads_the_other_writers_lz4_log():
+    reader = LogReader(shared_file("conformance/other-writer-lz4.mcap"))
     assert reader.metadata["fmcwlog.calibration"]["lidar_x"] == "0.45"
     assert reader.topics["/fmcw/points"] == "sensor_msgs/msg/PointCloud2"
     assert _counts(reader) == {"/fmcw/points": 200, "/ground_truth/point_labels": 200,
@@ -33,8 +35,9 @@ def test_reads_the_other_writers_lz4_log(shared_dir):
     assert len(cols["x"]) == first.msg.width and np.all(np.isfinite(cols["velocity"]))
 
 
-def test_reads_a_log_cut_off_before_its_summary(shared_dir):
-    path = shared_dir / "conformance" / "other-writer-cut-off.mcap"
+@pytest.mark.needs_conformance
+def test_reads_a_log_cut_off_before_its_summary():
+    path = shared_file("conformance/other-writer-cut-off.mcap")
     with warnings.catch_warnings(record=True):
         warnings.simplefilter("always")
         reader = LogReader(path)

@@ -344,7 +344,9 @@ def test_the_readmes_evo_traj_command_with_the_map_runs(processed, tmp_path):
     import sys
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    from helpers import ROOT
+
+    readme = (ROOT / "README.md").read_text()
     command = re.search(r"`(evo_traj tum out/improved\.tum --ros_map_yaml[^`]*)`", readme)[1].split()
     evo_traj = shutil.which("evo_traj") or str(Path(sys.executable).parent / "evo_traj")
     out = tmp_path / "out"

@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import assert_one_line_error, copy_log, param_leaves, run_cli_here
+from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, param_leaves, run_cli_here
 
 from fmcwlog.backend.params import BackendParams
 from fmcwlog.backend.registration import LineICPParams

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import ate_rmse, copy_log, decoded, ground_truth, metadata, run_cli, tum
+from helpers import SAMPLE_LOGS, ate_rmse, copy_log, decoded, ground_truth, metadata, run_cli, shared_file, tum
 
 from fmcwlog.api import ProcessOptions
 from fmcwlog.api import process as process_log
@@ -71,8 +70,9 @@ def test_long_corridor_does_not_slide(long_corridor_log, tmp_path):
 # ----------------------------------------------------------------------------- contract
 
 
-def test_other_writers_logs_process_like_ours(shared_dir, tmp_path):
-    lz4 = shared_dir / "conformance" / "other-writer-lz4.mcap"
+@pytest.mark.needs_conformance
+def test_other_writers_logs_process_like_ours(tmp_path):
+    lz4 = shared_file("conformance/other-writer-lz4.mcap")
     s = process_log(lz4, tmp_path / "lz4", ProcessOptions())
     assert s.sweeps == 200 and s.doppler
     run = json.loads((tmp_path / "lz4" / "run.json").read_text())
@@ -93,7 +93,7 @@ def test_other_writers_logs_process_like_ours(shared_dir, tmp_path):
     assert run["calibration_check"]["checked"] and run["calibration_check"]["disagrees"] == []
     assert not [w for w in run["warnings"] if "calibration disagrees" in w]
 
-    cut = shared_dir / "conformance" / "other-writer-cut-off.mcap"
+    cut = shared_file("conformance/other-writer-cut-off.mcap")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         s = process_log(cut, tmp_path / "cut", ProcessOptions())

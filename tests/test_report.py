@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import SAMPLE_LOGS
+from helpers import SAMPLE_LOGS
 
 from fmcwlog.evaluation.evaluate import evaluate
 from fmcwlog.evaluation.ground_truth import read_ground_truth

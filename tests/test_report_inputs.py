@@ -15,8 +15,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import SAMPLE_LOGS
-from helpers import assert_one_line_error, copy_log, decoded, run_cli_here
+from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, decoded, run_cli_here
 
 from fmcwlog.io.atomic import MARKER
 

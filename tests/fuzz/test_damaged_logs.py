@@ -30,6 +30,8 @@ from mcap.writer import Writer as McapWriter
 from fmcwlog.api import SimConfig, record, scenario
 from fmcwlog.sim.config import apply_overrides
 
+pytestmark = pytest.mark.slow  # end to end: damaged logs processed through the command line
+
 TRAJECTORIES = ("improved.tum", "baseline.tum", "wheel_odometry.tum")
 FUZZ = settings(max_examples=15, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

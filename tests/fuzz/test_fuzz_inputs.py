@@ -17,6 +17,7 @@ import tempfile
 import tomllib
 from pathlib import Path
 
+import pytest
 import yaml
 from helpers import param_leaves, run_cli_here
 from hypothesis import HealthCheck, event, given, settings
@@ -137,6 +138,7 @@ def real_configs(draw, command: str) -> dict:
     return doc
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=150)
 @given(data=st.data(), fmt=st.sampled_from(["toml", "yaml", "json"]), command=st.sampled_from(["process", "record"]))
 def test_generated_config_files_of_real_parameters(data, fmt, command):
@@ -254,6 +256,7 @@ def worlds(draw) -> dict:
     return world
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=150)
 @given(world=worlds(), fmt=st.sampled_from(["yaml", "json"]))
 def test_generated_world_files(world, fmt):

@@ -23,6 +23,8 @@ from helpers import SAMPLE_LOGS, ate_rmse, ground_truth, tum
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.frontend.params import load_frontend_params
 
+pytestmark = pytest.mark.slow  # end to end: each component ablated on a recorded log, seconds each
+
 
 @cache
 def _improved_ate(log: Path, out: Path, switches: tuple[tuple[str, object], ...]) -> float:

@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 from helpers import ROOT
 
+pytestmark = pytest.mark.slow  # end to end: the bench scripts in a subprocess
+
 SCAN_RATE_HZ = 10.0  # the simulated LiDAR's default (README, "What is simulated")
 
 

@@ -16,6 +16,8 @@ from helpers import ate_rmse, copy_log, ground_truth, record_small_ring, tum
 
 from fmcwlog.api import ProcessOptions, process
 
+pytestmark = pytest.mark.slow  # end to end: process on a recorded log
+
 COVERED = range(60, 65)  # half a second, on the straight before the corner
 
 

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+pytestmark = pytest.mark.slow  # end to end: fmcwlog record in a subprocess
+
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, cwd=cwd, timeout=300)

@@ -26,6 +26,8 @@ from fmcwlog.api import ProcessOptions, process, report
 from fmcwlog.errors import LogError, ReportError
 from fmcwlog.io.mcap_log import LogReader
 
+pytestmark = pytest.mark.slow  # end to end: process and report on logs
+
 CORRIDOR = SAMPLE_LOGS / "corridor_30s.mcap"
 ESTIMATES = ("improved.tum", "baseline.tum", "wheel_odometry.tum", "improved_map.pgm", "baseline_map.pgm",
              "improved_map.yaml", "baseline_map.yaml")

@@ -15,6 +15,8 @@ from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, run_cli_here
 
 from fmcwlog.io.atomic import MARKER
 
+pytestmark = pytest.mark.slow  # end to end: the command line on logs
+
 
 def _short_log(path: Path, sweeps: int = 10) -> Path:
     def edit(topic, i, msg):

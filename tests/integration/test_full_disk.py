@@ -26,6 +26,8 @@ from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, run_cli_here
 
 from fmcwlog.io.atomic import MARKER
 
+pytestmark = pytest.mark.slow  # end to end: the command line on logs, on a full disk
+
 _PARTIAL = re.compile(r"^\.(.+)\.(partial|old)-\d+$")
 
 

@@ -19,6 +19,8 @@ from helpers import ate_rmse, decoded, ground_truth, record_small_ring, tum
 
 from fmcwlog.api import ProcessOptions, process
 
+pytestmark = pytest.mark.slow  # end to end: logs recorded and processed at six mounts
+
 # name -> (mount_x m, mount_y m, mount_yaw deg)
 MOUNTS = {
     "ahead": (0.35, 0.0, 0.0),

@@ -72,6 +72,7 @@ def _no_children_left() -> None:
     assert multiprocessing.active_children() == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend, period", [("pose-graph", 1.0), ("none", 0.5), ("pose-graph", 0.0)])
 def test_two_processes_write_the_bytes_of_one(crowd_log, tmp_path, monkeypatch, backend, period):
     """Every output (processed.mcap's interleaving of methods and published maps included) is the
@@ -87,6 +88,7 @@ def test_two_processes_write_the_bytes_of_one(crowd_log, tmp_path, monkeypatch, 
     _no_children_left()
 
 
+@pytest.mark.slow
 def test_spawned_child_writes_the_same_bytes(crowd_log, tmp_path, monkeypatch):
     """Where fork is not available the child is a fresh interpreter (spawn): the same outputs."""
     monkeypatch.setattr(parallel_methods, "START_METHOD", "spawn")
@@ -135,6 +137,7 @@ def _error_of(log: Path, out: Path, jobs: int) -> BaseException:
     return info.value
 
 
+@pytest.mark.slow
 @needs_fork
 @pytest.mark.parametrize("error", [LogError("a damaged sweep"), MapSizeError("the map is too large"),
                                    ValueError("a bug")])
@@ -151,6 +154,7 @@ def test_child_front_end_error_is_the_one_process_error(crowd_log, tmp_path, mon
     _no_children_left()
 
 
+@pytest.mark.slow
 @needs_fork
 def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch):
     error = OutputError("/tmp: cannot keep fmcwlog's temporary point store: no space left on device")
@@ -172,6 +176,7 @@ def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monk
     _no_children_left()
 
 
+@pytest.mark.slow
 @needs_fork
 def test_a_child_that_dies_is_one_line_and_exit_status_2(crowd_log, tmp_path, monkeypatch):
     parent = os.getpid()
@@ -193,6 +198,7 @@ def test_a_child_that_dies_is_one_line_and_exit_status_2(crowd_log, tmp_path, mo
     assert code == 0, err
 
 
+@pytest.mark.slow
 @needs_fork
 def test_a_child_error_is_the_same_one_line_from_the_command(crowd_log, tmp_path, monkeypatch):
     _fail_at(monkeypatch, 3, LogError(f"{crowd_log}: a damaged sweep"))
@@ -214,6 +220,7 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").exists(), reason="needs Linux /proc")
 def test_ctrl_c_stops_both_and_leaves_nothing(corridor_log, tmp_path):
     """SIGINT to the command's process group, as a terminal's Ctrl-C: both processes end, status 130,

@@ -19,6 +19,8 @@ from helpers import SAMPLE_LOGS, ate_rmse, copy_log, decoded, ground_truth, meta
 from fmcwlog.api import ProcessOptions
 from fmcwlog.api import process as process_log
 
+pytestmark = pytest.mark.slow  # end to end: process on logs, the command line in a subprocess
+
 # ----------------------------------------------------------------------------- accuracy
 
 

@@ -111,6 +111,7 @@ def folders(tmp_path_factory):
             (("exact", lambda p, t: p), ("offset", _offset), ("rotated", _rotated), ("scaled", _scaled))}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["exact", "offset", "rotated"])
 def test_rigid_transforms_of_the_truth_have_no_aligned_error(folders, name):
     r = evaluate(folders[name]).result["methods"]["improved"]
@@ -128,6 +129,7 @@ def test_rigid_transforms_of_the_truth_have_no_aligned_error(folders, name):
     assert any("not measurable in this method's map" in n for n in r["notes"])
 
 
+@pytest.mark.slow
 def test_unaligned_offset_is_the_offset(folders):
     from fmcwlog.evaluation.metrics import ate
     from fmcwlog.io.outputs import read_tum
@@ -138,6 +140,7 @@ def test_unaligned_offset_is_the_offset(folders):
     assert ate(est, ref, "none").rmse == pytest.approx(math.hypot(3.0, 2.0), abs=1e-4)
 
 
+@pytest.mark.slow
 def test_scale_drift_shows_in_rpe(folders):
     r = evaluate(folders["scaled"]).result["methods"]["improved"]
     assert r["rpe_1m_pct"] == pytest.approx(2.0, abs=0.05)  # every step 2 % too long
@@ -145,6 +148,7 @@ def test_scale_drift_shows_in_rpe(folders):
     assert r["ate_rmse_m"] > 0.01
 
 
+@pytest.mark.slow
 def test_pages_hold_every_table_and_image(folders, tmp_path):
     folder = tmp_path / "pages"
     shutil.copytree(folders["scaled"], folder)
@@ -186,6 +190,7 @@ def _mcap_metadata(path: Path, name: str) -> dict[str, str]:
         return next(dict(m.metadata) for m in make_reader(f).iter_metadata() if m.name == name)
 
 
+@pytest.mark.slow
 def test_header_says_what_was_run(folders, tmp_path):
     import datetime
     import hashlib
@@ -221,6 +226,7 @@ def test_header_says_what_was_run(folders, tmp_path):
     assert evaluate(folder).result["header"]["params_sha256_12"] != h["params_sha256_12"]
 
 
+@pytest.mark.slow
 def test_time_per_sweep_is_a_distribution(folders, tmp_path):
     folder = tmp_path / "speed"
     shutil.copytree(folders["exact"], folder)
@@ -262,6 +268,7 @@ def test_rpe_per_pair_of_a_constant_scale_error(delta):
     assert s.rot_deg_per_m == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_rpe_per_pair_agrees_with_evo_and_with_the_table(folders):
     from evo.core import metrics as evo_metrics
     from evo.core.trajectory import PoseTrajectory3D
@@ -288,6 +295,7 @@ def test_rpe_per_pair_agrees_with_evo_and_with_the_table(folders):
         assert np.all(np.diff(s.start_m) >= s.delta - 1e-9) and s.start_m[0] == 0.0
 
 
+@pytest.mark.slow
 def test_heading_error_is_the_yaw_bias(folders, tmp_path):
     from fmcwlog.io.outputs import read_tum
 
@@ -323,6 +331,7 @@ def test_disagreement_with_itself_a_rigid_copy_and_a_scaled_copy():
     assert slope == pytest.approx(0.02, abs=1e-9) and d.stats.max == pytest.approx(0.02 * 20.0)
 
 
+@pytest.mark.slow
 def test_report_agrees_with_evo_on_a_processed_log(tmp_path):
     from evo.core import metrics as evo_metrics
     from evo.core import sync
@@ -350,6 +359,7 @@ def _cli(*args):
     return subprocess.run([sys.executable, "-m", "fmcwlog", *args], capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_not_a_process_folder_or_a_foreign_log_is_one_line(tmp_path, folders, crowd_log):
     (tmp_path / "empty").mkdir()
     for args, words in (((str(tmp_path / "empty"),), "not a 'fmcwlog process' output"),
@@ -359,6 +369,7 @@ def test_not_a_process_folder_or_a_foreign_log_is_one_line(tmp_path, folders, cr
         assert proc.returncode == 2 and len(lines) == 1 and words in lines[0], proc.stderr
 
 
+@pytest.mark.slow
 def test_missing_ground_truth_is_said_not_invented(tmp_path, folders):
     from test_process import copy_log
 
@@ -398,6 +409,7 @@ def test_missing_ground_truth_is_said_not_invented(tmp_path, folders):
     assert "— (not in the log)" in html
 
 
+@pytest.mark.slow
 def test_run_does_record_process_report_into_one_folder(tmp_path):
     out = tmp_path / "demo"
     proc = _cli("run", "-o", str(out), "--duration", "8")
@@ -432,6 +444,7 @@ def test_the_methods_feature_errors_are_compared_over_the_features_both_measure(
     assert _comparison({"baseline": {"features": feats([None])}, "improved": {"features": feats([2.0])}}) is None
 
 
+@pytest.mark.slow
 def test_each_trajectory_of_a_default_run_has_its_own_colour_and_a_readable_label(processed):
     """The five trajectories a default run writes share the report's legends: two lines of one
     colour cannot be told apart (improved_frontend and baseline_frontend once hashed to the same one)."""

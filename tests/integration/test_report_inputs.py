@@ -19,6 +19,8 @@ from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, decoded, run_c
 
 from fmcwlog.io.atomic import MARKER
 
+pytestmark = pytest.mark.slow  # end to end: report on processed logs
+
 
 def _short_log(path: Path, sweeps: int = 8, **kw) -> Path:
     def edit(topic, i, msg):

@@ -21,6 +21,8 @@ from helpers import ate_rmse, copy_log, ground_truth, record_small_ring, tum
 
 from fmcwlog.api import ProcessOptions, process
 
+pytestmark = pytest.mark.slow  # end to end: process on recorded logs
+
 
 def _flip_doppler(topic, i, msg):
     if topic == "/fmcw/points":

@@ -368,6 +368,7 @@ def ring_lap(tmp_path_factory):
     return log, out
 
 
+@pytest.mark.slow
 def test_a_lap_of_the_ring_closes_with_closures_that_agree_with_the_ground_truth(ring_lap):
     import json
 
@@ -394,6 +395,7 @@ def test_a_lap_of_the_ring_closes_with_closures_that_agree_with_the_ground_truth
     assert with_backend < min(alone, 0.012), (with_backend, alone)
 
 
+@pytest.mark.slow
 def test_nodes_points_moved_to_disk_come_back_the_same_and_change_no_result(corridor_log, tmp_path, monkeypatch):
     """A node's points leave memory once no local edge reads them (:class:`PointStore`); closures'
     submaps and the final map read them back. The same sweeps through a back end that keeps every

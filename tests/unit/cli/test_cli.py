@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
 from helpers import SAMPLE_LOGS, run_python
 
 
@@ -15,12 +16,14 @@ def _fmcwlog(*args: str, env: dict | None = None) -> subprocess.CompletedProcess
                           env={**os.environ, **(env or {})})
 
 
+@pytest.mark.slow
 def test_bare_command_prints_its_help_and_succeeds():
     for args in ((), ("import",)):
         p = _fmcwlog(*args)
         assert p.returncode == 0 and "Usage:" in p.stdout and p.stderr == "", args
 
 
+@pytest.mark.slow
 def test_quiet_prints_nothing_and_verbose_says_what_it_found(tmp_path):
     q = _fmcwlog("-q", "process", str(SAMPLE_LOGS / "corridor_30s.mcap"), "-o", str(tmp_path / "q"))
     assert q.returncode == 0 and q.stdout == "" and q.stderr == ""
@@ -31,6 +34,7 @@ def test_quiet_prints_nothing_and_verbose_says_what_it_found(tmp_path):
     assert "processed 300 sweeps" in plain.stdout and "lidar at" not in plain.stdout
 
 
+@pytest.mark.slow
 def test_shell_completion_script_is_generated():
     p = _fmcwlog(env={"_FMCWLOG_COMPLETE": "bash_source"})
     # 'python -m fmcwlog' is not the 'fmcwlog' script click expects, so ask the installed one if present
@@ -64,6 +68,7 @@ def test_every_option_of_every_command_says_what_it_is():
     assert all((cmd.help or "").strip() for _, cmd in commands(cli, "fmcwlog")), "a command with no help"
 
 
+@pytest.mark.slow
 def test_a_bad_value_in_a_config_file_names_the_file(tmp_path):
     """An unknown key or a value out of range in --config FILE: one line naming FILE, the key and why,
     exit 2, nothing written. A --set value is named by the option itself, so it is left without a file."""

@@ -197,6 +197,7 @@ def _short_log(tmp_path: Path, name: str = "s.mcap", sweeps: int = 12) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_a_previous_runs_run_json_is_a_config_that_gives_the_same_parameters(tmp_path):
     log = _short_log(tmp_path)
     sets = [a for s in PROCESS_SETS[:4] for a in ("--set", s)]

@@ -126,6 +126,7 @@ def local_batch(fleet):
     return out, proc, killed
 
 
+@pytest.mark.slow
 def test_a_folder_of_logs_gives_each_its_own_results_and_reports_the_bad_ones(fleet, local_batch):
     out, proc, killed = local_batch
     assert "pid" in killed, "the long log's worker was never seen writing"
@@ -144,6 +145,7 @@ def test_a_folder_of_logs_gives_each_its_own_results_and_reports_the_bad_ones(fl
     _assert_bad_ones_reported(out, {n: r["reason"] for n, r in batch["logs"].items() if r["reason"]}, killed["pid"])
 
 
+@pytest.mark.slow
 def test_a_pipe_gets_a_line_as_each_log_ends(fleet, local_batch):
     """Without a terminal there is no bar: a CI log or ``| tee`` would show nothing for the whole
     batch (minutes, hours). Each log's end is one line, numbered, with what batch.json records."""
@@ -163,6 +165,7 @@ def test_a_pipe_gets_a_line_as_each_log_ends(fleet, local_batch):
     assert proc.stdout.splitlines().index(lines[-1]) < summary
 
 
+@pytest.mark.slow
 def test_running_it_again_skips_the_complete_logs(fleet, local_batch):
     out, _, _ = local_batch
     before = {n: (out / n / "run.json").stat() for n in fleet["good"]}
@@ -197,6 +200,7 @@ def test_batch_json_lists_its_logs_by_name_whatever_order_they_ended_in(tmp_path
     assert text.index('"alpha"') < text.index('"mid"') < text.index('"zeta"')
 
 
+@pytest.mark.slow
 def test_resumption_looks_at_the_bytes_and_the_options(fleet, tmp_path):
     name, log = next(iter(fleet["good"].items()))
     ref, opts = fleet["ref"] / name, api.ProcessOptions()
@@ -216,6 +220,7 @@ CALIBRATION = {"wheel_radius_left": 0.1, "wheel_radius_right": 0.1, "track_width
                "lidar_x": 0.35, "lidar_y": 0.0, "lidar_yaw": 0.0}
 
 
+@pytest.mark.slow
 def test_a_calibration_file_edited_in_place_is_a_change_of_options(tmp_path):
     """--calibration names a file: the results depend on its bytes, so a batch run again after
     the file was edited redoes the log (it used to skip it: the digest held only the path),
@@ -235,6 +240,7 @@ def test_a_calibration_file_edited_in_place_is_a_change_of_options(tmp_path):
     assert api.process_many([log], out, api.ProcessOptions(calibration=moved), jobs=1).count("skipped") == 1
 
 
+@pytest.mark.slow
 def test_a_log_renamed_by_a_newcomer_with_its_stem_is_resumed_not_doubled(tmp_path):
     """day1/run.mcap's results are OUT/run until day2/run.mcap arrives; then the names are
     day1-run and day2-run. The batch run again must hold what a fresh batch of both holds (it
@@ -255,6 +261,7 @@ def test_a_log_renamed_by_a_newcomer_with_its_stem_is_resumed_not_doubled(tmp_pa
     assert seen == [(1, 2, "day1-run"), (2, 2, "day2-run")]  # progress as each log is reported
 
 
+@pytest.mark.slow
 def test_the_fleet_page_has_a_row_per_log_and_flags_the_failed_ones(fleet, local_batch):
     out, _, _ = local_batch
     ran = CliRunner().invoke(cli, ["report", str(out)])  # in this process: the reports are the slow part
@@ -302,6 +309,7 @@ def local_ray(tmp_path_factory):
     ray.shutdown()
 
 
+@pytest.mark.slow
 def test_the_same_batch_on_a_local_ray(fleet, local_ray):
     out = fleet["root"] / "out-ray"
     killed: dict = {}
@@ -324,6 +332,7 @@ def test_the_same_batch_on_a_local_ray(fleet, local_ray):
         api.process_many([fleet["logs"]], fleet["root"] / "out-ray-huge", ray=True, limits=Limits(memory_limit_mb=10**8))
 
 
+@pytest.mark.slow
 def test_a_worker_over_its_memory_cap_fails_alone_with_that_reason(fleet, tmp_path):
     log = fleet["good"]["logs-a"]
     task = LogTask("a", log, tmp_path / "a", api.ProcessOptions(), False, log.stat().st_size)
@@ -378,6 +387,7 @@ def test_flags_go_to_the_clear_outliers_only():
     assert not any(r["flags"] for r in even)  # the worst of ten good logs needs no look
 
 
+@pytest.mark.slow
 def test_import_carmen_takes_a_folder_and_goes_on_past_a_bad_file(tmp_path):
     src = tmp_path / "carmen"
     (src / "day2").mkdir(parents=True)
@@ -397,6 +407,7 @@ def test_import_carmen_takes_a_folder_and_goes_on_past_a_bad_file(tmp_path):
     assert [(o.output.name, o.status) for o in again] == [("good.mcap", "skipped"), ("empty.mcap", "failed")]
 
 
+@pytest.mark.slow
 def test_force_on_a_batch_never_removes_a_file_fmcwlog_did_not_write(fleet, tmp_path):
     """A log's folder in the batch that holds the user's own file is not replaced, --force or not:
     that log fails with the reason, the file stays, and the batch's other logs are unaffected."""
@@ -412,6 +423,7 @@ def test_force_on_a_batch_never_removes_a_file_fmcwlog_did_not_write(fleet, tmp_
         assert mine.read_text() == "the user's own file\n"
 
 
+@pytest.mark.slow
 def test_report_without_ground_truth_prints_how_far_the_methods_disagree(fleet, tmp_path):
     """A log with no ground truth: the console shows the methods' disagreement (as evo_ape -a of one
     trajectory against the other computes it), not a table of dashes that says nothing of why."""
@@ -432,6 +444,7 @@ def test_report_without_ground_truth_prints_how_far_the_methods_disagree(fleet, 
     assert printed == pytest.approx(rmse, abs=0.0006)  # printed to the millimetre
 
 
+@pytest.mark.slow
 def test_a_batch_stopped_before_any_log_ended_leaves_no_folder_of_its_own(fleet, tmp_path, monkeypatch):
     """Ctrl-C before the first log ends: the output folder the batch made is removed (it held nothing),
     a folder that was there before is kept, and nothing is left in it."""

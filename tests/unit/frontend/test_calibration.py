@@ -66,6 +66,7 @@ def calib(logs) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_wrong_mount_is_flagged_with_numbers(outs):
     run = json.loads((outs["wrong"] / "run.json").read_text())
     check = run["calibration_check"]
@@ -75,11 +76,13 @@ def test_a_wrong_mount_is_flagged_with_numbers(outs):
     assert len(said) == 1 and "lidar_x" in said[0] and "650.0 mm" in said[0]
 
 
+@pytest.mark.slow
 def test_a_right_mount_is_not_flagged(outs):
     check = json.loads((outs["right"] / "run.json").read_text())["calibration_check"]
     assert check["checked"] and not {"lidar_x", "lidar_y", "lidar_yaw", "track_width"} & set(check["disagrees"])
 
 
+@pytest.mark.slow
 def test_calibrate_recovers_the_mount_and_the_radii(logs, calib):
     truth = _truth(logs["right"])
     record = _metadata(logs["right"])["fmcwlog.calibration"]
@@ -98,6 +101,7 @@ def test_calibrate_recovers_the_mount_and_the_radii(logs, calib):
     assert got["track_width"] == pytest.approx(truth["track_width"], rel=0.01)
 
 
+@pytest.mark.slow
 def test_processing_with_the_recovered_calibration_restores_the_accuracy(logs, outs, calib):
     out = logs["root"] / "out_recalibrated"
     res = run_cli("process", str(logs["wrong"]), "-o", str(out), "--calibration", str(calib))
@@ -114,6 +118,7 @@ def test_processing_with_the_recovered_calibration_restores_the_accuracy(logs, o
     assert not {"lidar_x", "lidar_y", "lidar_yaw"} & set(run["calibration_check"]["disagrees"])
 
 
+@pytest.mark.slow
 def test_a_bad_calibration_file_is_one_line_naming_it(logs, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("lidar_x: [1, 2]\n")
@@ -124,6 +129,7 @@ def test_a_bad_calibration_file_is_one_line_naming_it(logs, tmp_path):
         assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_calibrate_does_not_overwrite_without_force(logs, tmp_path):
     target = tmp_path / "calib.yaml"
     target.write_text("mine\n")
@@ -131,6 +137,7 @@ def test_calibrate_does_not_overwrite_without_force(logs, tmp_path):
     assert res.returncode == 2 and "--force" in res.stderr and target.read_text() == "mine\n"
 
 
+@pytest.mark.slow
 def test_the_report_says_where_the_motion_came_from_and_what_the_check_found(outs, logs):
     """report.json carries run.json's motion sources and calibration check; the page and the
     Markdown show the wrong lidar_x as disagreeing and the right ones as agreeing."""

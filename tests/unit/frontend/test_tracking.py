@@ -177,12 +177,14 @@ def dense_scores(dense_crowd_log, tmp_path_factory):
     return scores
 
 
+@pytest.mark.slow
 def test_dense_crowd_recall_and_precision(dense_scores):
     recall, precision = dense_scores[True]
     # measured 0.958 / 0.9993 (the tracker off: 0.882 / 1.000); the targets over 2 minutes: 0.95 / 0.99
     assert recall >= 0.92 and precision >= 0.99, (recall, precision)
 
 
+@pytest.mark.slow
 def test_tracker_off_loses_the_walkers_across_the_beams(dense_scores):
     (on, _), (off, _) = dense_scores[True], dense_scores[False]
     assert on - off >= 0.04, (on, off)  # measured 0.958 vs 0.882

@@ -29,6 +29,7 @@ def _yaw(q) -> float:
     return 2 * math.atan2(q.z, q.w)
 
 
+@pytest.mark.slow
 def test_tum_parquet_and_maps_open_in_evo_pandas_and_map_server(processed):
     from evo.tools import file_interface
 
@@ -55,6 +56,7 @@ def test_tum_parquet_and_maps_open_in_evo_pandas_and_map_server(processed):
                              "wheel_odometry": "wheel_odometry/odom"}
 
 
+@pytest.mark.slow
 def test_processed_mcap_in_rosbags_has_a_tf_tree_per_trajectory(processed):
     out = processed["corridor_30s"]
     msgs = _rosbags(out / "processed.mcap")
@@ -75,6 +77,7 @@ def test_processed_mcap_in_rosbags_has_a_tf_tree_per_trajectory(processed):
         assert (tr.translation.x, tr.translation.y) == pytest.approx((row[1], row[2]), abs=2e-6)
 
 
+@pytest.mark.slow
 def test_processed_mcap_carries_twist_covariance_paths_maps_and_velocity(processed):
     out = processed["corridor_30s"]
     msgs = _rosbags(out / "processed.mcap")
@@ -105,6 +108,7 @@ def test_processed_mcap_carries_twist_covariance_paths_maps_and_velocity(process
     assert {f.name for f in cloud.fields} >= {"x", "y", "z", "velocity"} and cloud.header.frame_id == "improved/odom"
 
 
+@pytest.mark.slow
 def test_report_writes_the_ground_truth_and_evo_ape_agrees(processed, tmp_path):
     """The README's command, verbatim: evo_ape tum gt.tum improved.tum -a, on what report wrote."""
     import shutil
@@ -127,6 +131,7 @@ def test_report_writes_the_ground_truth_and_evo_ape_agrees(processed, tmp_path):
     assert rmse == pytest.approx(ev.result["methods"]["improved"]["ate_rmse_m"], abs=1e-5)
 
 
+@pytest.mark.slow
 def test_a_second_report_does_not_score_its_own_ground_truth(processed, tmp_path):
     import shutil
 
@@ -333,6 +338,7 @@ def test_writing_the_parquet_leaves_no_arrow_buffers_resident():
     assert after - before < 15, (before, after)
 
 
+@pytest.mark.slow
 def test_the_readmes_evo_traj_command_with_the_map_runs(processed, tmp_path):
     """The README's `evo_traj tum out/improved.tum --ros_map_yaml out/improved_map.yaml -p --plot_mode xy`,
     verbatim (headless): evo reads the map as map_server does. With evo's default 3-D plot mode

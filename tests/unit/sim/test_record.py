@@ -182,6 +182,7 @@ def _static_points_in_map(topics, meta):
     return a, pose, origin, direction, bearing
 
 
+@pytest.mark.slow
 def test_static_points_lie_on_the_walls_with_the_configured_range_noise(corridor):
     topics, meta, _, _ = corridor
     a, _, origin, direction, _ = _static_points_in_map(topics, meta)

@@ -89,13 +89,20 @@ def test_se2_exp_quarter_circle():
     np.testing.assert_allclose(got, [2.0, 2e-12, 2e-12], rtol=1e-9, atol=0)
 
 
-# --- the fast paths against the formulas as written (bit for bit: the outputs of a run may not change)
-def _se2_exp_formula(vx, vy, omega, dt):
-    """The docstring's formula with ``np.sinc``, as the module computed it before its fast paths."""
-    th = omega * dt
-    a = np.sinc(th / np.pi)
-    b = 0.5 * th * np.sinc(th / (2.0 * np.pi)) ** 2
-    return np.stack(np.broadcast_arrays((a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th), -1)
+# --- se2_exp against the matrix exponential (scipy's: an independent fact), and its fast paths
+# against the module's own plain formula (the path arrays of twists take), bit for bit: the outputs
+# of a run may not change with the fast paths.
+def _expm_pose(vx, vy, omega, dt):
+    """x, y of exp(dt·ξ) for the twist ξ = (vx, vy, ω), by scipy.linalg.expm of its 3x3 matrix."""
+    from scipy.linalg import expm
+
+    m = expm(np.array([[0.0, -omega, vx], [omega, 0.0, vy], [0.0, 0.0, 0.0]]) * dt)
+    return m[0, 2], m[1, 2]
+
+
+def _plain(vx, vy, omega, dt):
+    """:func:`se2_exp` given the twist as 0-d arrays: the plain ``np.sinc`` formula, no fast path."""
+    return se2_exp(np.array(vx), np.array(vy), np.array(omega), dt)
 
 
 _twist = st.one_of(st.floats(-5.0, 5.0), st.sampled_from([0.0, -0.0, 1e-12, -1e-300]))
@@ -103,20 +110,27 @@ _twist = st.one_of(st.floats(-5.0, 5.0), st.sampled_from([0.0, -0.0, 1e-12, -1e-
 
 @settings(max_examples=300, deadline=None)
 @given(_twist, _twist, st.one_of(_twist, st.floats(-50.0, 50.0)), st.floats(-1.0, 1.0))
-def test_se2_exp_fast_paths_are_the_formula(vx, vy, omega, dt):
+def test_se2_exp_is_the_matrix_exponential_and_its_fast_paths_the_plain_formula(vx, vy, omega, dt):
     """One ``dt`` (Python floats; numpy squares a 0-d result with ``pow``) and many (in place,
-    ``x * x``), each against ``np.sinc`` on the same shapes."""
-    assert same_bits(se2_exp(vx, vy, omega, np.array(dt)), _se2_exp_formula(vx, vy, omega, np.array(dt)))
+    ``x * x``): the pose scipy's matrix exponential gives, and the plain path's bits."""
+    got = se2_exp(vx, vy, omega, np.array(dt))
+    assert got[2] == omega * dt
+    np.testing.assert_allclose(got[:2], _expm_pose(vx, vy, omega, dt), rtol=1e-9, atol=1e-12)
+    assert same_bits(got, _plain(vx, vy, omega, np.array(dt)))
     dts = np.array([dt, 0.0, -0.0, 0.5 * dt, 0.075])
-    assert se2_exp(vx, vy, omega, dts).tobytes() == _se2_exp_formula(vx, vy, omega, dts).tobytes()
+    assert se2_exp(vx, vy, omega, dts).tobytes() == _plain(vx, vy, omega, dts).tobytes()
 
 
 def test_se2_exp_scalar_over_many_twists():
-    """20 000 random twists and intervals of the front end's sizes, one at a time."""
+    """20 000 random twists and intervals of the front end's sizes, one at a time: the plain path's
+    bits; and every 400th, the matrix exponential's pose."""
     rng = np.random.default_rng(5)
-    for vx, w, dt in zip(rng.uniform(-2, 2, 20_000), rng.uniform(-2, 2, 20_000), rng.uniform(0, 0.2, 20_000)):
-        assert same_bits(se2_exp(float(vx), 0.0, float(w), np.array(dt)),
-                         _se2_exp_formula(float(vx), 0.0, float(w), np.array(dt)))
+    for k, (vx, w, dt) in enumerate(zip(rng.uniform(-2, 2, 20_000), rng.uniform(-2, 2, 20_000),
+                                        rng.uniform(0, 0.2, 20_000))):
+        got = se2_exp(float(vx), 0.0, float(w), np.array(dt))
+        assert same_bits(got, _plain(float(vx), 0.0, float(w), np.array(dt)))
+        if k % 400 == 0:
+            np.testing.assert_allclose(got[:2], _expm_pose(vx, 0.0, w, dt), rtol=1e-12, atol=1e-15)
 
 
 @settings(max_examples=200, deadline=None)
@@ -130,6 +144,6 @@ def test_deskew_column_path_is_the_pose_chain(v, omega, v_y, mount, seed):
     xy = rng.uniform(-30, 30, (n, 2))
     t = np.sort(rng.uniform(0, 0.1, n))
     m = np.array(mount)
-    chain = compose(compose(inverse(m), _se2_exp_formula(v, v_y, omega, t - 0.03)), m)  # as the module did
+    chain = compose(compose(inverse(m), _plain(v, v_y, omega, t - 0.03)), m)  # the plain formulas, array by array
     assert lidar_motion(t, v, omega, m, 0.03, v_y).tobytes() == chain.tobytes()
     assert deskew(xy, t, v, omega, m, 0.03, v_y).tobytes() == transform_points(chain, xy).tobytes()

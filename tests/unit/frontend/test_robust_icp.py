@@ -256,11 +256,27 @@ def test_median_is_numpys_bit_for_bit(values):
     assert median(x) == float(np.median(x))
 
 
+def _procrustes_pose(src: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The least-squares rigid pose (x, y, θ) with ``q ≈ R src + t``, by scipy's orthogonal Procrustes."""
+    from scipy.linalg import orthogonal_procrustes
+
+    ps, qs = src.mean(axis=0), q.mean(axis=0)
+    r, _ = orthogonal_procrustes(src - ps, q - qs)  # (src - ps) @ r ≈ q - qs: r = R(θ)ᵀ
+    assert np.linalg.det(r) > 0  # a rotation, not a reflection
+    th = np.arctan2(r[0, 1], r[0, 0])
+    c, s = np.cos(th), np.sin(th)
+    return np.array([qs[0] - (c * ps[0] - s * ps[1]), qs[1] - (s * ps[0] + c * ps[1]), th])
+
+
 @given(st.integers(0, 2**32 - 1))
-@settings(max_examples=15, deadline=None)
-def test_baseline_is_textbook_icp_bit_for_bit(seed):
-    """The baseline's cached pairs and call-lean Kabsch give the poses of a textbook loop (a fresh
-    KD-tree query and np.mean-centred pairs each iteration) to the last bit."""
+@settings(max_examples=10, deadline=None)
+def test_baseline_is_procrustes_steps_until_one_is_small(seed):
+    """What point-to-point ICP is, checked with scipy rather than with a second ICP loop: the pose
+    after k iterations (the baseline capped at k) is the least-squares rigid fit, by scipy's
+    orthogonal Procrustes, of the pairs found at the pose after k - 1; it stops, converged, at the
+    first step below both tolerances, or at the cap."""
+    from dataclasses import replace
+
     rng = np.random.default_rng(seed)
     target = np.concatenate([_map_points(0.05), rng.uniform(-1, 11, (50, 2))])
     tree = cKDTree(target)
@@ -268,21 +284,17 @@ def test_baseline_is_textbook_icp_bit_for_bit(seed):
     source = transform_points(inverse(truth), _raycast(truth, rng, 300))
     init = truth + rng.normal(0, 0.05, 3)
     p = ICPParams()
-    pose = init.copy()
-    for _ in range(p.max_iterations):
-        c = find_correspondences(source, pose, tree, target, p.max_correspondence_distance)
-        if c.distances.size < p.min_correspondences:
-            break
-        src, q = source[c.source_idx], c.target
-        sc, qc = src - src.mean(axis=0), q - q.mean(axis=0)
-        th = np.arctan2(np.sum(sc[:, 0] * qc[:, 1] - sc[:, 1] * qc[:, 0]), np.sum(sc * qc))
-        rot = np.array([np.cos(th) * src.mean(axis=0)[0] - np.sin(th) * src.mean(axis=0)[1],
-                        np.sin(th) * src.mean(axis=0)[0] + np.cos(th) * src.mean(axis=0)[1]])
-        new = np.array([*(q.mean(axis=0) - rot), th])
-        step, pose = new - pose, new
-        if np.hypot(step[0], step[1]) < p.translation_tol and abs(wrap_angle(step[2])) < p.rotation_tol:
-            break
-    assert register_point_to_point(source, tree, target, init, p).pose.tobytes() == pose.tobytes()
+    res = register_point_to_point(source, tree, target, init, p)
+    poses = [init]
+    for k in range(1, res.iterations + 1):
+        c = find_correspondences(source, poses[-1], tree, target, p.max_correspondence_distance)
+        poses.append(register_point_to_point(source, tree, target, init, replace(p, max_iterations=k)).pose)
+        np.testing.assert_allclose(poses[-1], _procrustes_pose(source[c.source_idx], c.target), rtol=0, atol=1e-12)
+    assert np.array_equal(poses[-1], res.pose)
+    steps = [(np.hypot(*(b[:2] - a[:2])), abs(wrap_angle(b[2] - a[2]))) for a, b in zip(poses, poses[1:])]
+    small = [dt < p.translation_tol and dth < p.rotation_tol for dt, dth in steps]
+    assert not any(small[:-1]) and res.converged == small[-1]
+    assert res.converged or res.iterations == p.max_iterations
 
 
 @pytest.mark.parametrize("voxel", [0.05, 0.1])

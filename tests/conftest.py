@@ -1,21 +1,25 @@
-"""Shared fixtures: short recordings made once per test session."""
+"""Shared fixtures: short recordings made once per test session.
+
+Layout: ``unit/<layer>/`` (one folder per layer of the package: core, sim, io, frontend, backend,
+evaluation, fleet, cli), ``integration/`` (end to end: process, report, run and fleet on logs, the
+command line in a subprocess), ``fuzz/`` (generated and damaged inputs). Markers (pyproject.toml):
+``slow`` (end to end, or seconds each; ``python -m pytest -m "not slow"`` is the quick run),
+``needs_datasets`` and ``needs_conformance`` (data in ``../shared`` beside the checkout, read
+through ``helpers.shared_file``). Constants and helpers the tests share are in helpers.py (on the
+path by ``pythonpath`` in pyproject.toml): a test imports ``helpers``, never ``conftest``.
+"""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+import helpers
 import pytest
+from helpers import SAMPLE_LOGS, record_scenario
 from hypothesis import settings
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.sim import scenarios
-from fmcwlog.sim.config import SimConfig, apply_overrides
-from fmcwlog.sim.recorder import record
-
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
-SAMPLE_LOGS = ROOT / "sample_logs"
 
 # Property tests draw fresh examples on each local run (that is how they find new failures), but
 # CI must give the same verdict on the same commit: `.ci/run` picks the "ci" profile, which draws
@@ -24,29 +28,24 @@ settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.load_profile(os.environ.get("FMCWLOG_HYPOTHESIS_PROFILE", "default"))
 
 
-def _record(tmp_path_factory, scenario: str, duration: float, seed: int = 0, **overrides) -> Path:
-    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}, **overrides})
-    out = tmp_path_factory.mktemp(scenario) / f"{scenario}.mcap"
-    record(scenarios.SCENARIOS[scenario](), cfg, out)
-    return out
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    helpers._current_test = item  # for helpers.shared_file: a test reading ../shared must be marked so
+
+
+def pytest_runtest_teardown(item):
+    helpers._current_test = None
 
 
 @pytest.fixture(scope="session")
 def corridor_log(tmp_path_factory) -> Path:
     """26 s of the default scenario: the robot accelerates, drives 22 m and takes a corner."""
-    return _record(tmp_path_factory, "corridor", 26.0)
+    return record_scenario(tmp_path_factory, "corridor", 26.0)
 
 
 @pytest.fixture(scope="session")
 def crowd_log(tmp_path_factory) -> Path:
-    return _record(tmp_path_factory, "crowd", 6.0)
-
-
-@pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    if not SHARED.is_dir():
-        pytest.skip(f"{SHARED} is absent: the shared conformance logs and datasets live there")
-    return SHARED
+    return record_scenario(tmp_path_factory, "crowd", 6.0)
 
 
 @pytest.fixture(scope="session")
@@ -63,10 +62,10 @@ def processed(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture(scope="session")
 def long_corridor_log(tmp_path_factory) -> Path:
     """60 s of the 100 m bare corridor: geometry alone cannot fix the position along it."""
-    return _record(tmp_path_factory, "long-corridor", 60.0)
+    return record_scenario(tmp_path_factory, "long-corridor", 60.0)
 
 
 @pytest.fixture(scope="session")
 def dense_crowd_log(tmp_path_factory) -> Path:
     """25 s of the dense crowd: about half of the returns on walkers and carts, many crossing the beams."""
-    return _record(tmp_path_factory, "dense-crowd", 25.0)
+    return record_scenario(tmp_path_factory, "dense-crowd", 25.0)

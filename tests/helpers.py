@@ -18,6 +18,33 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
+ROOT = Path(__file__).resolve().parents[1]  # the checkout
+SAMPLE_LOGS = ROOT / "sample_logs"
+SHARED = ROOT.parent / "shared"  # beside the checkout, not in it: the real robot datasets and another writer's logs
+
+# What each folder of ../shared holds, and the marker a test reading from it carries.
+_SHARED_KINDS = {
+    "datasets": ("needs_datasets", "the real robot datasets beside the checkout"),
+    "conformance": ("needs_conformance", "the other writer's conformance logs beside the checkout"),
+}
+_current_test = None  # the test being set up or run (conftest sets it): shared_file checks its markers
+
+
+def shared_file(relpath: str) -> Path:
+    """``../shared/RELPATH`` (``datasets/...`` or ``conformance/...``), or the test is skipped naming
+    it where it is absent. Data outside the repository is said twice: here by the skip reason, and
+    by the test's marker (``needs_datasets``, ``needs_conformance``), which this checks so that
+    ``-m "not needs_datasets"`` cannot run a test that reads the datasets."""
+    import pytest
+
+    marker, what = _SHARED_KINDS[relpath.split("/", 1)[0]]
+    if _current_test is not None and _current_test.get_closest_marker(marker) is None:
+        pytest.fail(f"{_current_test.nodeid} reads ../shared/{relpath} but is not marked @pytest.mark.{marker}")
+    path = SHARED / relpath
+    if not path.exists():
+        pytest.skip(f"needs ../shared/{relpath} ({what})")
+    return path
+
 
 def decoded(path: Path, topics=None):
     with open(path, "rb") as fh:
@@ -86,6 +113,18 @@ def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
     d = np.sign(np.linalg.det(vt.T @ u.T))
     r = vt.T @ np.diag([1, d]) @ u.T
     return float(np.sqrt(np.mean(np.sum((p @ r.T - q) ** 2, axis=1))))
+
+
+def record_scenario(tmp_path_factory, scenario: str, duration: float, seed: int = 0, **overrides) -> Path:
+    """A log of the built-in ``scenario`` (``duration`` s, ``seed``, ``--set``-like ``overrides``)."""
+    from fmcwlog.sim import scenarios
+    from fmcwlog.sim.config import SimConfig, apply_overrides
+    from fmcwlog.sim.recorder import record
+
+    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}, **overrides})
+    out = tmp_path_factory.mktemp(scenario) / f"{scenario}.mcap"
+    record(scenarios.SCENARIOS[scenario](), cfg, out)
+    return out
 
 
 def small_ring():

@@ -6,7 +6,7 @@ positive (REP-103). Arrays of poses have shape ``(N, 3)``.
 One pose (a float64 array of shape (3,)) takes a scalar path: the same float operations in the
 same order on Python floats, with :mod:`math`'s sin and cos, which are the C library's, as numpy's
 float64 ``sin``/``cos`` are on a machine without AVX-512 (numpy uses SVML there; this one, like
-most, has AVX2 only: no difference over 3.2 million angles, ``tests/test_geometry.py``). Python's
+most, has AVX2 only: no difference over 3.2 million angles, ``tests/unit/core/test_geometry.py``). Python's
 float ``%`` and numpy's ``remainder`` are the same ``fmod``-and-adjust, so the scalar ``wrap_angle``
 is numpy's too. The results are bit-for-bit the array path's; a pose spends ~1 µs instead of
 ~5 µs, and the front end composes, inverts and wraps single poses tens of times a sweep (on the

@@ -33,7 +33,7 @@ How exact it is
     ends taken at a cell centre (the 1 m openings come out 2–4 cm too wide, 2–3.4 %), and the
     niche's 0.6 m side walls, seen only at grazing angles, drawn a few cm outward (+8 cm,
     3.5 %). That is the floor under any method's figure here. Rasterised maps of the exact
-    walls measure every feature within one cell (``tests/test_features.py``).
+    walls measure every feature within one cell (``tests/unit/evaluation/test_features.py``).
 
 Why the alignment is local, not one fit over the whole run as the ATE's
     The search must land within the strip's 0.5 m of where the map drew the end, and a

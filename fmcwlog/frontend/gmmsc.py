@@ -4,7 +4,7 @@ Units: distances in metres (any non-negative scale works). A K-component 1-D
 Gaussian mixture (eq. 20) is fit by EM (:func:`_em_1d`: sklearn's
 ``GaussianMixture`` algorithm, diagonal covariances, written out for one
 dimension: a few (K, N) array operations per iteration, 0.03-0.1 ms a fit where
-sklearn's takes 1-3 ms and 1.5 s of imports; ``tests/test_gmmsc.py`` checks it
+sklearn's takes 1-3 ms and 1.5 s of imports; ``tests/unit/frontend/test_gmmsc.py`` checks it
 against sklearn); each pair is weighted by its posterior of the inlier component (eq. 21). The
 paper leaves ``k`` in eq. 21 open; here it is the inlier component, the one with the
 smallest mean distance (the physics notes, docs/physics.md). Pairs with weight below

@@ -17,7 +17,7 @@ docs/physics.md).
 DBSCAN is :func:`dbscan` here rather than sklearn's: the neighbourhood graph from
 one ``cKDTree.query_pairs`` and its components by hooking roots under the lowest node
 and following pointers (:func:`_lowest_connected`), which gives
-sklearn's labels exactly (``tests/test_segmentation.py`` compares them) at 0.56
+sklearn's labels exactly (``tests/unit/frontend/test_segmentation.py`` compares them) at 0.56
 against 2.0 ms per sweep on the corridor log and 2.0 against 5.2 ms on the crowd
 log (the same machine, busy; the order of the two held on repeats), and saves the
 1.5 s import of sklearn. How the components are found, and what the alternatives cost:

@@ -309,7 +309,7 @@ def wheel_ticks_cdr_batch(stamps_ns: np.ndarray, frame_id: str, left: np.ndarray
 
 
 # Types encoded here in full (the layout is fixed by the .msg; the bytes are mcap_ros2's, which
-# ``tests/test_mcap_io.py`` checks): mcap_ros2 writes each field through its generic encoder,
+# ``tests/unit/io/test_mcap_io.py`` checks): mcap_ros2 writes each field through its generic encoder,
 # 17-72 us a message, 20 % of ``record`` (ground truth at 50 Hz); these take 3-8 us.
 _ENCODERS: dict[str, Callable[[dict], bytes]] = {
     "nav_msgs/msg/Odometry": _odometry_cdr,

@@ -36,7 +36,7 @@ are monotone along a ray); the per-ray deduplication kept with ``np.compress`` (
 indexing) on the float flat index, converted to int after; ``flatnonzero`` of a boolean mask (6x
 of the int64 counts); no end-cell exclusion where every ray hits and ``protect_hits`` clears the
 hit cells anyway. The grids, maps and outputs are bit-identical to a plain per-ray cast
-(``tests/test_occupancy.py`` checks the cast against a per-ray reference); in a whole ``process``
+(``tests/unit/frontend/test_occupancy.py`` checks the cast against a per-ray reference); in a whole ``process``
 run of the 20 s crowd log (both methods), casting and applying take 0.75-0.90 s CPU against
 1.81-2.09 s with the plain passes (docs/design/speed-experiments.md).
 """

@@ -23,7 +23,7 @@ change between passes is computed once: the walls' directions and normals, the b
 trig; and once a pass rather than once per kind of target, the beams' sorted directions. On
 ``crowd`` (20 walls, 28 people, 4 carts; ``fmcwlog record --scenario crowd``) ``record()`` takes
 about 0.9 ms of CPU a sweep, writing included, against 8.4 ms casting every beam against every
-target (docs/design/speed-experiments.md); ``tests/test_ray_casting.py`` checks the result
+target (docs/design/speed-experiments.md); ``tests/unit/sim/test_ray_casting.py`` checks the result
 against a brute-force cast.
 """
 

@@ -1,4 +1,4 @@
-"""The log-format contract (LOG_FORMAT.md) as estimation sees it.
+"""The log-format contract (docs/log-format.md) as estimation sees it.
 
 - Estimation reads ``/fmcw/points``, ``/wheel/ticks`` and ``fmcwlog.calibration`` only: every other
   topic and metadata record replaced by garbage changes no estimate.
@@ -186,7 +186,7 @@ def test_laserscan_with_the_robots_own_odometry(tmp_path):
 
 
 def test_how_a_writer_interleaves_topics_does_not_change_the_estimates(processed, tmp_path):
-    """LOG_FORMAT.md leaves the order of topics in the file to the writer (MCAP orders nothing):
+    """The log format (docs/log-format.md) leaves the order of topics in the file to the writer (MCAP orders nothing):
     every wheel tick written before the first sweep, or every sweep before the first tick, must
     give the estimates of the log written in time order. (Read in file order, the ticks-first log
     gave the sweeps a motion prior from the log's end: the improved trajectory up to 2.2 m and the
@@ -231,7 +231,7 @@ def _baseline_warnings(log: Path, out: Path) -> list[str]:
 
 
 def test_sweeps_without_point_times_are_said(crowd_log, tmp_path):
-    """LOG_FORMAT.md requires the field ``t``: a cloud without it cannot be deskewed, and its points
+    """The log format (docs/log-format.md) requires the field ``t``: a cloud without it cannot be deskewed, and its points
     are taken at the sweep's stamp; that is said once, with the count of such sweeps (it was silent,
     and on a 12 s crowd log the improved trajectory moved 3 m)."""
     untimed = tmp_path / "untimed.mcap"
@@ -249,7 +249,7 @@ def test_sweeps_without_point_times_are_said(crowd_log, tmp_path):
 
 
 def test_a_calibration_record_without_the_mount_is_said_naming_the_keys(crowd_log, tmp_path):
-    """LOG_FORMAT.md lists lidar_x, lidar_y, lidar_yaw in ``fmcwlog.calibration``; a record without
+    """The log format (docs/log-format.md) lists lidar_x, lidar_y, lidar_yaw in ``fmcwlog.calibration``; a record without
     some of them puts the lidar at base_link's origin, which is said, naming the log and the keys."""
     record = _metadata(crowd_log)["fmcwlog.calibration"]
     log = tmp_path / "no_mount.mcap"
@@ -279,7 +279,7 @@ def _rewritten(src: Path, dst: Path, edit) -> Path:
 
 
 def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crowd_log, tmp_path):
-    """LOG_FORMAT.md: a message's log_time equals its header.stamp. A writer that logs receive times
+    """The log format (docs/log-format.md): a message's log_time equals its header.stamp. A writer that logs receive times
     (sweeps 80 ms late) gets a warning from process, which goes by header.stamp, and a report error
     that says so (it said the log, whose sha256 run.json holds, 'does not belong' to its outputs)."""
     def receive_times(topic, name, text, msg, log_time):
@@ -301,7 +301,7 @@ def test_a_log_time_other_than_the_header_stamp_is_said_and_report_names_it(crow
                                     "right of fmcwlog_msgs/msg/WheelTicks"),
 ])
 def test_wheel_ticks_of_another_layout_are_one_error_naming_the_type(crowd_log, tmp_path, type_name, words):
-    """LOG_FORMAT.md fixes /wheel/ticks as fmcwlog_msgs/msg/WheelTicks (int64 left, right). Encoder
+    """The log format (docs/log-format.md) fixes /wheel/ticks as fmcwlog_msgs/msg/WheelTicks (int64 left, right). Encoder
     counts of another type, or under that name with other fields, were a traceback (AttributeError)."""
     def encoders(topic, name, text, msg, log_time):
         if topic != "/wheel/ticks":

@@ -1,6 +1,6 @@
 """Any mount: the lidar over the axle, sideways, yawed, behind and looking back — ``process`` never
 fails, the twist it reports matches the ground truth within its own uncertainty, and Doppler is
-credited with what the physics says it observes (NOTES.md: ``v_s = v_b + ω × l``, ``v_by = 0``).
+credited with what the physics says it observes (docs/physics.md: ``v_s = v_b + ω × l``, ``v_by = 0``).
 
 Each log is 14 s of a small ring corridor (tests/helpers.py ``small_ring``: a straight, a corner,
 a bit of the next straight), recorded with ``sensor.mount_*`` set; ground truth is read with plain

@@ -1,7 +1,7 @@
 """``fmcwlog report`` on damaged or mismatched inputs: one line naming the file and what is wrong.
 
 Damaged: run.json, trajectories.parquet, a TUM file, a relations file with a NaN, a log whose
-``fmcwlog.world`` record breaks LOG_FORMAT.md. Mismatched: a ``--log`` of another seed whose
+``fmcwlog.world`` record breaks the log format (docs/log-format.md). Mismatched: a ``--log`` of another seed whose
 sweep stamps are the very same (checked here with the plain ``mcap`` reader), which only the
 log's digest recorded in run.json can tell apart.
 """

@@ -3,7 +3,7 @@ static structure never gets one, and on a dense crowd the tracker is what lifts 
 
 The sweeps and their truth come from the simulator's ray caster (:class:`fmcwlog.sim.lidar.FmcwLidar`:
 walls, a walker, per-point labels of what each beam hit), with the sensor standing at the origin so
-that the compensated Doppler is the raw one (NOTES.md: ``ε = v_r + uᵀv_s``, ``v_s = 0``). On the
+that the compensated Doppler is the raw one (docs/physics.md: ``ε = v_r + uᵀv_s``, ``v_s = 0``). On the
 dense-crowd log the truth is ``/ground_truth/point_labels`` and the method's verdicts are
 ``/improved/moving_labels`` in ``processed.mcap``, both read with plain ``mcap``.
 """

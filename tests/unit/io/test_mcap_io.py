@@ -175,7 +175,7 @@ def test_fixed_layout_batches_are_encoded_as_mcap_ros2_encodes_them():
 ])
 def test_a_topic_in_an_encoding_other_than_the_contracts_is_one_error_naming_it(tmp_path, message_encoding,
                                                                                  schema_encoding, words):
-    """LOG_FORMAT.md: CDR messages with ros2msg schemas. A topic otherwise (written here with plain
+    """The log format (docs/log-format.md): CDR messages with ros2msg schemas. A topic otherwise (written here with plain
     mcap) is refused naming the file, the topic and the encoding at fault (the schema's encoding was
     reported as "encoded as 'cdr', expected 'cdr'")."""
     from mcap.writer import Writer

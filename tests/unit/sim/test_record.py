@@ -216,7 +216,7 @@ def test_static_doppler_is_minus_sensor_velocity_along_the_beam(corridor):
     a, pose, _, _, bearing = _static_points_in_map(topics, meta)
     cal = calibration(meta)
     v, omega = pose[:, 3], pose[:, 5]
-    # velocity of the lidar origin in base_link axes (NOTES.md), then in lidar axes
+    # velocity of the lidar origin in base_link axes (docs/physics.md), then in lidar axes
     vs_b = np.column_stack([v - omega * cal["lidar_y"], omega * cal["lidar_x"]])
     cy, sy = np.cos(cal["lidar_yaw"]), np.sin(cal["lidar_yaw"])
     vs_l = np.column_stack([cy * vs_b[:, 0] + sy * vs_b[:, 1], -sy * vs_b[:, 0] + cy * vs_b[:, 1]])

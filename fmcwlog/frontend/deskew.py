@@ -15,15 +15,14 @@ Without it the improved method's ATE on the 30 s crowd sample log is 2.7 cm agai
 (``fmcwlog process sample_logs/crowd_30s.mcap -o OUT --method improved --set frontend.deskew=false``;
 ``tests/integration/test_ablation.py``).
 
-Speed, with results bit-for-bit those of the plain path (``tests/unit/frontend/test_deskew.py`` checks
-:func:`se2_exp` against scipy's matrix exponential, and the fast paths against the plain one):
-:func:`se2_exp` of one ``dt`` (the front end's predictions, three a sweep) runs on Python floats; over many it evaluates ``np.sinc``'s own
-operations in place and fills its output rather than stacking it; :func:`deskew` chains the
-exponential, the two compositions with the mount and the transform column by column instead of
-through three (N, 3) pose arrays: 174 µs a sweep of 1,079 points against 231 µs through the
-arrays, and one ``dt`` 2.1 against 28.7 µs (the 120 s corridor log, CPU time, best of 7
-alternating runs).
-"""
+Speed, with results bit-for-bit those of the plain path (``tests/unit/frontend/test_deskew.py``
+checks :func:`se2_exp` against scipy's matrix exponential, and the fast paths against the plain
+one): :func:`se2_exp` of one ``dt`` (the front end's predictions, three a sweep) runs on Python
+floats; over many it evaluates ``np.sinc``'s own operations in place and fills its output rather
+than stacking it; :func:`deskew` chains the exponential, the two compositions with the mount and the
+transform column by column instead of through three (N, 3) pose arrays: 174 µs a sweep of 1,079
+points against 231 µs through the arrays, and one ``dt`` 2.1 against 28.7 µs (the 120 s corridor
+log, CPU time, best of 7 alternating runs). """
 
 from __future__ import annotations
 

@@ -38,7 +38,7 @@ from ..io.inputs import LogInputs
 from ..io.mcap_log import LogReader
 from ..io.outputs import ProcessOutputs, odom_frame
 from ..io.topic_choice import choose_topics
-from ..types import WHEEL_ODOMETRY, Calibration, InputTopics
+from ..types import BASELINE, IMPROVED, WHEEL_ODOMETRY, Calibration, InputTopics
 from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest
 from .run_record import RunRecord
@@ -129,7 +129,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
                                              merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
             notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), _prior_name(topics), inputs.skipped_sweeps,
+            prior = _prior_name(topics, opts.methods, bool(runner.doppler))
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
                                      reader.contents.truncated, notes,
                                      {m: res.summary() for m, res in optimised.items()})
@@ -150,11 +151,21 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def _prior_name(topics: InputTopics) -> str:
-    """The motion prior, as ``run.json`` and the summary say it."""
+def _prior_name(topics: InputTopics, methods: Sequence[str], doppler: bool) -> str:
+    """The motion prior, as ``run.json`` and the summary say it: the odometry topic, else what each
+    method guessed each sweep's pose from, and why (:mod:`fmcwlog.frontend.scan_prior`)."""
     if topics.ticks:
         return f"wheel ticks ({topics.ticks})"
-    return f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
+    if topics.odom:
+        return f"odometry ({topics.odom})"
+    search = "scan-to-map correlative search"
+    if not doppler:
+        return f"{search} (no odometry, no wheel ticks, no Doppler in {topics.scan})"
+    if BASELINE not in methods:
+        return "Doppler ego-motion (no odometry, no wheel ticks)"
+    if IMPROVED not in methods:
+        return f"{search} (no odometry, no wheel ticks; the baseline does not use Doppler)"
+    return f"Doppler ego-motion for the improved method, {search} for the baseline (no odometry, no wheel ticks)"
 
 
 def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess | None) -> Backends:

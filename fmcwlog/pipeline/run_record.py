@@ -20,8 +20,9 @@ class RunRecord:
         ``fmcwlog report --log`` and a resumed batch check. options_sha256: the digest of every
         option (:func:`fmcwlog.pipeline.options.options_digest`).
     methods: the front ends run. scan_topic: the scan topic read. prior: the motion prior as the
-        summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)`` or ``none (constant
-        velocity)``). doppler: whether the scans carried Doppler velocity.
+        summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)``, or without either what
+        guessed each sweep's pose and why, e.g. ``scan-to-map correlative search (no odometry, no
+        wheel ticks, no Doppler in /scan)``). doppler: whether the scans carried Doppler velocity.
     mount: the lidar's pose in ``base_link`` (m, m, rad); calibration_source: where the calibration
         came from (a file's path, or the log's record).
     motion_sources: per method, where its twist came from and what the sensor checks found.

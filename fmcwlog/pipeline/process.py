@@ -128,7 +128,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             # 5. what the run found, said once in the summary and in run.json
             diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
                                              merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
-            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
+            notes = ([str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
+                     + _backend_notes(optimised))
             prior = _prior_name(topics, opts.methods, bool(runner.doppler))
             summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
@@ -222,6 +223,20 @@ def _optimise(backends: Backends, outputs: ProcessOutputs, grids: dict,
         grids[m] = res.grid
         write_json(folder / f"{m}_backend.json", res.to_json())
     return optimised
+
+
+def _backend_notes(optimised: dict[str, BackendResult]) -> list[str]:
+    """A warning per method whose back end would have made its map worse, with the numbers
+    (:mod:`fmcwlog.backend.consistency`): its outputs keep the front end's trajectory and map."""
+    notes = []
+    for m, res in optimised.items():
+        r = res.revisits
+        if res.kept_front_end and r is not None:
+            notes.append(f"{m}: with its {res.accepted} loop closures the back end placed revisited places "
+                         f"{r.optimised * 100:.1f} cm from where they were seen before, the front end alone "
+                         f"{r.frontend * 100:.1f} cm (mean over {r.points} points of {r.queries} keyframes): the "
+                         f"outputs keep the front end's trajectory and map")
+    return notes
 
 
 def _steps(steps: Iterator[SweepStep], log: Path) -> Iterator[SweepStep]:

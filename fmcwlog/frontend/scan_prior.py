@@ -1,15 +1,24 @@
 """The prior of a robot with neither odometry nor Doppler: the sweep matched against the local map.
 
-Not in the paper. With no wheel ticks, no Odometry topic and no usable Doppler, the only guess
-of where a sweep was taken is the last motion held (constant velocity). Matched from that guess,
-a bare corridor lets the ICP slide along its axis, and the slide becomes the next guess.
-Here, as in Cartographer's real-time correlative scan matcher, the guess is instead the best
-pose of a correlative search of the sweep against the local map (:mod:`fmcwlog.kernels.correlative`),
-in a window around the constant-velocity prediction; the ICP then refines it.
+Not in the paper. With no wheel ticks, no Odometry topic and no usable Doppler, the only guess of
+where a sweep was taken is the last motion held (constant velocity). Two things make that guess hold:
 
-The window covers what the prediction can be wrong by: the motion of one sweep interval at the
-last twist (a robot that stops, or starts to turn, leaves its prediction by that much) plus a
-floor, capped at the recovery search's window (whose grid it shares).
+- the hold (:class:`MidSweepHold`) is the motion between the *middles* of the last two sweeps, not
+  their stamps: taken between stamps, the deskew error of one sweep went into the next hold and the
+  speed swung from sweep to sweep until it diverged;
+- the guess is the best pose of a correlative search of the sweep against the local map
+  (:mod:`fmcwlog.kernels.correlative`, as Cartographer's real-time correlative scan matcher does), in
+  a window around the hold's prediction (:func:`search_window`); the ICP then refines it. Along a
+  bare corridor's axis, where the ICP's pairs on the walls say nothing, the search's score over the
+  whole window is what places the sweep, not whichever minimum the ICP meets first.
+
+Measured on six LiDAR-only logs (the simulator's corridor and crowd, 60 s seed 0 and 40 s seeds 1
+and 2, without ``/wheel/ticks`` and the clouds' ``velocity``; ``bench/lidar_only.py`` makes them):
+the improved front end's mean ATE 265 and 125 cm on the two 60 s logs with the hold between stamps
+and no search; 8.9 cm over the six with the hold between middles; 4.9 cm with the search as well
+(the baseline: 50.1 and 38.0 cm). The search costs about 2 ms a sweep on top (3.4 against 5.8 ms,
+the improved method, CPU), the grid shared with the recovery's search and rebuilt every
+:data:`GRID_REUSE_KEYFRAMES` keyframes (every keyframe: 10.7 ms, the same ATE within 0.3 cm).
 """
 
 from __future__ import annotations
@@ -23,6 +32,9 @@ from ..geometry import between, compose
 from ..kernels.correlative import CorrelativeParams
 from .deskew import se2_exp, sinc_of_float
 
+# The window covers what the prediction can be wrong by: the motion of one sweep interval at the
+# held twist (a robot that stops, or starts to turn, is that far from it) plus a floor, at most the
+# recovery search's window. Floors of 0.05 m / 1° and 0.2 m / 4° gave the same ATE within 1 cm.
 MIN_WINDOW_M = 0.1  # m: the window's floor in x and y
 MIN_WINDOW_DEG = 2.0  # deg: and in yaw
 GRID_REUSE_KEYFRAMES = 4  # the map's likelihood grid is rebuilt once this many keyframes have entered since

@@ -65,7 +65,7 @@ def main() -> None:
         segment.clear()
         reader = LogReader(log)
         topics = choose_topics(reader, None, None, None)
-        cal, _ = load_calibration(reader, log, topics.ticks is not None, None)
+        cal = load_calibration(reader, log, topics.scan, topics.ticks is not None, None).cal
         runner = LogRunner(["improved"], params, cal, topics, log)
         for _ in runner.run(LogInputs(reader, topics, cal)):
             pass

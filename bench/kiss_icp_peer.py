@@ -25,7 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from fmcwlog.geometry import compose, inverse
-from fmcwlog.io.calibration import parse_calibration
+from fmcwlog.io.calibration import load_calibration
 from fmcwlog.io.mcap_log import LogReader
 from fmcwlog.io.outputs import write_tum
 from fmcwlog.io.sweeps import sweep_from_pointcloud
@@ -38,7 +38,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     from kiss_icp.kiss_icp import KissICP
 
     reader = LogReader(log)
-    cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=False)
+    cal = load_calibration(reader, log, POINTS_TOPIC, False, None).cal  # the mount as process finds it
     period = 1.0 / float(reader.metadata.get(CALIBRATION_KEY, {}).get("scan_rate", 10.0))
     config = load_config(None)
     config.data.max_range, config.data.min_range = max_range, min_range

@@ -34,6 +34,14 @@ with the fmcwlog.calibration record, or --odom-topic (nav_msgs/Odometry) as the
 motion prior. Never reads /ground_truth/* or fmcwlog.world.
 
 \b
+The LiDAR's mount, from the first that gives it: --calibration FILE, the log's
+fmcwlog.calibration record, the log's /tf_static (or a /tf transform that never
+changes) from the scan's frame_id to --base-frame, else 0, 0, 0 with a warning.
+A record and tf that disagree are warned of, naming both. Wheel ticks need the
+wheels (the file or the record); without them /odom is the prior, with a warning.
+run.json's calibration_sources says where each came from.
+
+\b
 Writes to OUT_DIR:
   improved.tum, baseline.tum, wheel_odometry.tum   t x y z qx qy qz qw (evo)
   trajectories.parquet   a row per sweep and method: t, x, y, yaw, ICP iterations,
@@ -86,8 +94,12 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
 @click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys) "
-                   "to use instead of the log's record.")
+              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys, "
+                   "e.g. '{lidar_x: 0.35, lidar_y: 0.0, lidar_yaw: 0.0}'); its values go before the log's record "
+                   "and its tf.")
+@click.option("--base-frame", default="base_link", show_default=True,
+              help="The robot's frame: where neither --calibration nor the log's record gives the mount, it is "
+                   "the scan's frame_id in this frame through the log's /tf_static (and /tf where it never changes).")
 @click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
               help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
                    "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
@@ -111,7 +123,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+                base_frame, backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from ..pipeline.options import ProcessOptions  # here: --help needs none of the estimation stack
     from ..pipeline.params import params_from, params_toml
 
@@ -122,7 +134,7 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)
     opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
-                              backend=backend)
+                          backend=backend, base_frame=base_frame)
     if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
         if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
             console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "

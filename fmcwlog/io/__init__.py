@@ -9,8 +9,9 @@
 - ``sweeps``           a scan message decoded into a sweep, checked against physical bounds
 - ``prior_gates``      the motion prior's impossible jumps, caught as they are read
 - ``inputs``           what estimation reads, in time order: damaged messages skipped and counted
-- ``calibration``      the ``fmcwlog.calibration`` record (or a calibration file) as numbers
+- ``calibration``      the calibration: a file, the ``fmcwlog.calibration`` record, the tf, in that order
 - ``calibration_file`` calibration files, read and written
+- ``tf_tree``          the LiDAR's mount from a log's ``/tf_static`` (and ``/tf``), frames chained
 - ``carmen``           real 2-D laser logs (CARMEN, CMU course format), parsed
 - ``carmen_import``    those logs written as fmcwlog logs
 - ``outputs``          TUM, parquet, map_server maps, ``processed.mcap``

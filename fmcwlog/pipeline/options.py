@@ -10,6 +10,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..io.digest import file_sha256
+from ..io.topics import BASE_FRAME
 from ..types import METHOD_NAMES
 from .params import ProcessParams
 
@@ -26,8 +27,10 @@ class ProcessOptions:
         seconds of log (s), and once more at the end.
     backend: ``pose-graph`` (loop closures for every method, :mod:`fmcwlog.backend`; the outputs
         come from the optimised poses) or ``none`` (the front ends alone).
-    calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
-        the log's ``fmcwlog.calibration`` record.
+    calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) whose values go before
+        the log's ``fmcwlog.calibration`` record and its tf (:mod:`fmcwlog.io.calibration`).
+    base_frame: the robot's frame the mount is looked up in through the log's tf, from the scan's
+        ``header.frame_id`` (where neither the file nor the record gives the mount).
     params: every parameter of the run (:class:`fmcwlog.pipeline.params.ProcessParams`).
     """
 
@@ -39,6 +42,7 @@ class ProcessOptions:
     publish_period: float = 5.0
     calibration: Path | None = None
     backend: str = "pose-graph"
+    base_frame: str = BASE_FRAME
 
 
 BACKENDS = ("pose-graph", "none")
@@ -48,8 +52,11 @@ def options_digest(opts: ProcessOptions) -> str:
     """SHA-256 of everything that shapes the results: methods, topics, every parameter, the
     publishing period, the calibration file's bytes (``--calibration``: a file edited in place
     gives other results; the same bytes elsewhere, the same) and fmcwlog's version (new code
-    may give different results)."""
+    may give different results). The base frame counts where it is not ``base_link``, so that the
+    default's digest is that of runs made before the option."""
     doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
+    if doc["base_frame"] == BASE_FRAME:
+        del doc["base_frame"]
     if opts.calibration is not None:
         doc["calibration"] = _file_digest(Path(opts.calibration))
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()

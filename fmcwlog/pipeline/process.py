@@ -32,12 +32,12 @@ from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import ConfigError, LogError, MapSizeError
 from ..io.atomic import atomic_folder, reported_write_errors, write_json
-from ..io.calibration import load_calibration
+from ..io.calibration import LoadedCalibration, load_calibration
 from ..io.digest import file_sha256
 from ..io.inputs import LogInputs
 from ..io.mcap_log import LogReader
 from ..io.outputs import ProcessOutputs, odom_frame
-from ..io.topic_choice import choose_topics
+from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
 from ..types import WHEEL_ODOMETRY, Calibration, InputTopics
 from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest
@@ -93,7 +93,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
         # 1. the log: its topics, the calibration, how many sweeps
         reader = LogReader(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
-        cal, cal_source = load_calibration(reader, log, topics.ticks is not None, opts.calibration)
+        topics, loaded = calibration_and_topics(reader, log, topics, opts)
+        cal = loaded.cal
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                      reader.path, topics.scan, topics.prior or "none",
@@ -137,7 +138,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log.stat().st_size,
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
                 scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=cal.mount,
-                calibration_source=cal_source, motion_sources=diagnostics["motion_sources"],
+                calibration_source=loaded.sources.describe(), calibration_sources=loaded.sources.to_json(),
+                motion_sources=diagnostics["motion_sources"],
                 calibration_check=diagnostics.get("calibration_check"),
                 frames={name: odom_frame(name) for name in trajectories}, params=dataclasses.asdict(opts.params),
                 sweeps=summary.sweeps, skipped_sweeps=summary.skipped_sweeps,
@@ -148,6 +150,18 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 wall_seconds=round(time.perf_counter() - started, 3))
             write_json(tmp / "run.json", record.to_json(), sort_keys=True)
     return summary
+
+
+def calibration_and_topics(reader: LogReader, log: Path, topics: InputTopics,
+                           opts: ProcessOptions) -> tuple[InputTopics, LoadedCalibration]:
+    """The calibration (:func:`fmcwlog.io.calibration.load_calibration`: the file, the log's record,
+    its tf) and the topics to read with it: wheel ticks that nothing gives the wheels for give way
+    to the log's ``/odom`` (:func:`fmcwlog.io.topic_choice.odometry_instead_of_ticks`)."""
+    loaded = load_calibration(reader, log, topics.scan, topics.ticks is not None, opts.calibration, opts.base_frame)
+    if topics.ticks is not None and loaded.cal.wheels is None:
+        topics = odometry_instead_of_ticks(reader, topics, opts.ticks_topic is not None, opts.calibration)
+        loaded = dataclasses.replace(loaded, sources=dataclasses.replace(loaded.sources, wheels=None))
+    return topics, loaded
 
 
 def _prior_name(topics: InputTopics) -> str:

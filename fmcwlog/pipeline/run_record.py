@@ -22,8 +22,11 @@ class RunRecord:
     methods: the front ends run. scan_topic: the scan topic read. prior: the motion prior as the
         summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)`` or ``none (constant
         velocity)``). doppler: whether the scans carried Doppler velocity.
-    mount: the lidar's pose in ``base_link`` (m, m, rad); calibration_source: where the calibration
-        came from (a file's path, or the log's record).
+    mount: the lidar's pose in the base frame (m, m, rad); calibration_source: where the calibration
+        came from: one source (a file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
+        base_link->laser``, ``none (assumed 0, 0, 0)``) where it gave every value used, else
+        ``mount from ...; wheels from ...``; calibration_sources: the same per group (``mount``,
+        ``wheels``), :class:`fmcwlog.io.calibration.CalibrationSources`.
     motion_sources: per method, where its twist came from and what the sensor checks found.
     calibration_check: the calibration check's findings, where it ran (absent otherwise).
     frames: each trajectory's odometry frame. params: every parameter (``dataclasses.asdict`` of
@@ -49,6 +52,7 @@ class RunRecord:
     doppler: bool
     mount: tuple[float, float, float]
     calibration_source: str
+    calibration_sources: dict[str, str]
     motion_sources: dict[str, dict[str, Any]]
     frames: dict[str, str]
     params: dict[str, Any]
@@ -81,6 +85,7 @@ class RunRecord:
             "doppler": self.doppler,
             "mount": list(self.mount),
             "calibration_source": self.calibration_source,
+            "calibration_sources": self.calibration_sources,
             **diagnostics,
             "frames": self.frames,
             "params": self.params,

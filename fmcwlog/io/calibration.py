@@ -19,7 +19,7 @@ from .calibration_file import read_calibration_file
 from .topics import CALIBRATION_KEY
 
 if TYPE_CHECKING:
-    from .mcap_log import LogReader
+    from .logs import Log
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
@@ -107,7 +107,8 @@ def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: 
     values = values or {}
     if need_wheels:
         if not values:
-            raise CalibrationError(f"no {CALIBRATION_KEY} record, which wheel ticks need")
+            raise CalibrationError(f"no {CALIBRATION_KEY} record, which wheel ticks need: name a calibration file "
+                                   "with --calibration")
         r_left, r_right, track, ticks = (_number(values, k) for k in WHEEL_KEYS)
         if ticks != int(ticks):
             raise CalibrationError(f"calibration 'ticks_per_revolution' = {values['ticks_per_revolution']} "
@@ -121,7 +122,7 @@ def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: 
                        opt["scan_rate"] or None)
 
 
-def load_calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
+def load_calibration(reader: Log, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
     """The calibration to process ``log`` with: the calibration file at ``path`` if given, else the
     log's ``fmcwlog.calibration`` record; and where it came from (the path, or ``log record ...``).
 

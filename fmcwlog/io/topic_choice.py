@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from ..errors import LogError
 from ..types import InputTopics
-from .mcap_log import LogReader
+from .logs import Log
 from .topics import GROUND_TRUTH_PREFIX, POINTS_TOPIC, TICKS_TOPIC
 
 
-def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None = None,
+def choose_topics(reader: Log, scan: str | None = None, ticks: str | None = None,
                   odom: str | None = None) -> InputTopics:
     """The topics to read: those named, else ``/fmcw/points`` (or ``/scan``, or the log's only
     scan topic) with ``/wheel/ticks`` (or ``/odom``) as the motion prior."""
@@ -40,7 +40,7 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
     return InputTopics(scan, ticks, None)
 
 
-def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...], expected: str) -> None:
+def _check_named_topic(reader: Log, topic: str, type_names: tuple[str, ...], expected: str) -> None:
     """An input topic (scan or motion prior) must exist, be of one of ``type_names`` (any package's:
     the fields are checked as the messages are read) and not be ground truth, which estimation never
     reads (``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""

@@ -7,7 +7,7 @@ as an MCAP log is, without converting it:
 - A topic's type is its ROS 2 name: rosbags names a ROS 1 ``sensor_msgs/PointCloud2``
   ``sensor_msgs/msg/PointCloud2``.
 - Messages decode with the definitions the bag holds (a ROS 1 bag holds every type's; a rosbag2
-  bag from version 8 on, or with MCAP storage, holds them too); a type the bag does not define
+  bag recorded from ROS 2 Iron on, or with MCAP storage, holds them too); a type the bag does not define
   decodes as ROS 2 Humble's (ROS 1 Noetic's in a ROS 1 bag) or as the log format's own
   (``fmcwlog_msgs``). Decoded messages have mcap_ros2's field names (``header.stamp.sec`` and
   ``nanosec`` in a ROS 1 bag too, whose header also has its ``seq``); a ``uint8[]`` or numeric

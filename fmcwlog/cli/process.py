@@ -36,7 +36,7 @@ motion prior. Never reads /ground_truth/* or fmcwlog.world.
 \b
 LOG: an MCAP log, a rosbag2 folder (sqlite3 or MCAP storage; or its .db3 file) or a
 ROS 1 .bag, read as recorded. A bag holds no fmcwlog.calibration record: wheel ticks
-need --calibration FILE (see 'fmcwlog calibrate --help' for its keys).
+need --calibration FILE (the record's keys in YAML; docs/log-format.md).
 
 \b
 Writes to OUT_DIR:

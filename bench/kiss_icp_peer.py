@@ -26,7 +26,7 @@ import pyarrow.parquet as pq
 
 from fmcwlog.geometry import compose, inverse
 from fmcwlog.io.calibration import load_calibration
-from fmcwlog.io.mcap_log import LogReader
+from fmcwlog.io.logs import open_log
 from fmcwlog.io.outputs import write_tum
 from fmcwlog.io.sweeps import sweep_from_pointcloud
 from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
@@ -37,7 +37,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
 
-    reader = LogReader(log)
+    reader = open_log(log)
     cal = load_calibration(reader, log, POINTS_TOPIC, False, None).cal  # the mount as process finds it
     period = 1.0 / float(reader.metadata.get(CALIBRATION_KEY, {}).get("scan_rate", 10.0))
     config = load_config(None)
@@ -63,7 +63,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     write_tum(out_dir / "kiss_icp.tum", stamps_a, np.asarray(poses))
     pq.write_table(pa.table({"method": ["kiss_icp"] * len(ms), "stamp_ns": stamps_a, "ms": np.asarray(ms)}),
                    out_dir / "trajectories.parquet")
-    info = {"log": str(Path(log).resolve()), "sweeps": len(ms), "scan_topic": POINTS_TOPIC, "prior": "none (KISS-ICP)",
+    info = {"log": str(reader.path.resolve()), "sweeps": len(ms), "scan_topic": POINTS_TOPIC, "prior": "none (KISS-ICP)",
             "doppler": False, "params": {"kiss_icp": config.model_dump()}, "stamp_shift_s": 0.5 * period}
     # report checks the sweeps against the log: the shifted stamps are the sweeps' own plus half a period
     (out_dir / "run.json").write_text(json.dumps(info, indent=2, default=str))

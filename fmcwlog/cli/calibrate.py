@@ -35,7 +35,7 @@ the file. Units: metres and radians, the record's keys (docs/log-format.md).
 
 
 @click.command("calibrate", help=_CALIBRATE_HELP)
-@click.argument("log", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("log", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Calibration file to write (.yaml).")
 @click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,

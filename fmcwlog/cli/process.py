@@ -42,6 +42,12 @@ wheels (the file or the record); without them /odom is the prior, with a warning
 run.json's calibration_sources says where each came from.
 
 \b
+LOG: an MCAP log, a rosbag2 folder (sqlite3 or MCAP storage; or its .db3 file) or a
+ROS 1 .bag, read as recorded. A bag holds no fmcwlog.calibration record: its mount
+comes from tf, and wheel ticks need --calibration FILE (the record's keys in YAML;
+docs/log-format.md), else /odom is the prior.
+
+\b
 Writes to OUT_DIR:
   improved.tum, baseline.tum, wheel_odometry.tum   t x y z qx qy qz qw (evo)
   trajectories.parquet   a row per sweep and method: t, x, y, yaw, ICP iterations,
@@ -64,7 +70,8 @@ output's run.json (--config OUT/run.json).
 in it), never a folder holding anything else or the LOG.
 
 \b
-Many logs: give several LOGs, or folders (searched for *.mcap, sub-folders too).
+Many logs: give several LOGs, or folders (searched for *.mcap, *.bag and rosbag2
+folders, sub-folders too).
 Each log's results go to OUT_DIR/<its name>/, the same files as a run on that log
 alone, and OUT_DIR/batch.json records what became of every log. Each log runs in a
 worker process of its own, --jobs at a time (default: every core), and a log that
@@ -134,8 +141,10 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)
     opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
-                          backend=backend, base_frame=base_frame)
-    if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
+                              backend=backend, base_frame=base_frame)
+    from ..io.logs import is_rosbag2_folder
+
+    if len(logs) == 1 and (not logs[0].is_dir() or is_rosbag2_folder(logs[0])) and ray_address is None:
         if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
             console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
                             "here, in this process, without them")
@@ -149,7 +158,7 @@ def _check_arguments(logs: tuple[Path, ...], out_dir: Path | None, ray_address: 
     if ray_address not in (None, "local") and Path(ray_address).exists():
         raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
     if not logs:
-        raise UserError("missing LOG: the .mcap file(s) or folder(s) to process")
+        raise UserError("missing LOG: the log(s) (MCAP, rosbag2 folder, ROS 1 .bag) or folder(s) to process")
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
 

@@ -41,7 +41,6 @@ class LogSource(MessageSource, Protocol):
 
     def damage_note(self) -> str: ...
 
-
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
 OPTIONAL_KEYS = ("doppler_resolution", "range_sigma", "max_range", "scan_rate")

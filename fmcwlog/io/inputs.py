@@ -34,7 +34,8 @@ import numpy as np
 
 from ..errors import LogError
 from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, TicksInput
-from .mcap_log import LogReader, UndecodableMessage
+from .logs import Log
+from .mcap_log import UndecodableMessage
 from .messages import odometry_pose_twist
 from .prior_gates import PoseGate, TickGate
 from .sweeps import MAX_ODOM_POSITION, MAX_SPEED, InputLimits, Rejected, header_stamp, sweep_from_laserscan, sweep_from_pointcloud
@@ -87,7 +88,7 @@ class LogInputs:
     scan topic or the prior topic, and as soon as the two clocks are found far apart.
     """
 
-    def __init__(self, reader: LogReader, topics: InputTopics, cal: Calibration):
+    def __init__(self, reader: Log, topics: InputTopics, cal: Calibration):
         self.reader = reader
         self.path = reader.path
         self.topics = topics
@@ -125,7 +126,8 @@ class LogInputs:
             try:
                 m = self.reader.decode(schema, channel, rec)
                 ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
-                if rec.log_time != ns:  # the log format has them equal; estimation goes by header.stamp
+                if rec.log_time != ns and not self.reader.receive_times:  # the log format has them equal; a
+                    # bag's are receive times. Estimation goes by header.stamp
                     stream.off_log_time += 1
                     stream.first_off_log_time = stream.first_off_log_time or \
                         f"log_time {rec.log_time * 1e-9:.3f} s, header.stamp {ns * 1e-9:.3f} s"

@@ -9,11 +9,11 @@ from pathlib import Path
 from ..errors import LogError
 from ..types import InputTopics
 from .calibration import wheels_hint, wheels_missing
-from .mcap_log import LogReader
+from .logs import Log
 from .topics import GROUND_TRUTH_PREFIX, POINTS_TOPIC, TICKS_TOPIC
 
 
-def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None = None,
+def choose_topics(reader: Log, scan: str | None = None, ticks: str | None = None,
                   odom: str | None = None) -> InputTopics:
     """The topics to read: those named, else ``/fmcw/points`` (or ``/scan``, or the log's only
     scan topic) with ``/wheel/ticks`` (or ``/odom``) as the motion prior."""
@@ -45,7 +45,7 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
     return InputTopics(scan, ticks, None)
 
 
-def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...], expected: str) -> None:
+def _check_named_topic(reader: Log, topic: str, type_names: tuple[str, ...], expected: str) -> None:
     """An input topic (scan or motion prior) must exist, be of one of ``type_names`` (any package's:
     the fields are checked as the messages are read) and not be ground truth, which estimation never
     reads (``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
@@ -58,7 +58,7 @@ def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...
         raise LogError(f"{path}: {topic} is {topics[topic] or 'of no known type'}, not a {expected}")
 
 
-def odometry_instead_of_ticks(reader: LogReader, topics: InputTopics, ticks_named: bool,
+def odometry_instead_of_ticks(reader: Log, topics: InputTopics, ticks_named: bool,
                               calibration_file: Path | None = None) -> InputTopics:
     """Wheel ticks that nothing gives the wheels' geometry for (a log converted by a tool that keeps the
     topics and drops fmcwlog's metadata): the log's ``/odom`` as the motion prior instead, said in one

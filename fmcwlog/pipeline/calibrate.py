@@ -20,7 +20,7 @@ from ..io.atomic import check_output_file, reported_write_errors
 from ..io.calibration import CalibrationSources, load_calibration, wheels_hint, wheels_missing
 from ..io.calibration_file import write_calibration_file
 from ..io.inputs import LogInputs
-from ..io.mcap_log import LogReader
+from ..io.logs import Log, open_log
 from ..io.topic_choice import choose_topics
 from ..types import Calibration, InputTopics
 from .options import ProcessOptions
@@ -57,7 +57,7 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
         raise OutputError(f"{output}: no folder {output.parent} to write it in")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        reader = LogReader(log)
+        reader = open_log(log)
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
         if topics.ticks is None:
             raise LogError(f"{log}: no wheel ticks: the wheels' radii and the mount are estimated against them")
@@ -91,7 +91,7 @@ def _starting_point(sources: CalibrationSources) -> str:
         f"mount of {sources.mount} and the wheels of {sources.wheels}"
 
 
-def _self_calibrate(reader: LogReader, topics: InputTopics, cal: Calibration,
+def _self_calibrate(reader: Log, topics: InputTopics, cal: Calibration,
                     opts: ProcessOptions) -> tuple[CalibrationCheck, set[str], int, list[str]]:
     """The calibration check over the whole log, repeated with the values it adopts
     (:func:`fmcwlog.frontend.self_calibration.adopt`) until they no longer move (at most

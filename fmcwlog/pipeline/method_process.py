@@ -67,7 +67,7 @@ from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
 from ..io.inputs import LogInputs
-from ..io.mcap_log import LogReader
+from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
 from ..kernels.occupancy import OccupancyGrid
 from ..types import Calibration, InputTopics, SweepResult
@@ -352,7 +352,7 @@ def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
     keep_freed_memory()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the log's warnings are the parent's, which reads it too
-        reader = LogReader(task.log)
+        reader = open_log(task.log)
     runner = LogRunner(task.methods, task.params, task.cal, task.topics, reader.path)
     backends = {m: PoseGraphBackend(task.params.backend, np.asarray(task.cal.mount), task.params.map_resolution)
                 for m in task.methods} if task.backend else {}

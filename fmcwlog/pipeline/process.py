@@ -2,7 +2,7 @@
 
 The path of a sweep, in one place (:func:`process` is the recipe, step by step):
 
-    LogReader -> LogInputs (decoded, checked sweeps, ticks, odometry; :mod:`fmcwlog.io.inputs`)
+    open_log -> LogInputs (decoded, checked sweeps, ticks, odometry; :mod:`fmcwlog.io.inputs`)
       -> LogRunner (each method's :class:`~fmcwlog.frontend.methods.FrontEnd` step, with the
          motion prior; :mod:`fmcwlog.pipeline.runner`) -> SweepResult
       -> ProcessOutputs (trajectories, maps, processed.mcap; :mod:`fmcwlog.io.outputs`)
@@ -33,9 +33,9 @@ from ..backend import BackendResult, PoseGraphBackend
 from ..errors import ConfigError, LogError, MapSizeError
 from ..io.atomic import atomic_folder, reported_write_errors, write_json
 from ..io.calibration import LoadedCalibration, load_calibration
-from ..io.digest import file_sha256
+from ..io.digest import log_sha256, log_size
 from ..io.inputs import LogInputs
-from ..io.mcap_log import LogReader
+from ..io.logs import Log, open_log
 from ..io.outputs import ProcessOutputs, odom_frame
 from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
 from ..types import WHEEL_ODOMETRY, Calibration, InputTopics
@@ -91,7 +91,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # 1. the log: its topics, the calibration, how many sweeps
-        reader = LogReader(log)
+        reader = open_log(log)  # an MCAP log, a rosbag2 folder or a ROS 1 bag
+        log = reader.path  # a rosbag2 folder for its .db3
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
         topics, loaded = calibration_and_topics(reader, log, topics, opts)
         cal = loaded.cal
@@ -101,7 +102,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                      total if total is not None else "an unknown number of", *cal.mount)
         with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp, \
                 _methods_elsewhere(log, opts, cal, topics, jobs) as elsewhere:
-            digest = file_sha256(log)  # report refuses a --log whose bytes differ
+            digest = log_sha256(log)  # report refuses a --log whose bytes differ
             # 2. the front ends here (and the rest in the child), the outputs, the back ends
             here = tuple(m for m in opts.methods if elsewhere is None or m not in elsewhere.methods)
             runner = LogRunner(here, opts.params, cal, topics, reader.path)
@@ -135,7 +136,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                                      reader.contents.truncated, notes,
                                      {m: res.summary() for m, res in optimised.items()})
             record = RunRecord(
-                fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log.stat().st_size,
+                fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log_size(log),
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
                 scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=cal.mount,
                 calibration_source=loaded.sources.describe(), calibration_sources=loaded.sources.to_json(),
@@ -152,7 +153,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     return summary
 
 
-def calibration_and_topics(reader: LogReader, log: Path, topics: InputTopics,
+def calibration_and_topics(reader: Log, log: Path, topics: InputTopics,
                            opts: ProcessOptions) -> tuple[InputTopics, LoadedCalibration]:
     """The calibration (:func:`fmcwlog.io.calibration.load_calibration`: the file, the log's record,
     its tf) and the topics to read with it: wheel ticks that nothing gives the wheels for give way

@@ -29,6 +29,8 @@ class ProcessOptions:
     calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
         the log's ``fmcwlog.calibration`` record.
     params: every parameter of the run (:class:`fmcwlog.pipeline.params.ProcessParams`).
+    keep_going: process a log that lost more than half its sweeps as damaged
+        (:data:`fmcwlog.io.inputs.MOST_SKIPPED_SHARE`) instead of refusing it.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -39,6 +41,7 @@ class ProcessOptions:
     publish_period: float = 5.0
     calibration: Path | None = None
     backend: str = "pose-graph"
+    keep_going: bool = False
 
 
 BACKENDS = ("pose-graph", "none")
@@ -48,8 +51,10 @@ def options_digest(opts: ProcessOptions) -> str:
     """SHA-256 of everything that shapes the results: methods, topics, every parameter, the
     publishing period, the calibration file's bytes (``--calibration``: a file edited in place
     gives other results; the same bytes elsewhere, the same) and fmcwlog's version (new code
-    may give different results)."""
+    may give different results). Not ``keep_going``: it decides whether a run writes its results,
+    never what they are."""
     doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
+    del doc["keep_going"]
     if opts.calibration is not None:
         doc["calibration"] = _file_digest(Path(opts.calibration))
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()

@@ -66,6 +66,11 @@ range (a value outside it is refused); --config takes it back, and so does a pre
 output's run.json (--config OUT/run.json).
 
 \b
+A damaged message is skipped and counted (run.json). More than 5 % of the sweeps
+skipped is said on the last line, in run.json and in the report's header; more than
+half is an error, and no OUT_DIR (a failed log in a batch), unless --keep-going.
+
+\b
 --force replaces OUT_DIR only if fmcwlog made it (its .fmcwlog-output lists everything
 in it), never a folder holding anything else or the LOG.
 
@@ -111,6 +116,10 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
                    "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
+@click.option("--keep-going", is_flag=True,
+              help="Process a log even if more than half of its sweeps had to be skipped as damaged (else it is an "
+                   "error, and a failed log in a batch); the share skipped is said on the last line, in run.json "
+                   "and in the report. More than 5 % is always said so.")
 @click.option("--show-config", is_flag=True,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
                    "--config takes it back), and exit.")
@@ -130,7 +139,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                base_frame, backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+                base_frame, backend, force, keep_going, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
     from ..pipeline.options import ProcessOptions  # here: --help needs none of the estimation stack
     from ..pipeline.params import params_from, params_toml
 
@@ -141,7 +150,7 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)
     opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
-                              backend=backend, base_frame=base_frame)
+                              backend=backend, base_frame=base_frame, keep_going=keep_going)
     from ..io.logs import is_rosbag2_folder
 
     if len(logs) == 1 and (not logs[0].is_dir() or is_rosbag2_folder(logs[0])) and ray_address is None:
@@ -163,8 +172,10 @@ def _check_arguments(logs: tuple[Path, ...], out_dir: Path | None, ray_address: 
         raise UserError("missing -o/--output: the folder to write")
 
 
-def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None = None) -> None:
-    """One log, here (``process`` and ``run``): a progress bar with sweeps/s, then times, closures, warnings."""
+def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None = None) -> str | None:
+    """One log, here (``process`` and ``run``): a progress bar with sweeps/s, then times, closures, warnings.
+    The share of sweeps skipped, where more than 5 %, is the last line; it is returned for ``run``'s own last
+    line."""
     import time
 
     from ..pipeline.process import process
@@ -194,8 +205,12 @@ def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, job
         console.info(f"  {m:9s} back end: {b['closures_accepted']} loop closures accepted of {b['closures_verified']} "
                      f"verified, {b['closures_proposed']} proposed; {b['seconds']:.1f} s")
     for w in summary.warnings:
-        console.warning(w)
+        if w != summary.many_skipped:
+            console.warning(w)
     console.info(f"wrote {summary.out_dir}/")
+    if summary.many_skipped:
+        console.warning(summary.many_skipped)
+    return summary.many_skipped
 
 
 def _process_many(logs: list[Path], out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None,

@@ -97,7 +97,8 @@ class Evaluation:
 # what report reads of run.json, and the type each must have when present (peers write their own run.json)
 _RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
                                           "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
-                                          "doppler": (bool, type(None)), "prior": (str, type(None))}
+                                          "doppler": (bool, type(None)), "prior": (str, type(None)),
+                                          "many_skipped_sweeps": (dict,)}
 _PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
 
 
@@ -247,8 +248,10 @@ def params_digest(params: Any) -> str | None:
 
 def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str]) -> dict[str, Any]:
     """What was run: versions, date (UTC), log, scenario and seed (from the log's ``fmcwlog.sim``
-    record, absent from a real log), methods and the parameters' digest."""
+    record, absent from a real log), methods and the parameters' digest; and, only where the run
+    skipped more than 5 % of the log's sweeps, how many and why (run.json's ``many_skipped_sweeps``)."""
     seed = sim.get("seed")
+    skipped = run.get("many_skipped_sweeps")
     return {
         "fmcwlog_version_processed": run.get("fmcwlog_version"),
         "fmcwlog_version_report": __version__,
@@ -259,6 +262,7 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
         "methods": list(run.get("methods") or [m for m in present if m in METHOD_NAMES]),
         "trajectories": list(present),
         "params_sha256_12": params_digest(run.get("params")),
+        **({"many_skipped_sweeps": skipped} if skipped is not None else {}),
     }
 
 

@@ -14,7 +14,9 @@ whose stamp jumps more than :data:`MAX_CLOCK_GAP_S` ahead when the next message
 comes back before it (held back until then: otherwise one damaged stamp would
 make every later message go backwards); a jump the next message confirms is a
 gap in the recording. A log with nothing usable left is one :class:`LogError`
-saying what was skipped. What cannot be skipped away is refused: a motion prior
+saying what was skipped; one that lost more than :data:`MANY_SKIPPED_SHARE` of its
+sweeps is said, with the main reason (:meth:`LogInputs.skipped_share`), and one
+that lost more than :data:`MOST_SKIPPED_SHARE` is for the caller to refuse. What cannot be skipped away is refused: a motion prior
 whose clock is far from the scans' (:data:`MAX_CLOCK_GAP_S`), since every sweep
 would get an extrapolated prior.
 
@@ -40,6 +42,13 @@ from .messages import odometry_pose_twist
 from .prior_gates import PoseGate, TickGate
 from .sweeps import MAX_ODOM_POSITION, MAX_SPEED, InputLimits, Rejected, header_stamp, sweep_from_laserscan, sweep_from_pointcloud
 
+# Shares of a log's sweeps skipped beyond which a run says so where it is seen (the last line,
+# run.json, the report's header), and beyond which it is no measurement of the log at all (refused
+# unless the caller goes on): a few damaged sweeps are the recording's bad luck; more than one in
+# twenty, a writer or a sensor that the checks do not fit, whose results must not pass unremarked.
+MANY_SKIPPED_SHARE = 0.05
+MOST_SKIPPED_SHARE = 0.5
+
 # What each kind of skipped message is, for the warnings (count, topic and bound filled in).
 _SKIP_TEXT = {
     "undecodable": "{n} messages on {topic} that do not decode",
@@ -61,6 +70,35 @@ _SKIP_TEXT = {
     "odom_invalid": "{n} odometry messages on {topic} with a NaN, infinite or absurd pose",
     "odom_jump": "{n} odometry messages on {topic} whose pose jumps farther than {max_speed:g} m/s allows",
 }
+
+
+@dataclass(frozen=True)
+class SkippedShare:
+    """The sweeps a log lost: ``skipped`` of ``read`` on ``topic``; ``kind``, the kind most of them
+    were skipped as, and ``reason``, its warning (count, bound and first case)."""
+
+    topic: str
+    skipped: int
+    read: int
+    kind: str
+    reason: str
+
+    @property
+    def share(self) -> float:
+        return self.skipped / self.read
+
+    @property
+    def many(self) -> bool:
+        return self.share > MANY_SKIPPED_SHARE
+
+    @property
+    def most(self) -> bool:
+        return self.share > MOST_SKIPPED_SHARE
+
+    def text(self, verdict: str) -> str:
+        """``540 of 600 sweeps on /scan skipped (90.0 %, VERDICT); the main reason: ...``"""
+        return (f"{self.skipped} of {self.read} sweeps on {self.topic} skipped ({100 * self.share:.1f} %, {verdict}); "
+                f"the main reason: {self.reason}")
 
 
 @dataclass
@@ -113,6 +151,14 @@ class LogInputs:
     @property
     def skipped_sweeps(self) -> int:
         return sum(self.scan.skipped.values())
+
+    def skipped_share(self) -> SkippedShare | None:
+        """The share of the scan topic's sweeps skipped, and why most were (None: none was)."""
+        if not self.scan.skipped:
+            return None
+        kind = max(self.scan.skipped, key=lambda k: self.scan.skipped[k])  # ties: the first seen
+        read = self.scan.accepted + self.skipped_sweeps
+        return SkippedShare(self.scan.topic, self.skipped_sweeps, read, kind, self._skip_text(self.scan, kind))
 
     @property
     def repeated_prior_stamps(self) -> int:
@@ -238,6 +284,14 @@ class LogInputs:
                            f"(first sweep at {s.first_ns * 1e-9:.3f} s, motion prior from {p.first_ns * 1e-9:.3f} s "
                            f"to {p.last_ns * 1e-9:.3f} s): the motion prior would never cover a sweep")
 
+    def _skip_text(self, stream: _Stream, kind: str) -> str:
+        """The warning for one kind of skipped message: count, topic, bound and (but for a repeated
+        stamp, which is its own case) the first case."""
+        values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
+                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
+        text = _SKIP_TEXT[kind].format(n=stream.skipped[kind], topic=stream.topic, **values)
+        return text if kind.endswith("_repeated") else f"{text} (first: {stream.first_detail[kind]})"
+
     def _skipped_text(self, stream: _Stream) -> str:
         if not stream.skipped:
             return ""
@@ -254,18 +308,13 @@ class LogInputs:
 
     def notes(self) -> list[str]:
         """One warning per kind of skipped message, with its count and the first case."""
-        values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
-                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
         out = []
         for stream in (self.scan, self.prior):
             if stream is None:
                 continue
-            for kind, n in stream.skipped.items():
-                text = _SKIP_TEXT[kind].format(n=n, topic=stream.topic, **values)
-                if kind.endswith("_repeated"):
-                    out.append(text)
-                else:
-                    out.append(f"skipped {text} (first: {stream.first_detail[kind]})")
+            for kind in stream.skipped:
+                text = self._skip_text(stream, kind)
+                out.append(text if kind.endswith("_repeated") else f"skipped {text}")
         for stream in (self.scan, self.prior):
             if stream is not None and stream.off_log_time:
                 out.append(f"{stream.off_log_time} messages on {stream.topic} have a log_time other than their "

@@ -32,6 +32,8 @@ class ProcessOptions:
     base_frame: the robot's frame the mount is looked up in through the log's tf, from the scan's
         ``header.frame_id`` (where neither the file nor the record gives the mount).
     params: every parameter of the run (:class:`fmcwlog.pipeline.params.ProcessParams`).
+    keep_going: process a log that lost more than half its sweeps as damaged
+        (:data:`fmcwlog.io.inputs.MOST_SKIPPED_SHARE`) instead of refusing it.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -43,6 +45,7 @@ class ProcessOptions:
     calibration: Path | None = None
     backend: str = "pose-graph"
     base_frame: str = BASE_FRAME
+    keep_going: bool = False
 
 
 BACKENDS = ("pose-graph", "none")
@@ -53,10 +56,12 @@ def options_digest(opts: ProcessOptions) -> str:
     publishing period, the calibration file's bytes (``--calibration``: a file edited in place
     gives other results; the same bytes elsewhere, the same) and fmcwlog's version (new code
     may give different results). The base frame counts where it is not ``base_link``, so that the
-    default's digest is that of runs made before the option."""
+    default's digest is that of runs made before the option. Not ``keep_going``: it decides whether a
+    run writes its results, never what they are."""
     doc = {"fmcwlog_version": __version__, **dataclasses.asdict(opts)}
     if doc["base_frame"] == BASE_FRAME:
         del doc["base_frame"]
+    del doc["keep_going"]
     if opts.calibration is not None:
         doc["calibration"] = _file_digest(Path(opts.calibration))
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()

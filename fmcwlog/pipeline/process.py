@@ -34,7 +34,7 @@ from ..errors import ConfigError, LogError, MapSizeError
 from ..io.atomic import atomic_folder, reported_write_errors, write_json
 from ..io.calibration import LoadedCalibration, load_calibration
 from ..io.digest import log_sha256, log_size
-from ..io.inputs import LogInputs
+from ..io.inputs import MANY_SKIPPED_SHARE, MOST_SKIPPED_SHARE, LogInputs, SkippedShare
 from ..io.logs import Log, open_log
 from ..io.outputs import ProcessOutputs, odom_frame
 from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
@@ -65,6 +65,7 @@ class ProcessSummary:
     truncated: bool
     warnings: list[str]
     backend: dict[str, dict] = field(default_factory=dict)  # per method: BackendResult.summary()
+    many_skipped: str | None = None  # more than MANY_SKIPPED_SHARE of the sweeps skipped: how many, why
 
 
 def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
@@ -80,7 +81,10 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     run in a child process (:mod:`fmcwlog.pipeline.method_process`). The outputs are the same bytes
     but the timings (the parquet's ``ms``, ``run.json``'s ``wall_seconds``, ``ms_per_sweep_median``
     and the back ends' ``seconds``). Raises :class:`~fmcwlog.errors.FmcwlogError` for input it
-    cannot use, leaving ``out_dir`` as it was.
+    cannot use, leaving ``out_dir`` as it was; so is a log that lost more than half its sweeps as
+    damaged (:data:`~fmcwlog.io.inputs.MOST_SKIPPED_SHARE`), unless ``opts.keep_going``. A run
+    that lost more than :data:`~fmcwlog.io.inputs.MANY_SKIPPED_SHARE` says so in
+    ``summary.many_skipped``, the last of its warnings, and in run.json's ``many_skipped_sweeps``.
     """
     opts = opts or ProcessOptions()
     if opts.backend not in BACKENDS:
@@ -119,6 +123,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 # 3. every sweep: front ends -> outputs and back ends
                 searches = _feed(opts.methods, _steps(steps, log), outputs, backends, grids,
                                  lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
+                skipped = _skipped_share(log, inputs, opts.keep_going)
                 # 4. the back ends' last optimisation replaces the front ends' poses and maps
                 optimised = _optimise(backends, outputs, grids, tmp)
                 if elsewhere is not None:
@@ -131,10 +136,11 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
                                              merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
             notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
+            many_skipped = _many_skipped_line(skipped)
             summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), _prior_name(topics), inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
-                                     reader.contents.truncated, notes,
-                                     {m: res.summary() for m, res in optimised.items()})
+                                     reader.contents.truncated, notes + ([many_skipped] if many_skipped else []),
+                                     {m: res.summary() for m, res in optimised.items()}, many_skipped)
             record = RunRecord(
                 fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log_size(log),
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
@@ -148,7 +154,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 truncated_log=summary.truncated, warnings=summary.warnings, ms_per_sweep_median=summary.ms_median,
                 correlative_searches={m: {"run": n, "kept": k, "sweeps": summary.sweeps} for m, (n, k) in searches.items()},
                 backend={"kind": opts.backend, **summary.backend},
-                wall_seconds=round(time.perf_counter() - started, 3))
+                wall_seconds=round(time.perf_counter() - started, 3),
+                many_skipped_sweeps=_many_skipped_record(skipped, opts.keep_going))
             write_json(tmp / "run.json", record.to_json(), sort_keys=True)
     return summary
 
@@ -163,6 +170,37 @@ def calibration_and_topics(reader: Log, log: Path, topics: InputTopics,
         topics = odometry_instead_of_ticks(reader, topics, opts.ticks_topic is not None, opts.calibration)
         loaded = dataclasses.replace(loaded, sources=dataclasses.replace(loaded.sources, wheels=None))
     return topics, loaded
+
+
+def _skipped_share(log: Path, inputs: LogInputs, keep_going: bool) -> SkippedShare | None:
+    """The share of sweeps the log lost, where it is more than :data:`MANY_SKIPPED_SHARE` (else None);
+    more than :data:`MOST_SKIPPED_SHARE` is refused, unless ``keep_going``: the results would be
+    those of the few sweeps left, not of the log."""
+    skipped = inputs.skipped_share()
+    if skipped is None or not skipped.many:
+        return None
+    if skipped.most and not keep_going:
+        raise LogError(f"{log}: " + skipped.text(f"more than half: not processed, as the results would not be the "
+                                                 f"log's; --keep-going processes the {skipped.read - skipped.skipped} left"))
+    return skipped
+
+
+def _many_skipped_line(skipped: SkippedShare | None) -> str | None:
+    """The run's last word where it lost many sweeps: how many, of how many, and why."""
+    if skipped is None:
+        return None
+    over = "more than half, processed as --keep-going asks" if skipped.most else \
+        f"more than {100 * MANY_SKIPPED_SHARE:g} %"
+    return skipped.text(f"{over}: the results stand on the {skipped.read - skipped.skipped} left")
+
+
+def _many_skipped_record(skipped: SkippedShare | None, keep_going: bool) -> dict[str, Any] | None:
+    """run.json's ``many_skipped_sweeps``: present only where more than MANY_SKIPPED_SHARE were skipped."""
+    if skipped is None:
+        return None
+    return {"skipped": skipped.skipped, "read": skipped.read, "share": round(skipped.share, 6),
+            "limit": MANY_SKIPPED_SHARE, "refused_above": MOST_SKIPPED_SHARE, "kept_going": skipped.most and keep_going,
+            "main_kind": skipped.kind, "main_reason": skipped.reason}
 
 
 def _prior_name(topics: InputTopics) -> str:

@@ -39,6 +39,10 @@ class RunRecord:
     correlative_searches: per method, ``run`` (searches run), ``kept`` (matches they replaced), ``sweeps``.
     backend: ``kind`` (``pose-graph`` or ``none``) and, per method, the back end's summary.
     wall_seconds: the run's wall-clock time (s).
+    many_skipped_sweeps: only where more than ``limit`` (5 %) of the log's sweeps were skipped as
+        damaged: ``skipped`` of ``read``, their ``share``, the ``limit``, the share above which a run
+        is refused (``refused_above``), whether it went on past it (``kept_going``), and the kind most
+        of them were skipped as (``main_kind``) with its warning (``main_reason``).
     """
 
     fmcwlog_version: str
@@ -67,12 +71,14 @@ class RunRecord:
     backend: dict[str, Any]
     wall_seconds: float
     calibration_check: CalibrationCheck | None = field(default=None)
+    many_skipped_sweeps: dict[str, Any] | None = field(default=None)
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
         diagnostics: dict[str, Any] = {"motion_sources": self.motion_sources}
         if self.calibration_check is not None:
             diagnostics["calibration_check"] = self.calibration_check.to_json()
+        skipped = {"many_skipped_sweeps": self.many_skipped_sweeps} if self.many_skipped_sweeps is not None else {}
         return {
             "fmcwlog_version": self.fmcwlog_version,
             "log": self.log,
@@ -93,6 +99,7 @@ class RunRecord:
             "skipped_sweeps": self.skipped_sweeps,
             "repeated_prior_stamps": self.repeated_prior_stamps,
             "skipped_inputs": self.skipped_inputs,
+            **skipped,
             "truncated_log": self.truncated_log,
             "warnings": self.warnings,
             "ms_per_sweep_median": self.ms_per_sweep_median,

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import __version__
+from ..io.clouds import CloudReading, parse_time_field
 from ..io.digest import file_sha256
 from ..types import METHOD_NAMES
 from .params import ProcessParams
@@ -29,6 +30,8 @@ class ProcessOptions:
     calibration: a calibration file (:mod:`fmcwlog.io.calibration_file`) to use instead of
         the log's ``fmcwlog.calibration`` record.
     params: every parameter of the run (:class:`fmcwlog.pipeline.params.ProcessParams`).
+    time_field: ``NAME:UNIT``, the PointCloud2 field holding each point's time and its unit
+        (:func:`fmcwlog.io.clouds.parse_time_field`); None: read by name and type.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -39,6 +42,12 @@ class ProcessOptions:
     publish_period: float = 5.0
     calibration: Path | None = None
     backend: str = "pose-graph"
+    time_field: str | None = None
+
+    def cloud_reading(self) -> CloudReading:
+        """How the scan topic's clouds are read (:mod:`fmcwlog.io.clouds`); a ``time_field`` that
+        is not ``NAME:UNIT`` raises :class:`~fmcwlog.errors.ConfigError`."""
+        return CloudReading(self.params.inputs, parse_time_field(self.time_field))
 
 
 BACKENDS = ("pose-graph", "none")

@@ -122,18 +122,17 @@ def choose_time_field(fields: dict[str, int], mapped: TimeField | None) -> TimeF
     """The per-point time field of a cloud with ``fields`` (name -> PointField datatype): ``mapped``
     (``--time-field``) if given, else one read by name and type; None when the cloud has no
     time-like field. Raises :class:`~fmcwlog.errors.LogError` (without the log's name: the
-    caller adds it) when ``mapped`` is not among the fields or a time-like field cannot be read."""
+    caller adds it) when ``mapped`` is not among the fields or a time-like field of a valid datatype
+    cannot be read."""
     if mapped is not None:
         if mapped.name not in fields:
             raise LogError(f"--time-field names {mapped.name!r}, which the cloud does not have "
                            f"(its fields: {fields_text(fields)})")
-        if fields[mapped.name] not in TYPE_NAMES:
-            raise LogError(f"--time-field names {mapped.name!r}, whose datatype {fields[mapped.name]} is unknown")
-        return mapped
+        return mapped  # a datatype that is no PointField's is damage: the layout check skips that sweep
     for name in ("t", "time_offset_ns", "timestamp"):
         if name in fields and (known := _known_time_field(name, fields[name])) is not None:
             return known
-    unknown = [n for n in fields if _time_like(n)]
+    unknown = [n for n, d in fields.items() if _time_like(n) and d in TYPE_NAMES]  # else damage, as above
     if unknown:
         raise LogError(f"PointCloud2 fields {fields_text(fields)}: no per-point time field of a known layout "
                        f"(t float32/float64 s or uint32 ns, time_offset_ns uint32 ns, timestamp float64 s since "

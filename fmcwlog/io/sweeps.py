@@ -144,7 +144,8 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
     except LogError as exc:
         raise LogError(f"{path}: {exc}") from None
     ring = ring_field(types)
-    extra = [n for n in ("z", time.name if time else None, ring) if n is not None and n in names]
+    # t is read even when another field holds the times: a damaged t is a damaged sweep, as it always was
+    extra = [n for n in dict.fromkeys(("z", "t", time.name if time else None, ring)) if n is not None and n in names]
     wanted = [n for n in ("x", "y", "velocity", "intensity") if n in names] + extra
     problem = _cloud_layout_problem(msg, wanted)
     if problem is not None:

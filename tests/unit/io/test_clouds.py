@@ -178,3 +178,11 @@ def test_a_movers_doppler_is_corrected_the_same_way():
     v_s, v_t = np.array([1.0, 0.2, 0.0]), np.array([-0.5, 1.1, 0.0])
     v_r = u3 @ (v_t - v_s)
     assert np.isclose(planar_doppler(5.0 * u3[None, :], np.array([v_r]))[0], u @ (v_t - v_s)[:2])
+
+
+def test_a_time_field_of_a_datatype_no_pointfield_has_is_a_damaged_sweep_not_a_refused_log():
+    with pytest.raises(Rejected, match="field 't' has unknown datatype 99") as exc:
+        msg = cloud({**_planar(), "t": (7, T_S)})
+        msg.fields[-1].datatype = 99
+        sweep_from_pointcloud(PATH, msg)
+    assert exc.value.kind == "layout"

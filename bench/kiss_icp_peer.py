@@ -48,7 +48,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     mount_inv = inverse(np.asarray(cal.mount))
     stamps, poses, ms, cpu_ms = [], [], [], []
     for m in reader.messages([POINTS_TOPIC]):
-        sweep = sweep_from_pointcloud(reader.path, m.msg)
+        sweep, _ = sweep_from_pointcloud(reader.path, m.msg)
         frame = np.column_stack([sweep.xy, np.zeros(len(sweep.xy))])
         t0, c0 = time.perf_counter(), time.process_time()
         odometry.register_frame(frame, sweep.t / period)

@@ -9,6 +9,7 @@ import click
 
 from ..io.atomic import check_output_file
 from .console import console
+from .process import TIME_FIELD_OPTION_HELP
 
 if TYPE_CHECKING:
     from ..pipeline.calibrate import CalibrateSummary
@@ -46,8 +47,9 @@ the file. Units: metres and radians, the record's keys (docs/log-format.md).
               help="Parameter file (TOML, YAML or JSON), as for 'process'.")
 @click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
               help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
+@click.option("--time-field", metavar="NAME:UNIT", default=None, help=TIME_FIELD_OPTION_HELP)
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
-def calibrate_cmd(log, output, calibration_file, base_frame, config_file, set_items, force):
+def calibrate_cmd(log, output, calibration_file, base_frame, config_file, set_items, time_field, force):
     check_output_file(output, force, (log, calibration_file, config_file))  # --force never overwrites an input
     from ..pipeline.calibrate import calibrate  # here: --help needs none of the estimation stack
     from ..pipeline.options import ProcessOptions
@@ -55,7 +57,7 @@ def calibrate_cmd(log, output, calibration_file, base_frame, config_file, set_it
 
     params = params_from(config_file, set_items)
     summary = calibrate(log, output, ProcessOptions(methods=("improved",), params=params, calibration=calibration_file,
-                                                    base_frame=base_frame), force=force)
+                                                    base_frame=base_frame, time_field=time_field), force=force)
     _print_estimates(summary)
     for w in summary.warnings:
         console.warning(w)

@@ -31,7 +31,10 @@ baseline  all points, wheel-odometry prior, classic point-to-point ICP (unit wei
 Reads /fmcw/points (or --scan-topic: a PointCloud2 or a LaserScan; without a
 velocity field the Doppler stages are off and run.json says so) and /wheel/ticks
 with the fmcwlog.calibration record, or --odom-topic (nav_msgs/Odometry) as the
-motion prior. Never reads /ground_truth/* or fmcwlog.world.
+motion prior. Never reads /ground_truth/* or fmcwlog.world. A 3-D cloud (z spread
+over heights, or a ring field) is brought down to the sensor's plane: the points
+within 2 deg of it are kept (--set inputs.plane_band_deg=...), their Doppler
+corrected for elevation. Point times: see --time-field.
 
 \b
 The LiDAR's mount, from the first that gives it: --calibration FILE, the log's
@@ -90,6 +93,11 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 """
 
 
+TIME_FIELD_OPTION_HELP = ("The PointCloud2 field holding each point's time, and its unit: s, ms, us or ns after "
+                          "header.stamp, abs_s or abs_ns since the epoch (e.g. time:s).  [default: by name and type: "
+                          "t (float s, uint32 ns), time_offset_ns (uint32 ns), timestamp (float64 s since the epoch)]")
+
+
 @click.command("process", help=_PROCESS_HELP)
 @click.argument("logs", nargs=-1, type=click.Path(), callback=as_paths)
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False), callback=as_path,
@@ -112,6 +120,7 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--base-frame", default="base_link", show_default=True,
               help="The robot's frame: where neither --calibration nor the log's record gives the mount, it is "
                    "the scan's frame_id in this frame through the log's /tf_static (and /tf where it never changes).")
+@click.option("--time-field", metavar="NAME:UNIT", default=None, help=TIME_FIELD_OPTION_HELP)
 @click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
               help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
                    "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
@@ -139,7 +148,8 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                base_frame, backend, force, keep_going, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+                base_frame, time_field, backend, force, keep_going, show_config, jobs, timeout_s, memory_limit_mb, ray_address,
+                retries):
     from ..pipeline.options import ProcessOptions  # here: --help needs none of the estimation stack
     from ..pipeline.params import params_from, params_toml
 
@@ -150,7 +160,8 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)
     opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
-                              backend=backend, base_frame=base_frame, keep_going=keep_going)
+                              backend=backend, base_frame=base_frame, keep_going=keep_going, time_field=time_field)
+    opts.cloud_reading()  # a --time-field that is not NAME:UNIT: one line before any work
     from ..io.logs import is_rosbag2_folder
 
     if len(logs) == 1 and (not logs[0].is_dir() or is_rosbag2_folder(logs[0])) and ray_address is None:

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import LogError
 from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, TicksInput
+from .clouds import CloudReading
 from .logs import Log
 from .mcap_log import UndecodableMessage
 from .messages import odometry_pose_twist
@@ -121,13 +122,15 @@ class LogInputs:
     the topics: :meth:`LogReader.raw_messages_by_time`): sweeps, and ticks or odometry as the
     motion prior; each message checked once, as it is decoded (module docstring).
 
-    Iterate once. :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
+    Iterate once. ``reading``: how a PointCloud2's point times and a 3-D cloud are read
+    (:mod:`fmcwlog.io.clouds`). :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
     the counts by kind. Raises :class:`LogError` at the end if nothing usable was left on the
     scan topic or the prior topic, and as soon as the two clocks are found far apart.
     """
 
-    def __init__(self, reader: Log, topics: InputTopics, cal: Calibration):
+    def __init__(self, reader: Log, topics: InputTopics, cal: Calibration, reading: CloudReading = CloudReading()):
         self.reader = reader
+        self.reading = reading
         self.path = reader.path
         self.topics = topics
         self.limits = InputLimits.from_calibration(cal)
@@ -137,7 +140,9 @@ class LogInputs:
             raise LogError(f"{self.path}: wheel ticks on {topics.ticks} need the wheels' calibration")
         self._ticks = TickGate(cal.wheels) if topics.ticks is not None and cal.wheels is not None else None
         self._poses = PoseGate()
-        self.untimed_sweeps = 0  # PointCloud2 sweeps without the field t: taken at their stamp
+        self.untimed_sweeps = 0  # PointCloud2 sweeps without a time field: taken at their stamp
+        self.time_fields: dict[str, int] = {}  # how point times were read, other than the log format's t: sweeps
+        self.clouds_3d = [0, 0, 0]  # 3-D sweeps, their points, those kept within the band
 
     @property
     def skipped(self) -> dict[str, int]:
@@ -228,9 +233,14 @@ class LogInputs:
 
     def _read_sweep(self, m: Any) -> tuple[int, SweepInput]:
         if m.datatype.endswith("PointCloud2"):
-            sweep = sweep_from_pointcloud(self.path, m.msg, self.limits)
-            if not any(f.name == "t" for f in m.msg.fields):
+            sweep, layout = sweep_from_pointcloud(self.path, m.msg, self.limits, self.reading)
+            if layout.time is None:
                 self.untimed_sweeps += 1
+            elif (layout.time.name, layout.time.unit) != ("t", "s"):  # other than the log format's t
+                what = layout.time.describe(layout.time_datatype)
+                self.time_fields[what] = self.time_fields.get(what, 0) + 1
+            if layout.kept is not None:
+                self.clouds_3d = [a + b for a, b in zip(self.clouds_3d, (1, layout.points, layout.kept))]
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
         return sweep.stamp_ns, sweep
@@ -323,6 +333,14 @@ class LogInputs:
         if self.untimed_sweeps:  # the log format requires t; without it nothing can be deskewed
             out.append(f"{self.untimed_sweeps} sweeps on {self.topics.scan} have no field 't' (each point's time "
                        "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")
+        for what, n in self.time_fields.items():
+            out.append(f"point times of {n} sweeps on {self.topics.scan}: {what}")
+        sweeps, points, kept = self.clouds_3d
+        if sweeps:
+            band = self.reading.inputs.plane_band_deg
+            out.append(f"3-D cloud: kept {kept} of {points} points ({100 * kept / points:.1f} %) of {sweeps} sweeps on "
+                       f"{self.topics.scan} within ±{band:g}° of the sensor plane (inputs.plane_band_deg), projected "
+                       "onto it, their Doppler corrected for elevation")
         gates = [(self._ticks, "wheel-tick counter"), (self._poses, "odometry")]
         for gate, what in gates:
             if gate is not None and gate.rebases:

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import LogError
 from ..types import Calibration, SweepInput
+from .clouds import TIME_FIELD_HELP, CloudReading, TimeField, choose_time_field, is_3d, planar_doppler, plane_band, ring_field
 from .messages import POINTFIELD_DTYPES, pointcloud_columns, stamp_ns
 
 MAX_SPEED = 100.0  # m/s: beyond any wheeled robot carrying a 2-D LiDAR
@@ -132,15 +133,39 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
         raise Rejected(path, what, ns, "velocity", f"a radial velocity of {float(np.max(np.abs(velocity))):.4g} m/s")
 
 
-def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
-    """A PointCloud2 of the log format to a :class:`SweepInput` (fields by name and offset);
-    :class:`Rejected` if its layout or values cannot be used."""
+@dataclass(frozen=True)
+class CloudLayout:
+    """What :func:`sweep_from_pointcloud` found in a cloud beside its sweep: ``time`` how its point times
+    were read (None: no time field, every point at the stamp), ``time_datatype`` that field's
+    PointField datatype; of a 3-D cloud (``kept`` not None), ``kept`` of its ``points`` within the band."""
+
+    time: TimeField | None
+    time_datatype: int
+    points: int
+    kept: int | None
+
+
+def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits(),
+                          reading: CloudReading = CloudReading()) -> tuple[SweepInput, CloudLayout]:
+    """A PointCloud2 to a :class:`SweepInput` (fields by name and offset; each point's time by its
+    field's name and type, a 3-D cloud brought down to the sensor's plane: :mod:`fmcwlog.io.clouds`),
+    with what was found in the cloud. :class:`Rejected` if its layout or values cannot be used; a
+    time-like field whose layout is unknown raises :class:`~fmcwlog.errors.LogError` naming the
+    fields (every sweep would be read wrong, so the log is refused rather than each sweep skipped)."""
     ns = header_stamp(path, "PointCloud2", msg.header)
-    names = {f.name for f in msg.fields}
+    types = {f.name: int(f.datatype) for f in msg.fields}
+    names = set(types)
     missing = {"x", "y"} - names
     if missing:
         raise Rejected(path, "PointCloud2", ns, "layout", f"no field {sorted(missing)[0]!r}")
-    wanted = [n for n in ("x", "y", "t", "velocity", "intensity") if n in names]
+    try:
+        time = choose_time_field(types, reading.time_field)
+    except LogError as exc:
+        raise LogError(f"{path}: {exc}") from None
+    ring = ring_field(types)
+    # t is read even when another field holds the times: a damaged t is a damaged sweep, as it always was
+    extra = [n for n in dict.fromkeys(("z", "t", time.name if time else None, ring)) if n is not None and n in names]
+    wanted = [n for n in ("x", "y", "velocity", "intensity") if n in names] + extra
     problem = _cloud_layout_problem(msg, wanted)
     if problem is not None:
         raise Rejected(path, "PointCloud2", ns, "layout", problem)
@@ -149,11 +174,30 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
     except (ValueError, KeyError) as exc:
         raise Rejected(path, "PointCloud2", ns, "layout", str(exc)) from None
     n = len(cols["x"])
-    t = cols.get("t", np.zeros(n))
+    t = time.seconds(cols[time.name], ns) if time is not None else np.zeros(n)
     vel, inten = cols.get("velocity"), cols.get("intensity")
     xy = np.column_stack([cols["x"], cols["y"]])
-    _check_points(path, "PointCloud2", ns, xy, t, vel, limits)
-    return SweepInput(ns, xy, t, vel, inten)
+    kept = None
+    if is_3d(cols.get("z"), cols.get(ring) if ring else None):
+        xyz = np.column_stack([xy, cols["z"]])
+        band = plane_band(xyz, reading.inputs.plane_band_deg)
+        keep = band.keep
+        if not keep.any():
+            raise Rejected(path, "PointCloud2", ns, "empty", f"no point of the 3-D cloud's {n} within "
+                                                             f"±{band.half_angle_deg:g}° of the sensor's plane")
+        if vel is not None:
+            vel = planar_doppler(xyz[keep], vel[keep])
+        xy, t, kept = xy[keep], t[keep], int(keep.sum())
+        inten = inten[keep] if inten is not None else None
+    try:
+        _check_points(path, "PointCloud2", ns, xy, t, vel, limits)
+    except Rejected as exc:
+        if exc.kind != "times" or time is None:
+            raise
+        raise Rejected(path, "PointCloud2", None, "times",
+                       f"{exc.detail} ({time.describe(types[time.name])}; {TIME_FIELD_HELP})") from None
+    layout = CloudLayout(time, types[time.name] if time else 0, n, kept)
+    return SweepInput(ns, xy, t, vel, inten), layout
 
 
 def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:

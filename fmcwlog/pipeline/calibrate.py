@@ -51,6 +51,7 @@ def calibrate(log: str | Path, output: str | Path, opts: ProcessOptions | None =
     own, each value's standard deviation in a comment; values the log cannot fix keep theirs.
     """
     opts = opts or ProcessOptions()
+    opts.cloud_reading()  # a --time-field that is not NAME:UNIT, before any work
     log, output = Path(log), Path(output)
     check_output_file(output, force, (log, opts.calibration))  # --force never overwrites the log it reads
     if not output.parent.is_dir():
@@ -101,7 +102,7 @@ def _self_calibrate(reader: Log, topics: InputTopics, cal: Calibration,
     while True:
         passes += 1
         runner = LogRunner(("improved",), opts.params, cal, topics, reader.path)
-        for _ in runner.run(LogInputs(reader, topics, cal)):
+        for _ in runner.run(LogInputs(reader, topics, cal, opts.cloud_reading())):
             pass
         diagnostics, notes = runner.diagnostics()
         check = diagnostics.get("calibration_check") or CalibrationCheck(False, "no Doppler")

@@ -66,6 +66,7 @@ import numpy as np
 from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
+from ..io.clouds import CloudReading
 from ..io.inputs import LogInputs
 from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
@@ -100,8 +101,8 @@ def child_methods(methods: tuple[str, ...], jobs: int | None) -> tuple[str, ...]
 @dataclass(frozen=True)
 class ChildTask:
     """What the child runs: ``methods`` over ``log`` (read on ``topics``, with ``cal`` and
-    ``params``), each with a pose-graph back end if ``backend``; paths and maps are published
-    no more often than every ``publish_period_ns`` of log."""
+    ``params``, its clouds as ``reading`` says), each with a pose-graph back end if ``backend``; paths
+    and maps are published no more often than every ``publish_period_ns`` of log."""
 
     log: Path
     methods: tuple[str, ...]
@@ -110,6 +111,7 @@ class ChildTask:
     topics: InputTopics
     backend: bool
     publish_period_ns: int
+    reading: CloudReading = CloudReading()
 
 
 @dataclass(frozen=True)
@@ -359,7 +361,7 @@ def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
     publish = _Schedule(schedule, task.publish_period_ns)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for step in runner.run(_without_warnings(LogInputs(reader, task.topics, task.cal))):
+        for step in runner.run(_without_warnings(LogInputs(reader, task.topics, task.cal, task.reading))):
             msg = _Sweep(step.sweep.stamp_ns, step.results, None, [])
             for r in step.results:
                 try:

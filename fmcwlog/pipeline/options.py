@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import __version__
+from ..io.clouds import CloudReading, parse_time_field
 from ..io.digest import file_sha256
 from ..io.topics import BASE_FRAME
 from ..types import METHOD_NAMES
@@ -34,6 +35,8 @@ class ProcessOptions:
     params: every parameter of the run (:class:`fmcwlog.pipeline.params.ProcessParams`).
     keep_going: process a log that lost more than half its sweeps as damaged
         (:data:`fmcwlog.io.inputs.MOST_SKIPPED_SHARE`) instead of refusing it.
+    time_field: ``NAME:UNIT``, the PointCloud2 field holding each point's time and its unit
+        (:func:`fmcwlog.io.clouds.parse_time_field`); None: read by name and type.
     """
 
     methods: tuple[str, ...] = METHOD_NAMES
@@ -46,6 +49,12 @@ class ProcessOptions:
     backend: str = "pose-graph"
     base_frame: str = BASE_FRAME
     keep_going: bool = False
+    time_field: str | None = None
+
+    def cloud_reading(self) -> CloudReading:
+        """How the scan topic's clouds are read (:mod:`fmcwlog.io.clouds`); a ``time_field`` that
+        is not ``NAME:UNIT`` raises :class:`~fmcwlog.errors.ConfigError`."""
+        return CloudReading(self.params.inputs, parse_time_field(self.time_field))
 
 
 BACKENDS = ("pose-graph", "none")

@@ -89,6 +89,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     opts = opts or ProcessOptions()
     if opts.backend not in BACKENDS:
         raise ConfigError(f"unknown back end {opts.backend!r} (known: {', '.join(BACKENDS)})")
+    reading = opts.cloud_reading()
     log, out_dir = Path(log), Path(out_dir)
     keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
@@ -110,7 +111,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             # 2. the front ends here (and the rest in the child), the outputs, the back ends
             here = tuple(m for m in opts.methods if elsewhere is None or m not in elsewhere.methods)
             runner = LogRunner(here, opts.params, cal, topics, reader.path)
-            inputs = LogInputs(reader, topics, cal)
+            inputs = LogInputs(reader, topics, cal, reading)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
@@ -230,7 +231,7 @@ def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9))  # as ProcessOutputs has it
+                     int(opts.publish_period * 1e9), opts.cloud_reading())  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 

@@ -29,6 +29,7 @@ from ..io.mcap_log import (
     float32_cloud_cdr,
     odometry_cdr_batch,
     point_labels_cdr,
+    pointcloud2_cdr,
     stamp_pair,
     tf_cdr_batch,
     wheel_ticks_cdr_batch,
@@ -150,10 +151,25 @@ def _ground_truth(ns_ticks: np.ndarray, body: BodyState, left: np.ndarray, right
                     odometry_cdr_batch(ns, MAP_FRAME, BASE_FRAME, odom), tf_cdr_batch(ns, MAP_FRAME, BASE_FRAME, pose)))
 
 
+# The multi-ring sensor's points: the planar one's float32 fields, then the ring as uint16 (as Ouster's
+# and Velodyne's drivers write it), padded to 4 bytes.
+_RING_POINT = np.dtype({"names": [*POINT_FIELDS, "ring"], "formats": ["<f4"] * len(POINT_FIELDS) + ["<u2"],
+                        "offsets": [4 * i for i in range(len(POINT_FIELDS) + 1)], "itemsize": 4 * len(POINT_FIELDS) + 4})
+_RING_FIELDS = tuple((name, _RING_POINT.fields[name][1], 7 if name != "ring" else 4, 1) for name in _RING_POINT.names)
+
+
 def _cloud(ns: int, sweep: Sweep) -> bytes:
-    """The sweep as a PointCloud2 in ``lidar``: x y z (0) intensity velocity t, float32, point by point."""
-    columns = dict(zip(POINT_FIELDS, (sweep.x, sweep.y, None, sweep.intensity, sweep.velocity, sweep.t)))
-    return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
+    """The sweep as a PointCloud2 in ``lidar``: x y z (0 for the planar sensor) intensity velocity t, float32,
+    point by point; the multi-ring sensor's with its ``ring`` (uint16) after them."""
+    columns = dict(zip(POINT_FIELDS, (sweep.x, sweep.y, sweep.z, sweep.intensity, sweep.velocity, sweep.t)))
+    if sweep.ring is None:
+        return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
+    points = np.zeros(len(sweep.x), dtype=_RING_POINT)
+    for name, column in (*columns.items(), ("ring", sweep.ring)):
+        points[name] = column
+    step = _RING_POINT.itemsize
+    return pointcloud2_cdr(stamp_pair(ns), LIDAR_FRAME, 1, len(points), _RING_FIELDS, False, step, step * len(points),
+                           points.tobytes(), True)
 
 
 def record(world: World, cfg: SimConfig, out: str | Path,
@@ -193,7 +209,7 @@ def _record(world: World, cfg: SimConfig, out: str | Path, on_progress: Callable
         "generator": f"fmcwlog {__version__}",
         "scenario": world.name,
         "seed": str(run.seed),
-        "config": json.dumps(cfg.as_dict(), sort_keys=True),
+        "config": json.dumps(cfg.recorded(), sort_keys=True),
         "true_wheel_radius_left": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_left)),
         "true_wheel_radius_right": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_right)),
     }

@@ -61,7 +61,7 @@ def test_a_bag_reads_as_the_log_it_was_written_from(crowd_log, bags, kind):
         assert _same(a.msg, b.msg), a.topic
     assert {a.topic for a, _ in pairs} == set(TOPICS)
     a, b = next((a, b) for a, b in pairs if a.topic == "/fmcw/points")
-    sa, sb = sweep_from_pointcloud(mcap.path, a.msg), sweep_from_pointcloud(bag.path, b.msg)
+    (sa, _), (sb, _) = sweep_from_pointcloud(mcap.path, a.msg), sweep_from_pointcloud(bag.path, b.msg)
     assert sa.stamp_ns == sb.stamp_ns and np.array_equal(sa.xy, sb.xy) and np.array_equal(sa.velocity, sb.velocity)
     wanted = ["/fmcw/points", "/wheel/ticks"]
     by_time = [(c.topic, r.log_time) for _, c, r in bag.raw_messages_by_time(wanted)]

@@ -78,7 +78,7 @@ def test_the_last_beam_on_the_period_itself_in_float32_is_within_the_sweep():
     assert len(s.xy) == 720
     t = np.linspace(0.0, 0.1, 721).astype(np.float32)
     assert float(t[-1]) > 0.1
-    assert len(sweep_from_pointcloud(LOG, cloud(t), limits(10.0)).t) == 721
+    assert len(sweep_from_pointcloud(LOG, cloud(t), limits(10.0))[0].t) == 721
 
 
 @pytest.mark.parametrize("excess", [1e-6, 1e-3, 1.0])
@@ -111,7 +111,7 @@ def test_any_field_of_view_beam_count_and_rate_is_read_whole(fov_deg, beams, rat
 @given(rate=st.floats(0.5, 200.0), n=st.integers(1, 3000))
 def test_float32_point_times_up_to_the_period_at_any_rate(rate, n):
     t = np.linspace(0.0, 1.0 / rate, n).astype(np.float32)
-    assert len(sweep_from_pointcloud(LOG, cloud(t), limits(rate)).t) == n
+    assert len(sweep_from_pointcloud(LOG, cloud(t), limits(rate))[0].t) == n
 
 
 def test_a_scan_beyond_a_full_turn_by_more_than_a_beam_is_refused():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import struct
 import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -28,6 +29,10 @@ from mcap_ros2.decoder import DecoderFactory
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 STATIC_TOPIC = "/tf_static"
+# Types whose one frame is their header, their first field, and whose payload mcap_ros2 decodes value by
+# value (an OccupancyGrid's int8 cells: ten minutes for the maps of one processed Intel log): their
+# header is read from the CDR bytes instead (encapsulation, then sec, nanosec, frame_id).
+HEADER_ONLY = {"nav_msgs/msg/OccupancyGrid"}
 
 
 def _ns(t) -> int:
@@ -111,11 +116,25 @@ def _frames(msg, stamp: int | None = None):
             yield from _frames(value, stamp)
 
 
-def _messages(path: Path):
+def _raw_header(data: bytes) -> tuple[str, int]:
+    """``header.frame_id`` and its stamp (ns) of a CDR message whose first field is a std_msgs/Header."""
+    endian = "<" if data[1] & 1 else ">"
+    sec, nanosec, length = struct.unpack_from(endian + "iII", data, 4)
+    return data[16:16 + length - 1].decode(), sec * 1_000_000_000 + nanosec
+
+
+def _messages(path: Path, decode=lambda schema, topic: True):
+    """(schema name, topic, MCAP message, the decoded message or None where ``decode`` says not to)
+    in log-time order."""
+    factory, decoders = DecoderFactory(), {}
     with open(path, "rb") as fh:
-        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-        for schema, channel, message, decoded in reader.iter_decoded_messages():
-            yield schema.name, channel.topic, message.log_time, decoded
+        for schema, channel, message in make_reader(fh).iter_messages():
+            if not decode(schema.name, channel.topic):
+                yield schema.name, channel.topic, message, None
+                continue
+            if schema.id not in decoders:
+                decoders[schema.id] = factory.decoder_for(channel.message_encoding, schema)
+            yield schema.name, channel.topic, message, decoders[schema.id](message.data)
 
 
 def read_tf(path: Path, tf_topics: tuple[str, ...] | None = None) -> TfTree:
@@ -123,8 +142,11 @@ def read_tf(path: Path, tf_topics: tuple[str, ...] | None = None) -> TfTree:
     static: dict[str, tuple[str, tuple[float, float, float]]] = {}
     samples: dict[str, list[tuple[int, str, tuple[float, float, float]]]] = defaultdict(list)
     tree = TfTree()
-    for schema, topic, _, msg in _messages(path):
-        if schema != TF_TYPE or (tf_topics is not None and topic not in tf_topics):
+    def wanted(schema: str, topic: str) -> bool:
+        return schema == TF_TYPE and (tf_topics is None or topic in tf_topics)
+
+    for _, topic, _, msg in _messages(path, wanted):
+        if msg is None:
             continue
         for tr in msg.transforms:
             parent, child, pose = tr.header.frame_id, tr.child_frame_id, _planar(tr.transform)
@@ -156,9 +178,9 @@ def unresolved(path: Path, tf_topics: tuple[str, ...] | None = None, root: str =
     bad: dict[tuple[str, str], list] = {}
     for problem in tree.problems:
         bad[("tf", problem)] = [None, problem]
-    for schema, topic, _, msg in _messages(path):
+    for schema, topic, message, msg in _messages(path, lambda schema, _: schema not in HEADER_ONLY):
         timeless = schema == TF_TYPE and topic == STATIC_TOPIC  # its parents need only exist
-        for frame, stamp in _frames(msg):
+        for frame, stamp in _frames(msg) if msg is not None else [_raw_header(message.data)]:
             if timeless:
                 where = None if frame == root or frame in tree.links else f"no transform names {frame!r} as its child"
             else:

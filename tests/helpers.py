@@ -341,3 +341,19 @@ def ros_laser_log(src: Path, dst: Path, tf_static=(), tf=(), calibration=None, o
                 "ranges": ranges.tolist(), "intensities": []}, log_time=ns, publish_time=ns)
         w.finish()
     return dst
+
+
+def _bench_module(name: str):
+    """``bench/NAME.py`` imported as a module (the bench scripts are not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+# bench/replay_frames.py: whether a viewer places every message of an MCAP file (each frame a message
+# names resolves to map through the file's own tf at its stamp), read with plain mcap + mcap_ros2
+replay_frames = _bench_module("replay_frames")

@@ -27,9 +27,10 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr double kPi = 3.14159265358979311600;  // numpy's pi
 constexpr int64_t kMaxCells = 1 << 22;
 
-// The target points bucketed by a uniform grid whose cell is at least the search radius, so
-// that every point within the radius of a query lies in the 3 x 3 cells about the query's cell.
-// Within a cell the points keep their order (ties go to the lowest index).
+// The target points bucketed by a uniform grid of cells half the search radius wide.
+// A query scans its own cell, then rings of cells about it, each cell only where the cell's box
+// may hold a point nearer than the best so far, until no farther ring can; the first best is
+// the radius itself. Within a cell the points keep their order (ties go to the lowest index).
 class TargetGrid {
   public:
     TargetGrid(const double* xy, size_t m, double radius) : radius_(radius) {
@@ -45,10 +46,11 @@ class TargetGrid {
             y1 = std::max(y1, y_[i]);
         }
         if (m == 0) x0 = y0 = x1 = y1 = 0.0;
-        // a little over the radius: a point within it is then never two cells off, whatever the rounding
-        cell_ = radius * (1.0 + 1e-9);
+        cell_ = radius / 2.0;
         while ((std::floor((x1 - x0) / cell_) + 1.0) * (std::floor((y1 - y0) / cell_) + 1.0) > double(kMaxCells))
-            cell_ *= 2.0;  // wider cells stay exact, only slower
+            cell_ *= 2.0;  // a wide map: fewer, wider cells (the rings still cover the radius)
+        rings_ = int64_t(std::ceil(radius / cell_)) + 1;
+        margin_ = 1e-9 * cell_;  // a cell's box, widened by more than the rounding of a point's cell
         x0_ = x0;
         y0_ = y0;
         nx_ = int64_t(std::floor((x1 - x0) / cell_)) + 1;
@@ -82,26 +84,37 @@ class TargetGrid {
         dist = kInf;
         if (!std::isfinite(qx) || !std::isfinite(qy)) return -1;
         const double fx = std::floor((qx - x0_) / cell_), fy = std::floor((qy - y0_) / cell_);
-        if (fx < -1.0 || fy < -1.0 || fx > double(nx_) || fy > double(ny_)) return -1;
+        const double reach = double(rings_) + 1.0;
+        if (fx < -reach || fy < -reach || fx > double(nx_) + reach || fy > double(ny_) + reach) return -1;
         const int64_t cx = int64_t(fx), cy = int64_t(fy);
-        const double r2 = radius_ * radius_ * (1.0 + 1e-9);  // a bound: the root decides below
-        double best = kInf;
+        double best = radius_ * radius_ * (1.0 + 1e-9);  // a bound: the root decides below
         int64_t found = -1;
-        for (int64_t y = std::max<int64_t>(cy - 1, 0); y <= std::min(cy + 1, ny_ - 1); ++y) {
-            for (int64_t x = std::max<int64_t>(cx - 1, 0); x <= std::min(cx + 1, nx_ - 1); ++x) {
-                const int64_t c = y * nx_ + x;
-                for (int64_t k = start_[size_t(c)]; k < start_[size_t(c + 1)]; ++k) {
-                    const double dx = ox_[size_t(k)] - qx;
-                    const double dy = oy_[size_t(k)] - qy;
-                    const double d2 = dx * dx + dy * dy;
-                    if (d2 < best || (d2 == best && order_[size_t(k)] < found)) {
-                        best = d2;
-                        found = order_[size_t(k)];
+        for (int64_t r = 0; r <= rings_; ++r) {
+            const double gap = double(r - 1) * cell_ - margin_;  // every cell of ring r is at least this far
+            if (r > 1 && gap * gap > best) break;
+            for (int64_t y = cy - r; y <= cy + r; ++y) {
+                if (y < 0 || y >= ny_) continue;
+                const bool edge = (y == cy - r || y == cy + r);
+                for (int64_t x = cx - r; x <= cx + r; x += (edge || r == 0) ? 1 : 2 * r) {
+                    if (x < 0 || x >= nx_) continue;
+                    const double lx = x0_ + double(x) * cell_ - margin_, hx = x0_ + double(x + 1) * cell_ + margin_;
+                    const double ly = y0_ + double(y) * cell_ - margin_, hy = y0_ + double(y + 1) * cell_ + margin_;
+                    const double bx = std::max({0.0, lx - qx, qx - hx}), by = std::max({0.0, ly - qy, qy - hy});
+                    if (bx * bx + by * by > best) continue;
+                    const int64_t c = y * nx_ + x;
+                    for (int64_t k = start_[size_t(c)]; k < start_[size_t(c + 1)]; ++k) {
+                        const double dx = ox_[size_t(k)] - qx;
+                        const double dy = oy_[size_t(k)] - qy;
+                        const double d2 = dx * dx + dy * dy;
+                        if (d2 < best || (d2 == best && order_[size_t(k)] < found)) {
+                            best = d2;
+                            found = order_[size_t(k)];
+                        }
                     }
                 }
             }
         }
-        if (found < 0 || best > r2) return -1;
+        if (found < 0) return -1;
         dist = std::sqrt(best);
         if (!(dist < radius_)) {
             dist = kInf;
@@ -111,8 +124,8 @@ class TargetGrid {
     }
 
   private:
-    double radius_, cell_ = 1.0, x0_ = 0.0, y0_ = 0.0;
-    int64_t nx_ = 1, ny_ = 1;
+    double radius_, cell_ = 1.0, margin_ = 0.0, x0_ = 0.0, y0_ = 0.0;
+    int64_t nx_ = 1, ny_ = 1, rings_ = 5;
     std::vector<double> x_, y_, ox_, oy_;
     std::vector<int64_t> start_, order_;
 };

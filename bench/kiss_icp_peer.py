@@ -24,6 +24,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's fmcwlog, not an installed one
+
 from fmcwlog.geometry import compose, inverse
 from fmcwlog.io.calibration import load_calibration
 from fmcwlog.io.logs import open_log
@@ -72,4 +74,10 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
 
 
 if __name__ == "__main__":
-    print(json.dumps(run_kiss_icp(Path(sys.argv[1]), Path(sys.argv[2]))))
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("log", type=Path, help="an fmcwlog log (.mcap) with /fmcw/points")
+    ap.add_argument("out_dir", type=Path, help="folder for kiss_icp.tum, trajectories.parquet and run.json")
+    args = ap.parse_args()
+    print(json.dumps(run_kiss_icp(args.log, args.out_dir)))

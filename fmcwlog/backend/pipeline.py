@@ -36,6 +36,7 @@ from ..kernels.occupancy import OccupancyGrid, OccupancyParams
 from ..kernels.voxel import voxel_downsample
 from ..types import SweepResult
 from .candidates import closure_candidates
+from .consistency import RevisitDistances, revisit_distances, worse
 from .graph import Edge, PoseGraph
 from .keyframes import Node, is_new_node, odometry_covariance
 from .local_edges import LocalMatcher
@@ -72,7 +73,10 @@ class ClosureRecord:
 class BackendResult:
     """poses: (S, 3) every sweep's optimised pose, in the order the sweeps were added;
     node_stamps_ns, node_poses: the nodes; closures;
-    grid: the occupancy map rebuilt from the nodes; counts and the back end's time (s)."""
+    grid: the occupancy map rebuilt from the nodes; counts and the back end's time (s).
+    revisits: the two trajectories' revisit distances (:mod:`.consistency`), where closures changed the
+    graph; kept_front_end: the optimised trajectory drew revisited places worse than the front end's,
+    so ``poses``, ``node_poses`` and ``grid`` are the front end's (its poses, its nodes' map)."""
 
     poses: np.ndarray
     node_stamps_ns: np.ndarray
@@ -86,13 +90,22 @@ class BackendResult:
     seconds: float
     local_edges: int = 0
     local_rejections: dict[str, int] = field(default_factory=dict)
+    revisits: RevisitDistances | None = None
+    kept_front_end: bool = False
 
     def summary(self) -> dict:
-        """The counts and the time (s) for ``run.json``'s ``backend``."""
-        return {"nodes": int(len(self.node_stamps_ns)), "local_edges": self.local_edges,
-                "local_rejections": dict(sorted(self.local_rejections.items())), "closures_proposed": self.proposed,
-                "closures_verified": self.verified, "closures_accepted": self.accepted,
-                "rejections": dict(sorted(self.rejections.items())), "seconds": round(self.seconds, 3)}
+        """The counts and the time (s) for ``run.json``'s ``backend``; where the front end's trajectory
+        was kept, ``kept_front_end`` with the revisit distances that decided it."""
+        out = {"nodes": int(len(self.node_stamps_ns)), "local_edges": self.local_edges,
+               "local_rejections": dict(sorted(self.local_rejections.items())), "closures_proposed": self.proposed,
+               "closures_verified": self.verified, "closures_accepted": self.accepted,
+               "rejections": dict(sorted(self.rejections.items())), "seconds": round(self.seconds, 3)}
+        if self.kept_front_end and self.revisits is not None:
+            r = self.revisits
+            out["kept_front_end"] = {"revisit_distance_m": {"front_end": round(r.frontend, 4),
+                                                            "optimised": round(r.optimised, 4)},
+                                     "points": r.points, "nodes_compared": r.queries}
+        return out
 
     def to_json(self) -> dict:
         """What ``<method>_backend.json`` holds: the nodes (optimised poses, in the method's own
@@ -262,13 +275,23 @@ class PoseGraphBackend:
             for rec, err in zip(self.records, self.graph.closure_errors()):
                 rec.whitened_error = float(err)
                 rec.accepted = bool(err <= self.p.cauchy_scale)
-        poses = self._corrected_sweeps()
+        revisits = None
+        frontend = np.array([n.frontend_pose for n in self.nodes]).reshape(-1, 3)
+        if self.records:
+            revisits = revisit_distances([n.points for n in self.nodes], np.array([n.path_m for n in self.nodes]),
+                                         frontend, self._estimates)
+        keep = revisits is not None and worse(revisits)
+        if keep:  # the front end's own: every sweep where it put it, the map from its nodes
+            self._estimates = frontend
+            poses = self.sweeps.poses.values.copy()
+        else:
+            poses = self._corrected_sweeps()
         grid = self._rebuild_map()
         self.seconds += time.perf_counter() - t0
         return BackendResult(poses, np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
                              self.records, grid, self.proposed, len(self.records),
                              sum(r.accepted for r in self.records), self.rejections, self.seconds,
-                             self.local_edges, dict(self.local.rejected))
+                             self.local_edges, dict(self.local.rejected), revisits, keep)
 
     def _corrected_sweeps(self) -> np.ndarray:
         """Every sweep through its node: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)``."""

@@ -63,7 +63,7 @@ class KeyframeMap:
     _owner: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     _keyframes: deque = field(default_factory=deque)
     _next_id: int = 0
-    _grid: tuple[CorrelativeParams, LikelihoodGrid] | None = None
+    _grids: dict[CorrelativeParams, tuple[int, LikelihoodGrid]] = field(default_factory=dict)
 
     def add(self, xy: np.ndarray, path_m: float) -> None:
         """A keyframe's points (N, 2) in ``map``, taken after ``path_m`` metres of travel; the
@@ -83,17 +83,18 @@ class KeyframeMap:
         owner = np.concatenate([np.full(len(xy), ident), self._owner[keep]])
         keys, first = np.unique(keys, return_index=True)  # the first occurrence: the newest keyframe's point
         self._keys, self.points, self._owner = keys, points[first], owner[first]
-        self._grid = None
         # An unbalanced, uncompacted tree builds about twice as fast and answers the ICP's
         # queries as fast (measured on 20k wall points); it is rebuilt at every keyframe.
         self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False) if len(self.points) else None
 
-    def likelihood_grid(self, p: CorrelativeParams) -> LikelihoodGrid:
-        """The likelihood grid of the map's points for a correlative search with ``p`` (cached
-        until the map changes)."""
-        if self._grid is None or self._grid[0] != p:
-            self._grid = (p, grid_for(self.points, p))
-        return self._grid[1]
+    def likelihood_grid(self, p: CorrelativeParams, keyframes_old: int = 0) -> LikelihoodGrid:
+        """The likelihood grid of the map's points for a correlative search with ``p``, cached per
+        ``p`` until more than ``keyframes_old`` keyframes have entered the map since it was built
+        (0: until the map changes)."""
+        found = self._grids.get(p)
+        if found is None or self._next_id - found[0] > keyframes_old:
+            found = self._grids[p] = (self._next_id, grid_for(self.points, p))
+        return found[1]
 
     @property
     def keyframes(self) -> int:

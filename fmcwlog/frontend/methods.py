@@ -72,6 +72,7 @@ from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
 from .robust_icp import register
+from .scan_prior import GRID_REUSE_KEYFRAMES, MidSweepHold, search_window
 from .segmentation import segment_moving
 from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
 from .sensor_checks import DOPPLER, WHEELS, SensorChecks
@@ -168,6 +169,7 @@ class FrontEnd(ABC):
         self.last_key: np.ndarray | None = None
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
+        self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -189,8 +191,8 @@ class FrontEnd(ABC):
 
     # --- what they share ------------------------------------------------------------------
     def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
-        """The twist over the sweep from the motion prior, else the last one used."""
-        return prior.twist if prior.twist is not None else self.last_twist
+        """The twist over the sweep from the motion prior, else the constant-velocity hold."""
+        return prior.twist if prior.twist is not None else self.hold.twist
 
     def predict(self, stamp: float, prior: PriorMotion, twist: tuple[float, float]) -> np.ndarray:
         """The pose at ``stamp`` from the motion prior, else ``twist`` held since the last sweep."""
@@ -249,7 +251,10 @@ class FrontEnd(ABC):
             # correlative search has nothing to place, so the motion prior stands for this sweep.
             pose, iterations, kept = motion.predicted, 0, 0
         else:
-            res, searched, recovered = self._register_or_recover(source, motion, ts)
+            if self.scan_prior(prior, motion):
+                res, searched, recovered = self._scan_to_map(source, motion, ts)
+            else:
+                res, searched, recovered = self._register_or_recover(source, motion, ts)
             pose, iterations, kept = res.pose, res.iterations, res.n_correspondences_kept
             pose_cov = registration_covariance(res.hessian, p.residual_sigma)
         pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
@@ -260,6 +265,8 @@ class FrontEnd(ABC):
         skew = abs(omega - self.last_twist[1]) * float(t.max(initial=0.0)) if self.pose is not None else 0.0
         keyframe = self._update_maps(pose, static_map, skew)
         self.after_step(pose, ts, iterations > 0, prior)
+        if prior.twist is None:
+            self.hold.update(pose, ts, (v, omega), 0.5 * float(t.max(initial=0.0)))
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
         moving = motion.moving & ~near
         moving_xy = xy[moving]
@@ -271,12 +278,28 @@ class FrontEnd(ABC):
                            None if vel is None else vel[use], moving_map, None if vel is None else vel[moving],
                            motion.moving, motion.segmented, keyframe, searched, recovered)
 
-    def _register_or_recover(self, source: np.ndarray, motion: MotionEstimate, stamp: float
-                             ) -> tuple[ICPResult, bool, bool]:
+    @staticmethod
+    def scan_prior(prior: PriorMotion, motion: MotionEstimate) -> bool:
+        """Whether this sweep's guess is the scan-to-map search (:mod:`.scan_prior`): neither a
+        motion prior nor a Doppler twist says where it was taken."""
+        return prior.since_last is None and prior.twist is None and motion.fused is None
+
+    def _scan_to_map(self, source: np.ndarray, motion: MotionEstimate, stamp: float
+                     ) -> tuple[ICPResult, bool, bool]:
+        """The correlative search around the constant-velocity prediction, then the ICP from its best
+        pose (:mod:`.scan_prior`); a poor fit then takes the recovery's wider search as usual."""
+        base = self.params.recovery.correlative
+        grid = self.map.likelihood_grid(base, GRID_REUSE_KEYFRAMES)
+        window = search_window(self.hold.twist, stamp - self.last_stamp, base)
+        found = correlative_match(grid, source, motion.predicted, window, with_second=False)
+        return self._register_or_recover(source, motion, stamp, found.pose)
+
+    def _register_or_recover(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
+                             start: np.ndarray | None = None) -> tuple[ICPResult, bool, bool]:
         """The ICP from the prior; if its fit is poor, a correlative search around the prior and
         the ICP again from its best pose, kept if it fits better (:mod:`.recovery`).
         Returns the registration, whether the search ran and whether it replaced the first."""
-        res = self.register(source, motion, stamp)
+        res = self.register(source, motion, stamp, initial=start)
         rp = self.params.recovery
         if not rp.enabled or self.map.tree is None:
             return res, False, False
@@ -333,8 +356,8 @@ class ImprovedFrontEnd(FrontEnd):
             self.tracker.add_scan(scan, self.path_m)
 
     def prior_twist(self, prior: PriorMotion) -> tuple[float, float]:
-        """The wheels' twist, else the last scan-matched one (constant velocity)."""
-        return prior.twist if prior.twist is not None else self.scan_twist
+        """The wheels' twist, else the constant-velocity hold."""
+        return prior.twist if prior.twist is not None else self.hold.twist
 
     def doppler_stages(self, sweep: SweepInput, prior_twist: tuple[float, float] | None) -> Doppler | None:
         """Ego-motion and segmentation of one sweep; None without Doppler (or once it was dropped).

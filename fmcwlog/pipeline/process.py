@@ -38,7 +38,7 @@ from ..io.inputs import MANY_SKIPPED_SHARE, MOST_SKIPPED_SHARE, LogInputs, Skipp
 from ..io.logs import Log, open_log
 from ..io.outputs import ProcessOutputs, odom_frame
 from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
-from ..types import WHEEL_ODOMETRY, Calibration, InputTopics
+from ..types import BASELINE, IMPROVED, WHEEL_ODOMETRY, Calibration, InputTopics
 from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest
 from .run_record import RunRecord
@@ -136,9 +136,11 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             # 5. what the run found, said once in the summary and in run.json
             diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
                                              merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
-            notes = [str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
+            notes = ([str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
+                     + _backend_notes(optimised))
             many_skipped = _many_skipped_line(skipped)
-            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), _prior_name(topics), inputs.skipped_sweeps,
+            prior = _prior_name(topics, opts.methods, bool(runner.doppler))
+            summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
                                      reader.contents.truncated, notes + ([many_skipped] if many_skipped else []),
                                      {m: res.summary() for m, res in optimised.items()}, many_skipped)
@@ -204,11 +206,21 @@ def _many_skipped_record(skipped: SkippedShare | None, keep_going: bool) -> dict
             "main_kind": skipped.kind, "main_reason": skipped.reason}
 
 
-def _prior_name(topics: InputTopics) -> str:
-    """The motion prior, as ``run.json`` and the summary say it."""
+def _prior_name(topics: InputTopics, methods: Sequence[str], doppler: bool) -> str:
+    """The motion prior, as ``run.json`` and the summary say it: the odometry topic, else what each
+    method guessed each sweep's pose from, and why (:mod:`fmcwlog.frontend.scan_prior`)."""
     if topics.ticks:
         return f"wheel ticks ({topics.ticks})"
-    return f"odometry ({topics.odom})" if topics.odom else "none (constant velocity)"
+    if topics.odom:
+        return f"odometry ({topics.odom})"
+    search = "scan-to-map correlative search"
+    if not doppler:
+        return f"{search} (no odometry, no wheel ticks, no Doppler in {topics.scan})"
+    if BASELINE not in methods:
+        return "Doppler ego-motion (no odometry, no wheel ticks)"
+    if IMPROVED not in methods:
+        return f"{search} (no odometry, no wheel ticks; the baseline does not use Doppler)"
+    return f"Doppler ego-motion for the improved method, {search} for the baseline (no odometry, no wheel ticks)"
 
 
 def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess | None) -> Backends:
@@ -265,6 +277,20 @@ def _optimise(backends: Backends, outputs: ProcessOutputs, grids: dict,
         grids[m] = res.grid
         write_json(folder / f"{m}_backend.json", res.to_json())
     return optimised
+
+
+def _backend_notes(optimised: dict[str, BackendResult]) -> list[str]:
+    """A warning per method whose back end would have made its map worse, with the numbers
+    (:mod:`fmcwlog.backend.consistency`): its outputs keep the front end's trajectory and map."""
+    notes = []
+    for m, res in optimised.items():
+        r = res.revisits
+        if res.kept_front_end and r is not None:
+            notes.append(f"{m}: with its {res.accepted} loop closures the back end placed revisited places "
+                         f"{r.optimised * 100:.1f} cm from where they were seen before, the front end alone "
+                         f"{r.frontend * 100:.1f} cm (mean over {r.points} points of {r.queries} keyframes): the "
+                         f"outputs keep the front end's trajectory and map")
+    return notes
 
 
 def _steps(steps: Iterator[SweepStep], log: Path) -> Iterator[SweepStep]:

@@ -20,8 +20,9 @@ class RunRecord:
         ``fmcwlog report --log`` and a resumed batch check. options_sha256: the digest of every
         option (:func:`fmcwlog.pipeline.options.options_digest`).
     methods: the front ends run. scan_topic: the scan topic read. prior: the motion prior as the
-        summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)`` or ``none (constant
-        velocity)``). doppler: whether the scans carried Doppler velocity.
+        summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)``, or without either what
+        guessed each sweep's pose and why, e.g. ``scan-to-map correlative search (no odometry, no
+        wheel ticks, no Doppler in /scan)``). doppler: whether the scans carried Doppler velocity.
     mount: the lidar's pose in the base frame (m, m, rad); calibration_source: where the calibration
         came from: one source (a file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
         base_link->laser``, ``none (assumed 0, 0, 0)``) where it gave every value used, else

@@ -1,0 +1,99 @@
+"""Whether the optimised trajectory draws a more consistent map than the front end's, without ground truth.
+
+Loop closures correct drift only if they are right: one wrong closure (a corridor taken for
+the one beside it, a crowd taken for a wall) bends the whole graph, and the optimised
+trajectory is then worse than the front end's own. Nothing in the graph says so: the
+closure's residual is small at an optimum that obeys it.
+
+What a wrong bend does show is the map: a place seen twice, placed twice by a trajectory,
+should be drawn once. For a trajectory, each of a subsample of nodes (the *queries*) has its
+points placed by it and compared with the map the same trajectory draws from the nodes at
+least ``GAP_M`` metres of path before it (so that only a revisit counts, never the few nodes
+just before, which every trajectory places alike; the map is extended every few metres, so some
+queries compare with nodes a little farther back): the distance of each point to the nearest
+point of that map, capped at ``CAP_M``. Over the points that land within ``CAP_M`` of the earlier
+map under either trajectory (a revisit for one or the other), the mean capped distance is the
+trajectory's *revisit distance*. Where a drifted loop is closed right, the optimised
+trajectory's is smaller (the walls drawn once); where a closure bent it wrongly, larger.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..geometry import transform_points
+from ..kernels.voxel import voxel_downsample
+
+GAP_M = 15.0  # m of path: the earlier map holds nodes at least this far back (as closures' candidates are)
+CAP_M = 0.5  # m: a point's distance counts up to this; one farther sees a place the earlier map does not hold
+MAX_QUERIES = 120  # nodes compared, evenly spread over those with an earlier map
+QUERY_VOXEL = 0.1  # m: a query's points thinned to this
+MAP_VOXEL = 0.1  # m: and each node's points in the earlier maps
+REBUILD_NODES = 10  # the earlier map is extended once this many nodes have joined it (a node every 0.5 m)
+WORSE_RATIO = 1.05  # the optimised trajectory is worse where its revisit distance exceeds the front end's by 5 %...
+WORSE_BY_M = 0.002  # ...and by 2 mm
+
+
+@dataclass(frozen=True)
+class RevisitDistances:
+    """The revisit distances (m) of the front end's trajectory and the optimised one, over the same
+    ``points`` (query points that land on an earlier map under either), and the ``queries`` (nodes) used."""
+
+    frontend: float
+    optimised: float
+    points: int
+    queries: int
+
+
+def revisit_distances(points: Sequence[np.ndarray], path_m: np.ndarray, frontend: np.ndarray,
+                      optimised: np.ndarray) -> RevisitDistances | None:
+    """The revisit distances of two trajectories of the same nodes (module docstring).
+
+    ``points``: each node's points (N_i, 2) in base_link (m); ``path_m`` (K,): the path travelled at
+    each node (m, non-decreasing); ``frontend``, ``optimised`` (K, 3): each node's pose (m, m, rad)
+    under the two trajectories. None when no node has an earlier map or no point lands on one.
+    """
+    path_m = np.asarray(path_m, float)
+    # node i's earlier map: the nodes 0 .. prefix[i] - 1, all at least GAP_M of path before it
+    prefix = np.searchsorted(path_m, path_m - GAP_M, side="right")
+    candidates = np.flatnonzero(prefix > 0)
+    if candidates.size == 0:
+        return None
+    queries = candidates[np.unique(np.linspace(0, candidates.size - 1, min(MAX_QUERIES, candidates.size)).astype(int))]
+    thinned: dict[int, np.ndarray] = {}
+
+    def thin(i: int) -> np.ndarray:
+        if i not in thinned:
+            thinned[i] = voxel_downsample(np.asarray(points[i], float), MAP_VOXEL)
+        return thinned[i]
+
+    per_trajectory = []
+    for poses in (frontend, optimised):
+        distances = []
+        earlier = np.empty((0, 2))
+        tree, in_tree = None, 0
+        for q in queries:
+            n = int(prefix[q])
+            if tree is None or n >= in_tree + REBUILD_NODES:  # the earlier map grown by a few metres
+                added = [transform_points(poses[i], thin(i)) for i in range(in_tree, n)]
+                earlier = voxel_downsample(np.concatenate([earlier, *added]), MAP_VOXEL)
+                tree, in_tree = cKDTree(earlier, balanced_tree=False, compact_nodes=False), n
+            mine = transform_points(poses[q], voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL))
+            d, _ = tree.query(mine, k=1, distance_upper_bound=CAP_M)
+            distances.append(np.minimum(d, CAP_M))
+        per_trajectory.append(np.concatenate(distances) if distances else np.empty(0))
+    d_front, d_opt = per_trajectory
+    revisit = (d_front < CAP_M) | (d_opt < CAP_M)
+    if not revisit.any():
+        return None
+    return RevisitDistances(float(d_front[revisit].mean()), float(d_opt[revisit].mean()), int(revisit.sum()),
+                            int(len(queries)))
+
+
+def worse(r: RevisitDistances) -> bool:
+    """Whether the optimised trajectory draws revisited places clearly worse than the front end's."""
+    return r.optimised > r.frontend * WORSE_RATIO and r.optimised - r.frontend > WORSE_BY_M

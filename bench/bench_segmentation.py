@@ -26,7 +26,7 @@ from fmcwlog.config import parse_set_option  # noqa: E402
 from fmcwlog.frontend import methods  # noqa: E402
 from fmcwlog.io.calibration import load_calibration  # noqa: E402
 from fmcwlog.io.inputs import LogInputs  # noqa: E402
-from fmcwlog.io.mcap_log import LogReader  # noqa: E402
+from fmcwlog.io.logs import open_log  # noqa: E402
 from fmcwlog.io.topic_choice import choose_topics  # noqa: E402
 from fmcwlog.pipeline.params import load_params  # noqa: E402
 from fmcwlog.pipeline.runner import LogRunner  # noqa: E402
@@ -63,9 +63,9 @@ def main() -> None:
         total.clear()
         stages.clear()
         segment.clear()
-        reader = LogReader(log)
+        reader = open_log(log)
         topics = choose_topics(reader, None, None, None)
-        cal, _ = load_calibration(reader, log, topics.ticks is not None, None)
+        cal = load_calibration(reader, log, topics.scan, topics.ticks is not None, None).cal
         runner = LogRunner(["improved"], params, cal, topics, log)
         for _ in runner.run(LogInputs(reader, topics, cal)):
             pass

@@ -27,8 +27,8 @@ import pyarrow.parquet as pq
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's fmcwlog, not an installed one
 
 from fmcwlog.geometry import compose, inverse
-from fmcwlog.io.calibration import parse_calibration
-from fmcwlog.io.mcap_log import LogReader
+from fmcwlog.io.calibration import load_calibration
+from fmcwlog.io.logs import open_log
 from fmcwlog.io.outputs import write_tum
 from fmcwlog.io.sweeps import sweep_from_pointcloud
 from fmcwlog.io.topics import CALIBRATION_KEY, POINTS_TOPIC
@@ -39,8 +39,8 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
 
-    reader = LogReader(log)
-    cal = parse_calibration(reader.metadata.get(CALIBRATION_KEY), need_wheels=False)
+    reader = open_log(log)
+    cal = load_calibration(reader, log, POINTS_TOPIC, False, None).cal  # the mount as process finds it
     period = 1.0 / float(reader.metadata.get(CALIBRATION_KEY, {}).get("scan_rate", 10.0))
     config = load_config(None)
     config.data.max_range, config.data.min_range = max_range, min_range
@@ -50,7 +50,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     mount_inv = inverse(np.asarray(cal.mount))
     stamps, poses, ms, cpu_ms = [], [], [], []
     for m in reader.messages([POINTS_TOPIC]):
-        sweep = sweep_from_pointcloud(reader.path, m.msg)
+        sweep, _ = sweep_from_pointcloud(reader.path, m.msg)
         frame = np.column_stack([sweep.xy, np.zeros(len(sweep.xy))])
         t0, c0 = time.perf_counter(), time.process_time()
         odometry.register_frame(frame, sweep.t / period)
@@ -65,7 +65,7 @@ def run_kiss_icp(log: Path, out_dir: Path, max_range: float = 30.0, min_range: f
     write_tum(out_dir / "kiss_icp.tum", stamps_a, np.asarray(poses))
     pq.write_table(pa.table({"method": ["kiss_icp"] * len(ms), "stamp_ns": stamps_a, "ms": np.asarray(ms)}),
                    out_dir / "trajectories.parquet")
-    info = {"log": str(Path(log).resolve()), "sweeps": len(ms), "scan_topic": POINTS_TOPIC, "prior": "none (KISS-ICP)",
+    info = {"log": str(reader.path.resolve()), "sweeps": len(ms), "scan_topic": POINTS_TOPIC, "prior": "none (KISS-ICP)",
             "doppler": False, "params": {"kiss_icp": config.model_dump()}, "stamp_shift_s": 0.5 * period}
     # report checks the sweeps against the log: the shifted stamps are the sweeps' own plus half a period
     (out_dir / "run.json").write_text(json.dumps(info, indent=2, default=str))

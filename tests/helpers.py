@@ -233,3 +233,127 @@ def same_bits(fast, slow) -> bool:
         return np.ascontiguousarray(fast).tobytes() == np.ascontiguousarray(slow).tobytes()
     close = np.abs(fast - slow) <= 2 * np.spacing(np.abs(slow))
     return bool(np.all(close | (np.isnan(fast) & np.isnan(slow))))
+
+
+def _quaternion_dict(roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0) -> dict[str, float]:
+    """geometry_msgs/Quaternion of the rotation Rz(yaw) Ry(pitch) Rx(roll), as ROS's tf2 writes it."""
+    cr, sr, cp, sp = math.cos(roll / 2), math.sin(roll / 2), math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return {"x": sr * cp * cy - cr * sp * sy, "y": cr * sp * cy + sr * cp * sy,
+            "z": cr * cp * sy - sr * sp * cy, "w": cr * cp * cy + sr * sp * sy}
+
+
+def tf_entry(parent: str, child: str, xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0), stamp_ns: int = 0) -> dict:
+    """One geometry_msgs/TransformStamped as a dict: ``child`` at ``xyz`` (m), turned by roll, pitch, yaw (rad), in ``parent``."""
+    return {"header": {"stamp": {"sec": stamp_ns // 10**9, "nanosec": stamp_ns % 10**9}, "frame_id": parent},
+            "child_frame_id": child,
+            "transform": {"translation": dict(zip("xyz", map(float, xyz))), "rotation": _quaternion_dict(*rpy)}}
+
+
+def wheel_odometry(path: Path) -> list[tuple[int, np.ndarray]]:
+    """The robot's own odometry, as its driver would publish it: the log's ticks integrated with the
+    calibrated radii (exact arcs, composed in a loop; not fmcwlog's integration)."""
+    cal = {k: float(v) for k, v in metadata(path)["fmcwlog.calibration"].items()}
+    k = 2 * math.pi / cal["ticks_per_revolution"]
+    out, pose, last = [], np.zeros(3), None
+    for _, _, message, m in decoded(path, ["/wheel/ticks"]):
+        if last is not None:
+            sl = (m.left - last[0]) * k * cal["wheel_radius_left"]
+            sr = (m.right - last[1]) * k * cal["wheel_radius_right"]
+            s, dth = (sl + sr) / 2, (sr - sl) / cal["track_width"]
+            chord = s if abs(dth) < 1e-12 else 2 * s / dth * math.sin(dth / 2)
+            pose = pose + [chord * math.cos(pose[2] + dth / 2), chord * math.sin(pose[2] + dth / 2), dth]
+        last = (m.left, m.right)
+        out.append((message.log_time, pose.copy()))
+    return out
+
+
+_HEADER_DEFS = ("=" * 80 + "\nMSG: std_msgs/msg/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+                + "=" * 80 + "\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n")
+
+
+def ros_laser_log(src: Path, dst: Path, tf_static=(), tf=(), calibration=None, odom: bool = True,
+                  ticks: bool = False, ground_truth: bool = True, until_s: float | None = None) -> Path:
+    """``src`` (a recorded fmcwlog log) as a ROS 2 driver stack would log it, written by mcap_ros2's
+    ``Writer``: ``/scan`` a LaserScan in frame ``laser`` (the cloud's points on 1081 beams of 0.25°),
+    ``/odom`` the wheels' odometry (:func:`wheel_odometry`) with ``odom``, ``/wheel/ticks`` copied
+    with ``ticks``, ``/ground_truth/odom`` copied with ``ground_truth`` (for report), one
+    ``/tf_static`` message holding the ``tf_static`` entries (:func:`tf_entry`) at the start, the
+    ``tf`` entries on ``/tf`` with every scan, and the ``fmcwlog.calibration`` record only where
+    ``calibration`` gives it. ``until_s``: the first so many seconds."""
+    schemas = ROOT / "schemas"
+    with open(src, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    texts = {sc.name: sc.data.decode() for sc in summary.schemas.values()}
+    rows = list(decoded(src, ["/fmcw/points", "/wheel/ticks", "/ground_truth/odom"]))
+    start = rows[0][2].log_time
+    end = start + int(until_s * 1e9) if until_s is not None else None
+    odometry = iter(wheel_odometry(src) if odom else [])
+    with open(dst, "wb") as out:
+        w = Writer(out)
+        if calibration is not None:
+            w.add_metadata("fmcwlog.calibration", calibration)
+        scan_schema = w.register_msgdef("sensor_msgs/msg/LaserScan",
+                                        (schemas / "sensor_msgs" / "msg" / "LaserScan.msg").read_text() + _HEADER_DEFS)
+        odom_schema = w.register_msgdef("nav_msgs/msg/Odometry", texts["nav_msgs/msg/Odometry"])
+        tf_schema = w.register_msgdef("tf2_msgs/msg/TFMessage", texts["tf2_msgs/msg/TFMessage"])
+        ticks_schema = w.register_msgdef("fmcwlog_msgs/msg/WheelTicks", texts["fmcwlog_msgs/msg/WheelTicks"])
+        if tf_static:
+            w.write_message("/tf_static", tf_schema, {"transforms": list(tf_static)}, log_time=start, publish_time=start)
+        n, res = 1081, math.radians(0.25)
+        pending = next(odometry, None)
+        for _, channel, message, msg in rows:
+            ns = message.log_time
+            if end is not None and ns > end:
+                break
+            while pending is not None and pending[0] <= ns:
+                t, pose = pending
+                w.write_message("/odom", odom_schema, {
+                    "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}, "frame_id": "odom"},
+                    "child_frame_id": "base_link",
+                    "pose": {"pose": {"position": {"x": pose[0], "y": pose[1], "z": 0.0},
+                                      "orientation": _quaternion_dict(yaw=pose[2])}, "covariance": [0.0] * 36},
+                    "twist": {"twist": {"linear": {"x": 0.0, "y": 0.0, "z": 0.0},
+                                        "angular": {"x": 0.0, "y": 0.0, "z": 0.0}}, "covariance": [0.0] * 36},
+                }, log_time=t, publish_time=t)
+                pending = next(odometry, None)
+            if channel.topic == "/wheel/ticks":
+                if ticks:
+                    w.write_message("/wheel/ticks", ticks_schema, msg, log_time=ns, publish_time=ns)
+                continue
+            if channel.topic == "/ground_truth/odom":
+                if ground_truth:
+                    w.write_message("/ground_truth/odom", odom_schema, msg, log_time=ns, publish_time=ns)
+                continue
+            if tf:
+                stamped = [dict(e, header=dict(e["header"], stamp={"sec": ns // 10**9, "nanosec": ns % 10**9}))
+                           for e in tf]
+                w.write_message("/tf", tf_schema, {"transforms": stamped}, log_time=ns, publish_time=ns)
+            pts = np.frombuffer(bytes(msg.data), np.float32).reshape(-1, msg.point_step // 4)
+            beam = np.rint((np.arctan2(pts[:, 1], pts[:, 0]) + math.radians(135)) / res).astype(int)
+            ranges = np.full(n, np.inf, np.float32)
+            ranges[beam] = np.hypot(pts[:, 0], pts[:, 1])
+            w.write_message("/scan", scan_schema, {
+                "header": {"stamp": {"sec": msg.header.stamp.sec, "nanosec": msg.header.stamp.nanosec},
+                           "frame_id": "laser"},
+                "angle_min": -math.radians(135), "angle_max": math.radians(135), "angle_increment": res,
+                "time_increment": 0.075 / 1080, "scan_time": 0.1, "range_min": 0.1, "range_max": 30.0,
+                "ranges": ranges.tolist(), "intensities": []}, log_time=ns, publish_time=ns)
+        w.finish()
+    return dst
+
+
+def _bench_module(name: str):
+    """``bench/NAME.py`` imported as a module (the bench scripts are not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+# bench/replay_frames.py: whether a viewer places every message of an MCAP file (each frame a message
+# names resolves to map through the file's own tf at its stamp), read with plain mcap + mcap_ros2
+replay_frames = _bench_module("replay_frames")

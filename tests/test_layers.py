@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "fmcwlog"
-GROUND_TRUTH_NAMES = {"GT_ODOM_TOPIC", "GT_LABELS_TOPIC", "WORLD_KEY", "SIM_KEY"}  # the prefix may be named: to skip them
+GROUND_TRUTH_NAMES = {"GT_ODOM_TOPIC", "GT_LABELS_TOPIC", "GT_TF_TOPIC", "GT_BASE_FRAME", "WORLD_KEY", "SIM_KEY"}  # the prefix may be named: to skip them
 
 # lowest first; a module may import its own layer and those before it
 LAYERS: list[tuple[str, ...]] = [

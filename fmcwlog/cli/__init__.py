@@ -39,6 +39,7 @@ def cli(quiet: bool, verbose: int) -> None:
     fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
     fmcwlog calibrate  the LiDAR's mount and the wheel radii from a log -> calib.yaml
     Logs are MCAP files of ROS 2 messages (docs/log-format.md); they open in Foxglove.
+    process, calibrate and report also read rosbag2 folders and ROS 1 .bag files as recorded.
     Run 'fmcwlog COMMAND --help' for each command's options, defaults and units.
 
     \b

@@ -9,13 +9,16 @@ import click
 
 from ..io.atomic import check_output_file
 from .console import console
+from .process import TIME_FIELD_OPTION_HELP
 
 if TYPE_CHECKING:
     from ..pipeline.calibrate import CalibrateSummary
 
 _CALIBRATE_HELP = """Estimate the LiDAR's mount (lidar_x, lidar_y, lidar_yaw) and the wheels' effective
 radii and track width from LOG itself, and write them as a calibration file that
-'fmcwlog process LOG --calibration FILE' takes instead of the log's record.
+'fmcwlog process LOG --calibration FILE' takes before the log's record. It starts
+from the calibration 'process' would use (the file, the record, the mount from the
+log's tf: see 'fmcwlog process --help').
 
 \b
 Doppler gives the LiDAR's velocity every sweep, the wheel ticks each wheel's rotation,
@@ -33,25 +36,28 @@ the file. Units: metres and radians, the record's keys (docs/log-format.md).
 
 
 @click.command("calibrate", help=_CALIBRATE_HELP)
-@click.argument("log", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("log", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Calibration file to write (.yaml).")
 @click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Start from this calibration file instead of the log's record.")
+              help="Start from this calibration file: its values go before the log's record and its tf.")
+@click.option("--base-frame", default="base_link", show_default=True,
+              help="The robot's frame, for a mount read from the log's tf (as for 'process').")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Parameter file (TOML, YAML or JSON), as for 'process'.")
 @click.option("--set", "set_items", multiple=True, metavar="SECTION.NAME=VALUE",
               help="Override one parameter; repeatable (e.g. --set self_calibration.min_speed=0.3).")
+@click.option("--time-field", metavar="NAME:UNIT", default=None, help=TIME_FIELD_OPTION_HELP)
 @click.option("--force", is_flag=True, help="Overwrite OUTPUT if it exists.")
-def calibrate_cmd(log, output, calibration_file, config_file, set_items, force):
+def calibrate_cmd(log, output, calibration_file, base_frame, config_file, set_items, time_field, force):
     check_output_file(output, force, (log, calibration_file, config_file))  # --force never overwrites an input
     from ..pipeline.calibrate import calibrate  # here: --help needs none of the estimation stack
     from ..pipeline.options import ProcessOptions
     from ..pipeline.params import params_from
 
     params = params_from(config_file, set_items)
-    summary = calibrate(log, output, ProcessOptions(methods=("improved",), params=params,
-                                                             calibration=calibration_file), force=force)
+    summary = calibrate(log, output, ProcessOptions(methods=("improved",), params=params, calibration=calibration_file,
+                                                    base_frame=base_frame, time_field=time_field), force=force)
     _print_estimates(summary)
     for w in summary.warnings:
         console.warning(w)

@@ -31,7 +31,24 @@ baseline  all points, wheel-odometry prior, classic point-to-point ICP (unit wei
 Reads /fmcw/points (or --scan-topic: a PointCloud2 or a LaserScan; without a
 velocity field the Doppler stages are off and run.json says so) and /wheel/ticks
 with the fmcwlog.calibration record, or --odom-topic (nav_msgs/Odometry) as the
-motion prior. Never reads /ground_truth/* or fmcwlog.world.
+motion prior. Never reads /ground_truth/* or fmcwlog.world. A 3-D cloud (z spread
+over heights, or a ring field) is brought down to the sensor's plane: the points
+within 2 deg of it are kept (--set inputs.plane_band_deg=...), their Doppler
+corrected for elevation. Point times: see --time-field.
+
+\b
+The LiDAR's mount, from the first that gives it: --calibration FILE, the log's
+fmcwlog.calibration record, the log's /tf_static (or a /tf transform that never
+changes) from the scan's frame_id to --base-frame, else 0, 0, 0 with a warning.
+A record and tf that disagree are warned of, naming both. Wheel ticks need the
+wheels (the file or the record); without them /odom is the prior, with a warning.
+run.json's calibration_sources says where each came from.
+
+\b
+LOG: an MCAP log, a rosbag2 folder (sqlite3 or MCAP storage; or its .db3 file) or a
+ROS 1 .bag, read as recorded. A bag holds no fmcwlog.calibration record: its mount
+comes from tf, and wheel ticks need --calibration FILE (the record's keys in YAML;
+docs/log-format.md), else /odom is the prior.
 
 \b
 Writes to OUT_DIR:
@@ -52,11 +69,17 @@ range (a value outside it is refused); --config takes it back, and so does a pre
 output's run.json (--config OUT/run.json).
 
 \b
+A damaged message is skipped and counted (run.json). More than 5 % of the sweeps
+skipped is said on the last line, in run.json and in the report's header; more than
+half is an error, and no OUT_DIR (a failed log in a batch), unless --keep-going.
+
+\b
 --force replaces OUT_DIR only if fmcwlog made it (its .fmcwlog-output lists everything
 in it), never a folder holding anything else or the LOG.
 
 \b
-Many logs: give several LOGs, or folders (searched for *.mcap, sub-folders too).
+Many logs: give several LOGs, or folders (searched for *.mcap, *.bag and rosbag2
+folders, sub-folders too).
 Each log's results go to OUT_DIR/<its name>/, the same files as a run on that log
 alone, and OUT_DIR/batch.json records what became of every log. Each log runs in a
 worker process of its own, --jobs at a time (default: every core), and a log that
@@ -68,6 +91,11 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 '--ray=ADDRESS' joins one (e.g. --ray=auto on a node of the cluster). Then
 'fmcwlog report OUT_DIR' writes every log's report and the fleet page.
 """
+
+
+TIME_FIELD_OPTION_HELP = ("The PointCloud2 field holding each point's time, and its unit: s, ms, us or ns after "
+                          "header.stamp, abs_s or abs_ns since the epoch (e.g. time:s).  [default: by name and type: "
+                          "t (float s, uint32 ns), time_offset_ns (uint32 ns), timestamp (float64 s since the epoch)]")
 
 
 @click.command("process", help=_PROCESS_HELP)
@@ -86,12 +114,21 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
               help="nav_msgs/Odometry topic to use as the motion prior instead of ticks.  [default: /odom when the "
                    "log has no wheel ticks]")
 @click.option("--calibration", "calibration_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys) "
-                   "to use instead of the log's record.")
+              help="Calibration file (from 'fmcwlog calibrate', or by hand: the fmcwlog.calibration record's keys, "
+                   "e.g. '{lidar_x: 0.35, lidar_y: 0.0, lidar_yaw: 0.0}'); its values go before the log's record "
+                   "and its tf.")
+@click.option("--base-frame", default="base_link", show_default=True,
+              help="The robot's frame: where neither --calibration nor the log's record gives the mount, it is "
+                   "the scan's frame_id in this frame through the log's /tf_static (and /tf where it never changes).")
+@click.option("--time-field", metavar="NAME:UNIT", default=None, help=TIME_FIELD_OPTION_HELP)
 @click.option("--backend", type=click.Choice(["pose-graph", "none"]), default="pose-graph", show_default=True,
               help="Loop closures in a pose graph for every method (the outputs come from the optimised poses, "
                    "the front end's kept as <method>_frontend.tum), or 'none': the front ends alone.")
 @click.option("--force", is_flag=True, help="Replace OUT_DIR if it is an output folder fmcwlog made.")
+@click.option("--keep-going", is_flag=True,
+              help="Process a log even if more than half of its sweeps had to be skipped as damaged (else it is an "
+                   "error, and a failed log in a batch); the share skipped is said on the last line, in run.json "
+                   "and in the report. More than 5 % is always said so.")
 @click.option("--show-config", is_flag=True,
               help="Print the parameters that would be used as TOML (each with its unit and valid range; "
                    "--config takes it back), and exit.")
@@ -111,7 +148,8 @@ cluster instead (pip install 'fmcwlog[ray]'): '--ray' alone starts a local Ray,
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --ray: how often Ray retries a log whose worker or node died.")
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
-                backend, force, show_config, jobs, timeout_s, memory_limit_mb, ray_address, retries):
+                base_frame, time_field, backend, force, keep_going, show_config, jobs, timeout_s, memory_limit_mb, ray_address,
+                retries):
     from ..pipeline.options import ProcessOptions  # here: --help needs none of the estimation stack
     from ..pipeline.params import params_from, params_toml
 
@@ -122,8 +160,11 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)
     opts = ProcessOptions(methods, scan_topic, ticks_topic, odom_topic, params, calibration=calibration_file,
-                              backend=backend)
-    if len(logs) == 1 and not logs[0].is_dir() and ray_address is None:
+                              backend=backend, base_frame=base_frame, keep_going=keep_going, time_field=time_field)
+    opts.cloud_reading()  # a --time-field that is not NAME:UNIT: one line before any work
+    from ..io.logs import is_rosbag2_folder
+
+    if len(logs) == 1 and (not logs[0].is_dir() or is_rosbag2_folder(logs[0])) and ray_address is None:
         if timeout_s or memory_limit_mb != Limits().memory_limit_mb:
             console.warning("--timeout and --memory-limit apply to several logs (each in its worker); one log runs "
                             "here, in this process, without them")
@@ -137,13 +178,15 @@ def _check_arguments(logs: tuple[Path, ...], out_dir: Path | None, ray_address: 
     if ray_address not in (None, "local") and Path(ray_address).exists():
         raise UserError(f"--ray took {ray_address!r} as its ADDRESS: put --ray after the logs, or write --ray=ADDRESS")
     if not logs:
-        raise UserError("missing LOG: the .mcap file(s) or folder(s) to process")
+        raise UserError("missing LOG: the log(s) (MCAP, rosbag2 folder, ROS 1 .bag) or folder(s) to process")
     if out_dir is None:
         raise UserError("missing -o/--output: the folder to write")
 
 
-def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None = None) -> None:
-    """One log, here (``process`` and ``run``): a progress bar with sweeps/s, then times, closures, warnings."""
+def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None = None) -> str | None:
+    """One log, here (``process`` and ``run``): a progress bar with sweeps/s, then times, closures, warnings.
+    The share of sweeps skipped, where more than 5 %, is the last line; it is returned for ``run``'s own last
+    line."""
     import time
 
     from ..pipeline.process import process
@@ -173,8 +216,12 @@ def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, job
         console.info(f"  {m:9s} back end: {b['closures_accepted']} loop closures accepted of {b['closures_verified']} "
                      f"verified, {b['closures_proposed']} proposed; {b['seconds']:.1f} s")
     for w in summary.warnings:
-        console.warning(w)
+        if w != summary.many_skipped:
+            console.warning(w)
     console.info(f"wrote {summary.out_dir}/")
+    if summary.many_skipped:
+        console.warning(summary.many_skipped)
+    return summary.many_skipped
 
 
 def _process_many(logs: list[Path], out_dir: Path, opts: ProcessOptions, force: bool, jobs: int | None,

@@ -42,7 +42,7 @@ errors; without, where the two methods disagree most or ICP ran out of correspon
 
 @click.command("report", help=_REPORT_HELP)
 @click.argument("out_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--log", "log", type=click.Path(dir_okay=False), callback=as_path, default=None,
+@click.option("--log", "log", type=click.Path(), callback=as_path, default=None,
               help="The log the folder was processed from (default: the one run.json names).")
 @click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=as_path, default=None,
               help="Where comparison.md/.json go when several folders are given.  [default: .]")

@@ -38,6 +38,8 @@ def run_cmd(out_dir, scenario, duration, seed, force):
     with replacing_folder(out_dir, force, "fmcwlog run") as folder:
         log = folder / "log.mcap"
         record_log(builtin_world(scenario), cfg, log)
-        process_log(log, folder / "results", ProcessOptions(), force=False)
+        many_skipped = process_log(log, folder / "results", ProcessOptions(), force=False)
         report_folder(folder / "results", None, None)
     console.info(f"\nopen {(out_dir / 'results' / 'report.html').resolve()} in a browser")
+    if many_skipped:
+        console.warning(many_skipped)

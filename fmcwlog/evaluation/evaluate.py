@@ -41,8 +41,9 @@ import pyarrow.parquet as pq
 
 from .. import __version__
 from ..errors import LogError, ReportError
-from ..io.digest import file_sha256
-from ..io.mcap_log import LogReader
+from ..io.digest import log_sha256
+from ..io.logs import Log, open_log
+from ..io.messages import stamp_ns
 from ..io.outputs import read_tum
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, SIM_KEY, WORLD_KEY
 from ..types import BASELINE, IMPROVED, METHOD_NAMES, SEGMENTING_METHODS, WHEEL_ODOMETRY
@@ -96,7 +97,8 @@ class Evaluation:
 # what report reads of run.json, and the type each must have when present (peers write their own run.json)
 _RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
                                           "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
-                                          "doppler": (bool, type(None)), "prior": (str, type(None))}
+                                          "doppler": (bool, type(None)), "prior": (str, type(None)),
+                                          "many_skipped_sweeps": (dict,)}
 _PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
 
 
@@ -146,20 +148,22 @@ def _check_parquet(path: Path) -> None:
         raise ReportError(f"{path}: a row has no stamp_ns or method")
 
 
-def _check_log_matches(out_dir: Path, log: Path, reader: LogReader, run: dict, stamps: np.ndarray) -> None:
+def _check_log_matches(out_dir: Path, log: Path, reader: Log, run: dict, stamps: np.ndarray) -> None:
     """Refuse a log other than the one ``out_dir`` was processed from: by its sha256 where run.json
     records it (another run, scenario or seed can share every stamp), else by its sweep stamps."""
     recorded = run.get("log_sha256")
     if recorded is not None:
         try:
-            digest = file_sha256(log)
+            digest = log_sha256(log)
         except OSError as exc:
             raise ReportError(f"{log}: cannot read ({exc.strerror})") from None
         if digest != recorded:
             raise ReportError(f"{log}: is not the log {out_dir} was processed from ({run.get('log', 'see run.json')}): "
                               f"their sha256 differ ({digest[:12]}... here, {recorded[:12]}... in run.json)")
     scan = run.get("scan_topic", "/fmcw/points")
-    log_stamps = np.fromiter(reader.log_times(scan), dtype=np.int64)
+    # a bag's log_time is when the message was received: its sweeps are matched by header.stamp
+    log_stamps = np.fromiter((stamp_ns(m.msg.header.stamp) for m in reader.messages([scan])) if reader.receive_times
+                             else reader.log_times(scan), dtype=np.int64)
     # a peer may stamp its poses later than the sweep (KISS-ICP: mid-sweep); run.json says by how much
     stamps = np.asarray(stamps, dtype=np.int64) - int(round(float(run.get("stamp_shift_s", 0.0)) * 1e9))
     if log_stamps.size == 0 or not np.all(np.isin(stamps, log_stamps)):
@@ -244,8 +248,10 @@ def params_digest(params: Any) -> str | None:
 
 def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str]) -> dict[str, Any]:
     """What was run: versions, date (UTC), log, scenario and seed (from the log's ``fmcwlog.sim``
-    record, absent from a real log), methods and the parameters' digest."""
+    record, absent from a real log), methods and the parameters' digest; and, only where the run
+    skipped more than 5 % of the log's sweeps, how many and why (run.json's ``many_skipped_sweeps``)."""
     seed = sim.get("seed")
+    skipped = run.get("many_skipped_sweeps")
     return {
         "fmcwlog_version_processed": run.get("fmcwlog_version"),
         "fmcwlog_version_report": __version__,
@@ -256,6 +262,7 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
         "methods": list(run.get("methods") or [m for m in present if m in METHOD_NAMES]),
         "trajectories": list(present),
         "params_sha256_12": params_digest(run.get("params")),
+        **({"many_skipped_sweeps": skipped} if skipped is not None else {}),
     }
 
 
@@ -280,21 +287,22 @@ def _disagreements(ev: Evaluation, tums: dict[str, tuple[np.ndarray, np.ndarray]
     return out
 
 
-def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, LogReader]:
+def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, Log]:
     """The log the folder was processed from: ``log`` if given, else the one run.json names."""
     named = log if log is not None else run.get("log")
     if named is None or not str(named).strip():
         raise ReportError(f"{out_dir}: its run.json names no log; name it with --log")
     path = Path(named)
-    if not path.is_file():
+    if not path.exists():
         raise ReportError(f"{out_dir}: its log {path} is not there; name it with --log")
     try:
-        return path, LogReader(path)
+        reader = open_log(path)
+        return reader.path, reader
     except LogError as exc:
         raise ReportError(str(exc)) from None
 
 
-def _sweep_times(out_dir: Path, log: Path, reader: LogReader, run: dict) -> tuple[np.ndarray, np.ndarray]:
+def _sweep_times(out_dir: Path, log: Path, reader: Log, run: dict) -> tuple[np.ndarray, np.ndarray]:
     """Method and ms of every row of trajectories.parquet, once its stamps are checked against the log."""
     table = pq.read_table(out_dir / "trajectories.parquet", columns=["method", "stamp_ns", "ms"])
     _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
@@ -313,7 +321,7 @@ def _trajectories_in(out_dir: Path) -> list[str]:
                             if p.stem not in TRAJECTORIES and p.name != GROUND_TRUTH_TUM)
 
 
-def _ground_truth(reader: LogReader, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _ground_truth(reader: Log, log: Path, ev: Evaluation, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """The log's ground-truth stamps (ns) and poses; set on ``ev`` when there are at least two."""
     if GT_ODOM_TOPIC in reader.topics:
         gt_ns, gt = read_ground_truth(reader)

@@ -10,7 +10,8 @@ a value cannot be computed):
   failed), ``report`` (its report.html, relative to OUT), ``report_error``, ``duration_s``
   (first to last sweep), ``distance_m`` and ``distance_from`` (along the ground truth, else
   along the improved estimate), ``sweeps``, ``wall_s`` (processing time), ``ms_per_sweep``
-  (median, per method), ``warnings``, ``truncated_log``, ``ground_truth``, ``ate_rmse_m`` and
+  (median, per method), ``warnings``, ``truncated_log``, ``skipped_sweeps_share`` (the share of its
+  sweeps skipped as damaged, where more than 5 %: run.json's ``many_skipped_sweeps``), ``ground_truth``, ``ate_rmse_m`` and
   ``feature_avg_rel_error_pct`` (per method, where ground truth exists),
   ``methods_disagreement_m``, ``icp_starved_sweeps`` (per method), ``flags``;
 - ``totals``: counts, sums, and per method the median and worst ATE over the logs with
@@ -19,7 +20,9 @@ a value cannot be computed):
 
 What is flagged, and why a person should look:
 
-- a failed log (its reason), a log whose report failed, a log cut off before its summary;
+- a failed log (its reason: more than half of its sweeps skipped as damaged is one, unless
+  ``--keep-going``), a log whose report failed, a log cut off before its summary, a log that lost
+  more than 5 % of its sweeps;
 - with ground truth: the worst ``FLAG_FRACTION`` of the logs by the improved method's ATE
   RMSE, and by its average feature-length error, when also ``OUTLIER_RATIO`` times the
   median of those logs (the worst of a fleet of good logs needs no look);
@@ -84,6 +87,7 @@ class FleetRow:
     ms_per_sweep: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     truncated_log: bool = False
+    skipped_sweeps_share: float | None = None
     ground_truth: bool = False
     ate_rmse_m: dict[str, float | None] = field(default_factory=dict)
     feature_avg_rel_error_pct: dict[str, float | None] = field(default_factory=dict)
@@ -152,6 +156,9 @@ def _from_folder(row: dict[str, Any], folder: Path) -> tuple[float, float] | Non
     row.update(sweeps=run.get("sweeps", row["sweeps"]), wall_s=run.get("wall_seconds", row["wall_s"]),
                warnings=list(run.get("warnings") or []), truncated_log=bool(run.get("truncated_log")),
                ms_per_sweep=dict(run.get("ms_per_sweep_median") or {}))
+    skipped = run.get("many_skipped_sweeps")
+    if isinstance(skipped, dict) and isinstance(skipped.get("share"), (int, float)):
+        row["skipped_sweeps_share"] = float(skipped["share"])
     row["log"] = row["log"] or run.get("log")
     min_corr = int(((run.get("params") or {}).get("icp") or {}).get("min_correspondences", 10))
     try:
@@ -236,6 +243,9 @@ def flag_logs(rows: list[FleetRow]) -> None:
             r.flags.append(f"no report: {r.report_error}")
         if r.truncated_log:
             r.flags.append("the log is cut off before its summary: processed up to where it ends")
+        if r.skipped_sweeps_share is not None:
+            r.flags.append(f"{100 * r.skipped_sweeps_share:.1f} % of its sweeps skipped as damaged: the results stand "
+                           "on the rest (its warnings say why)")
     done = [r for r in rows if r.status == "done"]
     with_gt = [r for r in done if r.ground_truth]
     without = [r for r in done if not r.ground_truth]

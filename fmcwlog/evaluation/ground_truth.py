@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReportError
-from ..io.mcap_log import LogReader
+from ..io.logs import Log
 from ..io.messages import odometry_pose_twist, stamp_ns
 from ..io.topics import GT_LABELS_TOPIC, GT_ODOM_TOPIC, WORLD_KEY
 
 
-def read_ground_truth(reader: LogReader, topic: str = GT_ODOM_TOPIC) -> tuple[np.ndarray, np.ndarray]:
+def read_ground_truth(reader: Log, topic: str = GT_ODOM_TOPIC) -> tuple[np.ndarray, np.ndarray]:
     """Ground-truth stamps (ns) and poses (N, 3) of ``base_link`` in ``map``.
 
     A pose that is not finite, an orientation that is no rotation (a zero quaternion) or a stamp
@@ -46,7 +46,7 @@ def _seconds(ns: int) -> str:
     return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
-def read_point_labels(reader: LogReader, topic: str = GT_LABELS_TOPIC) -> dict[int, np.ndarray]:
+def read_point_labels(reader: Log, topic: str = GT_LABELS_TOPIC) -> dict[int, np.ndarray]:
     """Per-sweep moving labels (uint8, 1 where the point of the same index hit a mover) keyed by
     sweep stamp (ns); an empty dict where the log has no ``topic``."""
     return {stamp_ns(m.msg.header.stamp): np.frombuffer(bytes(m.msg.moving), np.uint8)
@@ -61,7 +61,7 @@ class WorldTruth:
     walls: np.ndarray | None = None
 
 
-def read_world(reader: LogReader) -> WorldTruth:
+def read_world(reader: Log) -> WorldTruth:
     """The log's ``fmcwlog.world`` record (an empty truth if it has none).
 
     A record that breaks the log format (a key missing, JSON that does not parse, a feature

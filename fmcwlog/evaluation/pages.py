@@ -12,6 +12,8 @@ reason in ``notes`` or ``methods.M.notes``):
   ``methods`` (run.json's), ``trajectories`` (every one compared, in the page's order),
   ``params_sha256_12`` (first 12 hex digits of the sha256 of run.json's ``params`` as
   canonical JSON: ``json.dumps(params, sort_keys=True, separators=(",", ":"))``, UTF-8);
+  ``many_skipped_sweeps``, only where the run skipped more than 5 % of the log's sweeps as
+  damaged: run.json's record of it (``skipped``, ``read``, ``share``, ``main_reason``, ...);
 - ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry`` (and any other
   ``*.tum`` in the folder, e.g. a peer's):
   ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (SE(2)-aligned,
@@ -174,6 +176,7 @@ def header_rows(result: dict) -> list[tuple[str, str]]:
     none = "— (not in the log)"
     return [
         ("log", str(h.get("log", result.get("log")))),
+        *_skipped_rows(h.get("many_skipped_sweeps")),
         ("scenario", none if h.get("scenario") is None else str(h["scenario"])),
         ("seed", none if h.get("seed") is None else str(h["seed"])),
         ("methods", ", ".join(h.get("methods") or []) or "—"),
@@ -182,6 +185,19 @@ def header_rows(result: dict) -> list[tuple[str, str]]:
         ("processed by", f"fmcwlog {h.get('fmcwlog_version_processed') or '— (not in run.json)'}"),
         ("reported by", f"fmcwlog {h.get('fmcwlog_version_report')} on {h.get('report_date_utc')} (UTC)"),
     ]
+
+
+def _skipped_rows(skipped: Any) -> list[tuple[str, str]]:
+    """The header's row for a run that skipped more than 5 % of its sweeps (none otherwise)."""
+    if not isinstance(skipped, dict):
+        return []
+    try:
+        share = f"{skipped['skipped']} of {skipped['read']} ({100 * float(skipped['share']):.1f} %)"
+    except (KeyError, TypeError, ValueError):
+        share = "more than 5 %"
+    went_on = ", processed on past half as asked (--keep-going)" if skipped.get("kept_going") else ""
+    return [("sweeps skipped", f"{share}{went_on}: the results stand on the rest; the main reason: "
+                               f"{skipped.get('main_reason', '— (not in run.json)')}")]
 
 
 DISAGREEMENT_HEADER = ["method", "RMSE m", "mean m", "median m", "max m", "at the end m", "over path m"]

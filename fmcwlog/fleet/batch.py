@@ -23,8 +23,9 @@ from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, OutputError
+from ..io.digest import log_size
 from ..pipeline.options import ProcessOptions, options_digest
-from .inputs import MCAP_PATTERNS, find_logs, unique_names
+from .inputs import LOG_PATTERNS, find_logs, unique_names
 from .local import run_local
 from .progress import Progress
 from .state import (
@@ -87,8 +88,8 @@ def plan(paths: Sequence[str | os.PathLike], out_dir: Path, options: Any, force:
     """The tasks to run, the outcomes already known (skipped, refused), and every log's name in order."""
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir}: exists and is not a folder")
-    logs = find_logs(paths, MCAP_PATTERNS, skip=out_dir)
-    names = unique_names(logs, MCAP_PATTERNS)
+    logs = find_logs(paths, LOG_PATTERNS, skip=out_dir)
+    names = unique_names(logs, LOG_PATTERNS)
     digest = options_digest(options)
     removed = remove_stale_partials(out_dir, set(names))
     for p in removed:
@@ -99,7 +100,7 @@ def plan(paths: Sequence[str | os.PathLike], out_dir: Path, options: Any, force:
     def decide(item: tuple[Path, str]) -> LogTask | LogOutcome:
         log, name = item
         target = out_dir / name
-        size = log.stat().st_size
+        size = log_size(log)
         if force or not target.exists():
             return LogTask(name, log, target, options, True, size)
         complete, why = completeness(target, log, digest)
@@ -139,8 +140,9 @@ def process_many(paths: Sequence[str | os.PathLike], out_dir: str | os.PathLike,
                  force: bool = False, jobs: int | None = None, limits: Limits | None = None, ray: bool = False,
                  ray_address: str | None = None, retries: int = 2,
                  on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
-    """:func:`~fmcwlog.pipeline.process.process` every log that ``paths`` name (files, or folders searched for ``*.mcap``),
-    each into ``out_dir/<name>`` in a worker process of its own; see :mod:`fmcwlog.fleet`.
+    """:func:`~fmcwlog.pipeline.process.process` every log that ``paths`` name (files, rosbag2 folders, or
+    folders searched for ``*.mcap``, ``*.bag`` and rosbag2 folders), each into ``out_dir/<name>`` in a
+    worker process of its own; see :mod:`fmcwlog.fleet`.
 
     ``jobs`` workers at a time (default: every core); ``limits``: each log's memory cap and
     timeout. Logs whose results are complete from the same bytes and options are skipped

@@ -29,7 +29,7 @@ def import_carmen_many(paths: Sequence[str | Path], out_dir: str | Path, force: 
     :mod:`fmcwlog.fleet.inputs` gives them). An existing output is kept unless ``force``; a
     source that cannot be read is reported in its outcome and the others go on."""
     out_dir = Path(out_dir)
-    sources = find_logs(paths, CARMEN_PATTERNS, skip=out_dir)
+    sources = find_logs(paths, CARMEN_PATTERNS, skip=out_dir, rosbag2=False)
     outcomes = []
     for src, name in zip(sources, unique_names(sources, CARMEN_PATTERNS)):
         out = out_dir / f"{name}.mcap"

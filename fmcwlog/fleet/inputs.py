@@ -1,11 +1,13 @@
 """Which logs a batch covers, and the sub-folder of the output each one's results go to.
 
 A path on the command line is a log, or a folder searched (recursively, in sorted order)
-for logs by their file names, whatever their case (``*.mcap``, ``RUN.MCAP``; for ``import
-carmen`` the CARMEN names, ``.clf.GZ`` too: logs copied off other systems keep theirs). What a
-search does not enter: hidden files and folders (``.name``, where fmcwlog's own temporary
-outputs live), the batch's output folder, and any folder holding a ``run.json`` (a
-``fmcwlog process`` output: its ``processed.mcap`` is a result, not a log).
+for logs by their file names, whatever their case (``*.mcap``, ``*.bag``, ``RUN.MCAP``; for
+``import carmen`` the CARMEN names, ``.clf.GZ`` too: logs copied off other systems keep theirs).
+For ``process``, a folder holding a ``metadata.yaml`` is a rosbag2 bag: one log, named by the
+folder, whose files are not searched (given on the command line, it is that one log too; so is
+its ``.db3``). What a search does not enter: hidden files and folders (``.name``, where
+fmcwlog's own temporary outputs live), the batch's output folder, and any folder holding a
+``run.json`` (a ``fmcwlog process`` output: its ``processed.mcap`` is a result, not a log).
 
 Names: a log's results go to ``OUT/<stem>``; when two logs share a stem, the names of
 their parent folders are prefixed (``day1-run``, ``day2-run``) until the names differ,
@@ -21,8 +23,9 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from ..errors import LogError
+from ..io.logs import ROSBAG2_METADATA, is_rosbag2_folder, log_location
 
-MCAP_PATTERNS = ("*.mcap",)
+LOG_PATTERNS = ("*.mcap", "*.bag")  # and rosbag2 folders (find_logs' rosbag2)
 CARMEN_PATTERNS = tuple(f"*.{ext}{comp}" for ext in ("clf", "log") for comp in ("", ".gz", ".xz", ".bz2"))
 OUTPUT_MARKER = "run.json"  # a folder holding it is a 'fmcwlog process' output
 
@@ -40,11 +43,15 @@ def strip_suffixes(name: str, patterns: Sequence[str]) -> str:
     return Path(name).stem
 
 
-def _search(folder: Path, patterns: Sequence[str], skip: Path | None) -> Iterable[Path]:
+def _search(folder: Path, patterns: Sequence[str], skip: Path | None, rosbag2: bool) -> Iterable[Path]:
     for root, dirs, files in os.walk(folder):
         here = Path(root)
         if OUTPUT_MARKER in files or (skip is not None and here.resolve() == skip):
             dirs[:] = []
+            continue
+        if rosbag2 and ROSBAG2_METADATA in files and is_rosbag2_folder(here):
+            dirs[:] = []
+            yield here
             continue
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         for f in sorted(files):
@@ -52,19 +59,24 @@ def _search(folder: Path, patterns: Sequence[str], skip: Path | None) -> Iterabl
                 yield here / f
 
 
-def find_logs(paths: Sequence[str | os.PathLike], patterns: Sequence[str] = MCAP_PATTERNS,
-              skip: str | os.PathLike | None = None) -> list[Path]:
+def find_logs(paths: Sequence[str | os.PathLike], patterns: Sequence[str] = LOG_PATTERNS,
+              skip: str | os.PathLike | None = None, rosbag2: bool = True) -> list[Path]:
     """Every log the ``paths`` name: files as given, folders searched; each log once, in order.
 
-    ``skip``: a folder not to enter (the batch's own output). Raises :class:`LogError` for a
-    path that does not exist, or when no log at all is found.
+    ``rosbag2``: a folder holding a ``metadata.yaml`` is one log (a rosbag2 bag), and a ``.db3`` of
+    one is that folder. ``skip``: a folder not to enter (the batch's own output). Raises
+    :class:`LogError` for a path that does not exist, or when no log at all is found.
     """
     skip_dir = Path(skip).resolve() if skip is not None else None
     found: list[Path] = []
     seen: set[Path] = set()
     for p in map(Path, paths):
-        if p.is_dir():
-            logs = list(_search(p, patterns, skip_dir))
+        if rosbag2:
+            p = log_location(p)
+        if rosbag2 and is_rosbag2_folder(p):
+            logs = [p]
+        elif p.is_dir():
+            logs = list(_search(p, patterns, skip_dir, rosbag2))
         elif p.is_file():
             logs = [p]
         else:
@@ -76,13 +88,15 @@ def find_logs(paths: Sequence[str | os.PathLike], patterns: Sequence[str] = MCAP
                 found.append(log)
     if not found:
         names = ", ".join(str(p) for p in paths)
-        raise LogError(f"{names}: no logs found (looked for {', '.join(patterns)})")
+        bags = f" and rosbag2 folders (holding a {ROSBAG2_METADATA})" if rosbag2 else ""
+        raise LogError(f"{names}: no logs found (looked for {', '.join(patterns)}{bags})")
     return found
 
 
-def unique_names(logs: Sequence[Path], patterns: Sequence[str] = MCAP_PATTERNS) -> list[str]:
-    """A folder name per log, distinct, from its stem (see the module's docstring)."""
-    stems = [strip_suffixes(p.name, patterns) for p in logs]
+def unique_names(logs: Sequence[Path], patterns: Sequence[str] = LOG_PATTERNS) -> list[str]:
+    """A folder name per log, distinct, from its stem, or a rosbag2 folder's whole name (see the
+    module's docstring)."""
+    stems = [p.name if p.is_dir() else strip_suffixes(p.name, patterns) for p in logs]
     parents = [list(reversed(p.resolve().parent.parts)) for p in logs]
     names = list(stems)
     depth = 0

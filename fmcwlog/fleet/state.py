@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..io.atomic import read_marker, write_json
-from ..io.digest import file_sha256
+from ..io.digest import log_sha256, log_size
 
 BATCH_FILE = "batch.json"
 BATCH_SCHEMA = "fmcwlog.batch/1"
@@ -40,7 +40,7 @@ def completeness(out_dir: Path, log: Path, options_sha256: str) -> tuple[bool, s
         return False, f"{out_dir} holds no readable run.json"
     if run.get("options_sha256") != options_sha256:
         return False, "the options changed"
-    if run.get("log_size_bytes") != log.stat().st_size or run.get("log_sha256") != file_sha256(log):
+    if run.get("log_size_bytes") != log_size(log) or run.get("log_sha256") != log_sha256(log):
         return False, "the log changed"
     return True, "complete"
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
+from ..kernels.compiled import CompiledNearest
 from ..kernels.nearest import NearestPairs
 from .gmmsc import DistanceMixture, GMMSCParams
 
@@ -96,7 +97,7 @@ class ICPResult:
     hessian: np.ndarray
     n_gmm_fits: int = 0
     mixture: DistanceMixture | None = None
-    search: NearestPairs | None = None
+    search: NearestPairs | CompiledNearest | None = None
 
 
 def gauss_newton_step(

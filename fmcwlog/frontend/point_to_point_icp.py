@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import transform_points, wrap_angle
+from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
 from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
 
@@ -52,7 +53,31 @@ def register_point_to_point(
 
     Same correspondence search and gate as :func:`register`; no GMMSC, no Huber.
     Each iteration solves the pose exactly for the current pairs (2-D Kabsch).
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the
+    same pairs and iterations), else :func:`register_point_to_point_numpy`.
     """
+    core = compiled.core()
+    if core is None:
+        return register_point_to_point_numpy(source_xy, target_tree, target_xy, initial_pose, params)
+    source = np.ascontiguousarray(source_xy, dtype=float)
+    grid = core.TargetGrid(np.ascontiguousarray(target_xy, dtype=float), params.max_correspondence_distance)
+    x, y, th = np.asarray(initial_pose, dtype=float).tolist()
+    pose, iterations, n_kept, converged, rmse, (h00, h02, h11, h12, h22) = core.point_to_point_icp(
+        grid, source, x, y, th, params.max_iterations, params.translation_tol, params.rotation_tol,
+        params.min_correspondences)
+    h = np.array(((h00, 0.0, h02), (0.0, h11, h12), (h02, h12, h22)))
+    search = compiled.CompiledNearest(core, source, target_tree, grid, params.max_correspondence_distance)
+    return ICPResult(np.array(pose), iterations, n_kept, converged, rmse, h, 0, None, search)
+
+
+def register_point_to_point_numpy(
+    source_xy: np.ndarray,
+    target_tree: cKDTree,
+    target_xy: np.ndarray,
+    initial_pose: np.ndarray,
+    params: ICPParams = ICPParams(),
+) -> ICPResult:
+    """:func:`register_point_to_point` in numpy: the reference the compiled kernel is tested against."""
     pose = np.asarray(initial_pose, dtype=float).copy()
     h = np.zeros((3, 3))
     n_kept, rmse, converged = 0, float("nan"), False
@@ -68,12 +93,12 @@ def register_point_to_point(
         step = new - pose
         step[2] = wrap_angle(step[2])
         pose = new
-        n_kept, last_distances = int(c.distances.size), c.distances
+        n_kept, last_distances, used = int(c.distances.size), c.distances, (src, c.target)
         if step_is_small(step, params):
             converged = True
             break
     if last_distances is not None:
         rmse = float(np.sqrt(np.mean(last_distances**2)))
-    if n_kept:  # information matrix of the last pairs at the final pose (unit weights)
-        _, h = gauss_newton_step(transform_points(pose, src), c.target, pose, np.ones(n_kept))
+    if n_kept:  # information matrix of the last pairs used, at the final pose (unit weights)
+        _, h = gauss_newton_step(transform_points(pose, used[0]), used[1], pose, np.ones(n_kept))
     return ICPResult(pose, iterations, n_kept, converged, rmse, h, 0, None, search)

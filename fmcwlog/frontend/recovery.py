@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import transform_points
+from ..kernels.compiled import CompiledNearest
 from ..kernels.correlative import CorrelativeParams
 from ..kernels.nearest import NearestPairs
 
@@ -39,7 +40,7 @@ class RecoveryParams(Checked):
 
 
 def inlier_fraction(source_xy: np.ndarray, pose: np.ndarray, tree: cKDTree, distance: float,
-                    search: NearestPairs | None = None) -> float:
+                    search: NearestPairs | CompiledNearest | None = None) -> float:
     """Fraction of ``source_xy`` (base_link) that lands within ``distance`` (m) of the map's
     points under ``pose``. ``search``: the registration's correspondence search over the same
     source and tree (:attr:`~.icp.ICPResult.search`), which answers exactly and asks the tree

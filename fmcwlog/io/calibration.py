@@ -1,5 +1,14 @@
-"""The ``fmcwlog.calibration`` metadata record as numbers (docs/log-format.md), each checked against its
-physical range.
+"""The calibration processing uses: the ``fmcwlog.calibration`` metadata record as numbers
+(docs/log-format.md), each checked against its physical range, with a calibration file before it
+and the log's tf after it, for the mount.
+
+Each group of values comes from the first source that gives it (:func:`load_calibration`):
+
+- the mount (``lidar_x``, ``lidar_y``, ``lidar_yaw``): ``--calibration FILE``, the record, the
+  log's ``/tf_static`` (or a ``/tf`` transform that never changes) from the scan's frame to the
+  base frame (:mod:`.tf_tree`), else 0, 0, 0 with a warning saying how to give it;
+- the wheels, which wheel ticks need: the file, else the record;
+- the other keys: the file's, else the record's.
 
 MCAP allows several metadata records of one name: identical copies are one calibration (with a
 note), copies that disagree are refused, naming the keys they disagree on: there is no telling
@@ -8,18 +17,29 @@ which one the robot had.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
 from ..errors import CalibrationError, LogError
 from ..types import Calibration, WheelCalibration
 from .calibration_file import read_calibration_file
-from .topics import CALIBRATION_KEY
+from .tf_tree import MessageSource, TfMount, mount_from_tf
+from .topics import BASE_FRAME, CALIBRATION_KEY
 
-if TYPE_CHECKING:
-    from .mcap_log import LogReader
+T = TypeVar("T")
+
+
+class LogSource(MessageSource, Protocol):
+    """What calibration reads of a log: a reader's public interface."""
+
+    def metadata_all(self, name: str) -> list[dict[str, str]]: ...
+
+    def damage_note(self) -> str: ...
 
 WHEEL_KEYS = ("wheel_radius_left", "wheel_radius_right", "track_width", "ticks_per_revolution")
 MOUNT_KEYS = ("lidar_x", "lidar_y", "lidar_yaw")
@@ -90,52 +110,205 @@ def calibration_record(records: list[dict[str, str]], source: str) -> dict[str, 
     return first
 
 
-def parse_calibration(values: dict[str, str] | None, need_wheels: bool, source: str = "the calibration") -> Calibration:
-    """Parse the record; the wheel keys are required only when ticks are the motion prior.
-
-    A log without a calibration record (e.g. an imported laser log) gets the
-    lidar at the origin of base_link. So does a record without the mount's keys, with a
-    warning naming ``source`` and the keys: the log format (docs/log-format.md) lists them, and a writer that left
-    them out would otherwise have its lidar moved to the rear axle without a word (a 12 s crowd
-    log so rewritten: the baseline's trajectory 11 cm off). Every value read must lie in its
-    range (:data:`RANGES`).
-    """
-    missing_mount = [k for k in MOUNT_KEYS if k not in values] if values else []
-    if missing_mount:
-        warnings.warn(f"{source}: {CALIBRATION_KEY} has no {', '.join(missing_mount)}: taken as 0 (the lidar "
-                      "at base_link's origin, facing forward)", stacklevel=2)
-    values = values or {}
-    if need_wheels:
-        if not values:
-            raise CalibrationError(f"no {CALIBRATION_KEY} record, which wheel ticks need")
-        r_left, r_right, track, ticks = (_number(values, k) for k in WHEEL_KEYS)
-        if ticks != int(ticks):
-            raise CalibrationError(f"calibration 'ticks_per_revolution' = {values['ticks_per_revolution']} "
-                                   "is not a whole number")
-        wheels = WheelCalibration(r_left, r_right, track, int(ticks))
-    else:
-        wheels = None
+def _mount(values: dict[str, str], source: str) -> tuple[float, float, float]:
+    """The mount's keys of a source that gives some of them; a missing one is 0, with a warning naming
+    ``source`` and the key: the log format (docs/log-format.md) lists them, and a writer that left
+    one out would otherwise have its lidar moved without a word (a 12 s crowd log whose record
+    lacked them all: the baseline's trajectory 11 cm off)."""
+    missing = [k for k in MOUNT_KEYS if k not in values]
+    if missing:
+        warnings.warn(f"{source}: {CALIBRATION_KEY} has no {', '.join(missing)}: taken as 0 (the lidar "
+                      "at base_link's origin, facing forward)", stacklevel=3)
     x, y, yaw = (_number(values, k) if k in values else 0.0 for k in MOUNT_KEYS)
-    opt = {k: _number(values, k) if k in values else None for k in OPTIONAL_KEYS}
-    return Calibration(wheels, (x, y, yaw), opt["doppler_resolution"], opt["range_sigma"], opt["max_range"],
-                       opt["scan_rate"] or None)
+    return x, y, yaw
 
 
-def load_calibration(reader: LogReader, log: Path, need_wheels: bool, path: Path | None) -> tuple[Calibration, str]:
-    """The calibration to process ``log`` with: the calibration file at ``path`` if given, else the
-    log's ``fmcwlog.calibration`` record; and where it came from (the path, or ``log record ...``).
+def _wheels(values: dict[str, str]) -> WheelCalibration:
+    r_left, r_right, track, ticks = (_number(values, k) for k in WHEEL_KEYS)
+    if ticks != int(ticks):
+        raise CalibrationError(f"calibration 'ticks_per_revolution' = {values['ticks_per_revolution']} "
+                               "is not a whole number")
+    return WheelCalibration(r_left, r_right, track, int(ticks))
 
-    ``need_wheels``: the wheels' keys must be there (wheel ticks are read). Raises
-    :class:`~fmcwlog.errors.CalibrationError` (naming the file) for a bad file, and
-    :class:`~fmcwlog.errors.LogError` (naming the log) for a missing or bad record. A calibration
-    that leaves out some of the mount's keys is warned of by :func:`parse_calibration`."""
+
+# ----------------------------------------------------------------------------- the sources, in order
+
+RECORD_SOURCE = f"log record {CALIBRATION_KEY}"
+NO_MOUNT = "none (assumed 0, 0, 0)"
+NO_WHEELS = "not used (no wheel ticks read)"
+MOUNT_EXAMPLE = "{lidar_x: 0.35, lidar_y: 0.0, lidar_yaw: 0.0}"
+WHEELS_EXAMPLE = "{wheel_radius_left: 0.1, wheel_radius_right: 0.1, track_width: 0.45, ticks_per_revolution: 4096}"
+MOUNT_AGREES_M = 1e-3  # m: a record and tf closer than this (and MOUNT_AGREES_RAD) agree
+MOUNT_AGREES_RAD = 1e-3  # rad
+
+
+def mount_hint(log: str | Path, base_frame: str = BASE_FRAME) -> str:
+    """How to give the mount: the option, a one-line file, and the command that estimates one."""
+    return (f"give it with --calibration calib.yaml, a file such as '{MOUNT_EXAMPLE}' (m, m, rad in {base_frame}), "
+            f"or estimate it with 'fmcwlog calibrate {log} -o calib.yaml' (needs Doppler and wheel ticks)")
+
+
+def wheels_hint(log: str | Path) -> str:
+    """How to give the wheels: the option, a one-line file, and the command that refines one."""
+    return (f"give it with --calibration calib.yaml, a file such as '{WHEELS_EXAMPLE}' (m and encoder counts), "
+            f"which 'fmcwlog calibrate {log} --calibration calib.yaml -o better.yaml' refines from the log's Doppler")
+
+
+def wheels_missing(ticks: str, path: Path | None) -> str:
+    """Why wheel ticks on ``ticks`` cannot be used: no source holds the wheels (``path``: the calibration file given)."""
+    where = f"neither {path} nor the log's {CALIBRATION_KEY} record" if path is not None else \
+        f"no {CALIBRATION_KEY} record in the log and no --calibration file"
+    return (f"{ticks} holds wheel ticks, but nothing gives the wheels' geometry they need ({where} holds "
+            f"{', '.join(WHEEL_KEYS)})")
+
+
+@dataclass(frozen=True)
+class CalibrationSources:
+    """Where each group of the calibration came from, as ``run.json`` says it.
+
+    mount: a calibration file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
+    base_link->laser`` (the topics and the frames) or :data:`NO_MOUNT`. wheels: a file's path or the
+    record; None where no wheel ticks are read.
+    """
+
+    mount: str
+    wheels: str | None
+
+    def describe(self) -> str:
+        """``run.json``'s ``calibration_source``: the one source where it gave all that was used, else each group's."""
+        if self.wheels is None or self.wheels == self.mount:
+            return self.mount
+        return f"mount from {self.mount}; wheels from {self.wheels}"
+
+    def to_json(self) -> dict[str, str]:
+        """``run.json``'s ``calibration_sources``."""
+        return {"mount": self.mount, "wheels": self.wheels if self.wheels is not None else NO_WHEELS}
+
+
+@dataclass(frozen=True)
+class LoadedCalibration:
+    """What :func:`load_calibration` found: the calibration (its ``wheels`` None where ticks need them and
+    nothing gives them: the caller decides), each group's source, and the values as a record holds
+    them, each from its source (what ``fmcwlog calibrate`` starts its file from)."""
+
+    cal: Calibration
+    sources: CalibrationSources
+    values: dict[str, str]
+
+
+@dataclass(frozen=True)
+class _Source:
+    label: str  # as run.json says it
+    values: dict[str, str]
+    names: str  # what its warnings and errors name: the file or the log
+    is_file: bool
+
+    def gives(self, keys: tuple[str, ...]) -> bool:
+        return any(k in self.values for k in keys)
+
+    def parse(self, fn: Callable[[dict[str, str]], T], damage: str = "") -> T:
+        """``fn(values)``; a bad value is an error naming the file (CalibrationError) or the log (LogError)."""
+        try:
+            return fn(self.values)
+        except CalibrationError as exc:
+            if self.is_file:
+                raise CalibrationError(f"{self.names}: {str(exc).removeprefix(f'{self.names}: ')}") from None
+            raise LogError(f"{self.names}: {exc}{damage}") from None
+
+
+def _fmt_mount(mount: tuple[float, float, float]) -> str:
+    x, y, yaw = (round(v, 6) + 0.0 for v in mount)
+    return f"x {x:g} m, y {y:g} m, yaw {yaw:g} rad"
+
+
+def _agree(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    dyaw = abs(math.remainder(a[2] - b[2], 2 * math.pi))
+    return abs(a[0] - b[0]) <= MOUNT_AGREES_M and abs(a[1] - b[1]) <= MOUNT_AGREES_M and dyaw <= MOUNT_AGREES_RAD
+
+
+def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels: bool, path: Path | None,
+                     base_frame: str = BASE_FRAME) -> LoadedCalibration:
+    """The calibration to process ``log`` with, each group from the first source that gives it.
+
+    The mount (``lidar_x``, ``lidar_y``, ``lidar_yaw``): the calibration file at ``path``, the log's
+    ``fmcwlog.calibration`` record, the log's tf from ``scan_topic``'s frame to ``base_frame``
+    (:mod:`.tf_tree`), else 0, 0, 0 with a warning saying how to give it. A source gives the mount
+    when it holds any of the three keys (one it lacks is 0, with a warning). Where the record gives
+    the mount and tf another, a warning names both and the one used. The wheels (``need_wheels``:
+    wheel ticks are read): the file, else the record, else None (the caller falls back or fails).
+    The other keys: the file's, else the record's.
+
+    Raises :class:`~fmcwlog.errors.CalibrationError` (naming the file) for a bad file, and
+    :class:`~fmcwlog.errors.LogError` (naming the log) for a bad record the calibration uses; a
+    record that cannot be read (copies that disagree) is an error unless the file gives every group.
+    """
+    sources: list[_Source] = []
     if path is not None:
         try:
-            return parse_calibration(read_calibration_file(path), need_wheels, str(path)), str(path)
+            sources.append(_Source(str(path), read_calibration_file(path), str(path), True))
         except CalibrationError as exc:
             raise CalibrationError(f"{path}: {str(exc).removeprefix(f'{path}: ')}") from None
+    complete = bool(sources) and sources[0].gives(MOUNT_KEYS) and (not need_wheels or sources[0].gives(WHEEL_KEYS))
+    damage = reader.damage_note()
     try:
         record = calibration_record(reader.metadata_all(CALIBRATION_KEY), str(log))
-        return parse_calibration(record, need_wheels, str(log)), f"log record {CALIBRATION_KEY}"
     except CalibrationError as exc:
-        raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+        if not complete:
+            raise LogError(f"{log}: {exc}{reader.damage_note()}") from None
+        warnings.warn(f"{log}: {exc}; {path} gives every value used", stacklevel=2)
+        record = None
+    if record is not None:
+        sources.append(_Source(RECORD_SOURCE, record, str(log), False))
+
+    values: dict[str, str] = {}
+    mount_src = next((s for s in sources if s.gives(MOUNT_KEYS)), None)
+    wheels_src = next((s for s in sources if s.gives(WHEEL_KEYS)), None) if need_wheels else None
+    for s in sources:  # the keys as a record would hold them: each group from its source, the rest from the first
+        for k, v in s.values.items():
+            group = mount_src if k in MOUNT_KEYS else wheels_src if k in WHEEL_KEYS and need_wheels else None
+            if (s is group or (group is None and k not in MOUNT_KEYS)) and k not in values:
+                values[k] = v
+
+    wheels = wheels_src.parse(_wheels, damage) if wheels_src is not None else None
+    if mount_src is not None:
+        names = mount_src.names
+        mount = mount_src.parse(lambda v: _mount(v, names), damage)
+    opt: dict[str, float | None] = {k: None for k in OPTIONAL_KEYS}
+    for k in OPTIONAL_KEYS:
+        src = next((s for s in sources if k in s.values), None)
+        if src is not None:
+            opt[k] = src.parse(functools.partial(_number, key=k), damage)
+    if mount_src is not None:
+        mount_label = mount_src.label
+        if not mount_src.is_file:
+            _compare_with_tf(reader, log, scan_topic, base_frame, mount)
+    else:
+        found, notes = mount_from_tf(reader, scan_topic, base_frame)
+        for note in notes:
+            warnings.warn(note, stacklevel=2)
+        if isinstance(found, TfMount):
+            mount, mount_label = found.mount, found.source
+            values.update({k: repr(v) for k, v in zip(MOUNT_KEYS, mount)})
+        else:
+            mount, mount_label = (0.0, 0.0, 0.0), NO_MOUNT
+            have = f"no {CALIBRATION_KEY} record" if record is None else f"{CALIBRATION_KEY} has no {', '.join(MOUNT_KEYS)}"
+            warnings.warn(f"{log}: nothing gives the lidar's mount ({have}; tf: {found}): taken as 0, 0, 0 (the "
+                          f"lidar at {base_frame}'s origin, facing forward); {mount_hint(log, base_frame)}", stacklevel=2)
+    cal = Calibration(wheels, mount, opt["doppler_resolution"], opt["range_sigma"], opt["max_range"],
+                      opt["scan_rate"] or None)
+    wheels_label = None if not need_wheels else wheels_src.label if wheels_src is not None else "none"
+    return LoadedCalibration(cal, CalibrationSources(mount_label, wheels_label), values)
+
+
+def _compare_with_tf(reader: LogSource, log: Path, scan_topic: str, base_frame: str,
+                     mount: tuple[float, float, float]) -> None:
+    """The record's mount against the log's tf, where it has one: a warning naming both where they differ."""
+    found, notes = mount_from_tf(reader, scan_topic, base_frame)
+    if not isinstance(found, TfMount):
+        return
+    for note in notes:
+        warnings.warn(note, stacklevel=3)
+    if not _agree(mount, found.mount):
+        warnings.warn(f"{log}: {CALIBRATION_KEY} and tf disagree on the lidar's mount: the record has "
+                      f"{_fmt_mount(mount)}, {found.source} has {_fmt_mount(found.mount)}; used the record's "
+                      "(--calibration FILE overrides both)", stacklevel=3)

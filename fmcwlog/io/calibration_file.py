@@ -18,7 +18,7 @@ from .atomic import write_text
 
 
 def read_calibration_file(path: str | Path) -> dict[str, str]:
-    """The file's keys and values as the record holds them (strings), for :func:`.calibration.parse_calibration`.
+    """The file's keys and values as the record holds them (strings), for :func:`.calibration.load_calibration`.
 
     Raises :class:`CalibrationError` naming the file for anything that is not a flat table of numbers.
     """

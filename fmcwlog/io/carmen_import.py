@@ -1,10 +1,20 @@
 """``fmcwlog import``: real 2-D laser logs (CARMEN, CMU course format) as fmcwlog MCAP logs.
 
-A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` (``/rear_scan`` for ``RLASER``, ``RAWLASER2``), odometry a
-``nav_msgs/msg/Odometry`` on ``/odom`` (frame ``odom``, child ``base_link``), stamped with the log's own
-times. Where the log has no odometry messages (the Intel subset), the odometry pose each laser line
-carries is used. The laser's pose on the robot goes into ``fmcwlog.calibration`` (``lidar_x``,
-``lidar_y``, ``lidar_yaw``); ``fmcwlog.import`` records the source, its format and what was skipped.
+A scan becomes a ``sensor_msgs/msg/LaserScan`` on ``/scan`` in frame ``laser`` (``/rear_scan`` in
+``rear_laser`` for ``RLASER``, ``RAWLASER2``), odometry a ``nav_msgs/msg/Odometry`` on ``/odom`` (frame
+``odom``, child ``base_link``), stamped with the log's own times. Where the log has no odometry messages
+(the Intel subset), the odometry pose each laser line carries is used. The laser's pose on the robot goes
+into ``fmcwlog.calibration`` (``lidar_x``, ``lidar_y``, ``lidar_yaw``); ``fmcwlog.import`` records the
+source, its format and what was skipped.
+
+The tf tree a viewer needs (REP-105), so that every message resolves to ``map``:
+
+- ``/tf_static``, once: ``base_link`` -> ``laser`` (and -> ``rear_laser``) at the lasers' poses on the
+  robot, and ``map`` -> ``odom``. A CARMEN log has no map frame: ``map`` is put where the robot is at
+  the first scan, the origin ``fmcwlog process`` gives every estimate, so that ``processed.mcap``
+  overlays the import;
+- ``/tf``: ``odom`` -> ``base_link`` with each odometry pose, and, for a scan before the first or after
+  the last of them, the nearest one again at the scan's stamp (tf never extrapolates).
 """
 
 from __future__ import annotations
@@ -17,11 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CarmenImportError, os_reason
+from ..geometry import interpolate_poses, inverse
 from .atomic import created_parents, reported_write_errors
 from .carmen import ParsedLog, ScanRecord, parse_log
 from .mcap_log import LogWriter
-from .messages import odometry_message, stamp
-from .topics import CALIBRATION_KEY, IMPORT_KEY
+from .messages import odometry_message, stamp, tf_message, transform_dict
+from .topics import BASE_FRAME, CALIBRATION_KEY, IMPORT_KEY, MAP_FRAME, TF_STATIC_TOPIC, TF_TOPIC
 
 logger = logging.getLogger(__name__)  # the command line prints its warnings as 'fmcwlog: warning: ...'
 
@@ -53,6 +64,25 @@ def _no_scans(parsed: ParsedLog) -> str:
     odometry = f", {len(parsed.odometry)} of odometry" if parsed.odometry else ""
     return (f"{parsed.path}: no laser scans found in {parsed.lines} lines "
             f"({len(parsed.bad_lines)} malformed{odometry}{other}){first}{stopped}")
+
+
+ODOM_FRAME = "odom"
+LASER_FRAMES = {"/scan": "laser", "/rear_scan": "rear_laser"}  # each laser's frame, by topic
+
+
+def _static_transforms(scans: list[ScanRecord], odom: list[tuple[float, tuple]], first_ns: int, ns: int) -> dict:
+    """``/tf_static``: each laser's mount (its first scan's, as the calibration takes the front one's)
+    and ``map`` -> ``odom``, with ``map``'s origin at the robot's odometry pose at ``first_ns`` (the
+    first front scan's stamp), held at the first or last pose outside their span as processing holds it."""
+    mounts: dict[str, tuple[float, float, float]] = {}
+    for s in scans:
+        mounts.setdefault(s.topic, s.laser_pose)
+    origin = np.zeros(3)
+    if odom:
+        t = np.array([_ns(o[0]) for o in odom]) * 1e-9  # the stamps /odom carries
+        origin = inverse(interpolate_poses(np.array(first_ns * 1e-9), t, np.array([o[1] for o in odom], float)))
+    return tf_message([*(transform_dict(ns, BASE_FRAME, LASER_FRAMES[topic], np.asarray(m, float))
+                         for topic, m in mounts.items()), transform_dict(ns, MAP_FRAME, ODOM_FRAME, origin)])
 
 
 def _calibration(scans: list[ScanRecord]) -> dict[str, str]:
@@ -106,23 +136,40 @@ def write_mcap(parsed: ParsedLog, out: Path) -> ImportSummary:
                        f"stamp repeats the one before (kept the first; {topic})")
     n_scans = sum(kind == 0 for _, kind, _ in events)
     n_odom = len(events) - n_scans
+    kept_odom = [odom[i] for _, kind, i in events if kind == 1]
+    # a scan outside the odometry's span gets the nearest odometry pose again at its stamp on /tf
+    scan_ns = [_ns(t) for t, kind, _ in events if kind == 0]
+    held = {}
+    if kept_odom:
+        first, last = _ns(kept_odom[0][0]), _ns(kept_odom[-1][0])
+        if scan_ns[0] < first:
+            held[scan_ns[0]] = kept_odom[0][1]
+        if scan_ns[-1] > last:
+            held[scan_ns[-1]] = kept_odom[-1][1]
     with LogWriter(out) as w:
         w.add_metadata(CALIBRATION_KEY, _calibration(scans))
         w.add_metadata(IMPORT_KEY, _import_record(parsed, n_scans, n_odom, source))
+        start = _ns(events[0][0])
+        front = next(_ns(t) for t, kind, i in events if kind == 0 and scans[i].topic == scans[0].topic)
+        w.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", _static_transforms(scans, kept_odom, front, start), start)
         for t, kind, i in events:
             ns = _ns(t)
             if kind == 0:
                 s = scans[i]
                 n = len(s.ranges)
+                if ns in held:
+                    w.write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(
+                        [transform_dict(ns, ODOM_FRAME, BASE_FRAME, np.asarray(held.pop(ns), float))]), ns)
                 w.write(s.topic, "sensor_msgs/msg/LaserScan", {
-                    "header": {"stamp": stamp(ns), "frame_id": "laser"},
+                    "header": {"stamp": stamp(ns), "frame_id": LASER_FRAMES[s.topic]},
                     "angle_min": s.angle_min, "angle_max": s.angle_min + (n - 1) * s.angle_increment,
                     "angle_increment": s.angle_increment, "time_increment": 0.0, "scan_time": 0.0,
                     "range_min": 0.0, "range_max": s.range_max,
                     "ranges": np.asarray(s.ranges, np.float32).tolist(), "intensities": []}, ns)
             else:
-                w.write("/odom", "nav_msgs/msg/Odometry",
-                        odometry_message(ns, "odom", "base_link", np.asarray(odom[i][1], float), np.zeros(3)), ns)
+                pose = np.asarray(odom[i][1], float)
+                w.write("/odom", "nav_msgs/msg/Odometry", odometry_message(ns, ODOM_FRAME, BASE_FRAME, pose, np.zeros(3)), ns)
+                w.write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_message([transform_dict(ns, ODOM_FRAME, BASE_FRAME, pose)]), ns)
     return ImportSummary(out, n_scans, n_odom, source, parsed.bad_lines, events[-1][0] - events[0][0])
 
 

@@ -14,7 +14,9 @@ whose stamp jumps more than :data:`MAX_CLOCK_GAP_S` ahead when the next message
 comes back before it (held back until then: otherwise one damaged stamp would
 make every later message go backwards); a jump the next message confirms is a
 gap in the recording. A log with nothing usable left is one :class:`LogError`
-saying what was skipped. What cannot be skipped away is refused: a motion prior
+saying what was skipped; one that lost more than :data:`MANY_SKIPPED_SHARE` of its
+sweeps is said, with the main reason (:meth:`LogInputs.skipped_share`), and one
+that lost more than :data:`MOST_SKIPPED_SHARE` is for the caller to refuse. What cannot be skipped away is refused: a motion prior
 whose clock is far from the scans' (:data:`MAX_CLOCK_GAP_S`), since every sweep
 would get an extrapolated prior.
 
@@ -34,10 +36,19 @@ import numpy as np
 
 from ..errors import LogError
 from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, TicksInput
-from .mcap_log import LogReader, UndecodableMessage
+from .clouds import CloudReading
+from .logs import Log
+from .mcap_log import UndecodableMessage
 from .messages import odometry_pose_twist
 from .prior_gates import PoseGate, TickGate
 from .sweeps import MAX_ODOM_POSITION, MAX_SPEED, InputLimits, Rejected, header_stamp, sweep_from_laserscan, sweep_from_pointcloud
+
+# Shares of a log's sweeps skipped beyond which a run says so where it is seen (the last line,
+# run.json, the report's header), and beyond which it is no measurement of the log at all (refused
+# unless the caller goes on): a few damaged sweeps are the recording's bad luck; more than one in
+# twenty, a writer or a sensor that the checks do not fit, whose results must not pass unremarked.
+MANY_SKIPPED_SHARE = 0.05
+MOST_SKIPPED_SHARE = 0.5
 
 # What each kind of skipped message is, for the warnings (count, topic and bound filled in).
 _SKIP_TEXT = {
@@ -62,6 +73,35 @@ _SKIP_TEXT = {
 }
 
 
+@dataclass(frozen=True)
+class SkippedShare:
+    """The sweeps a log lost: ``skipped`` of ``read`` on ``topic``; ``kind``, the kind most of them
+    were skipped as, and ``reason``, its warning (count, bound and first case)."""
+
+    topic: str
+    skipped: int
+    read: int
+    kind: str
+    reason: str
+
+    @property
+    def share(self) -> float:
+        return self.skipped / self.read
+
+    @property
+    def many(self) -> bool:
+        return self.share > MANY_SKIPPED_SHARE
+
+    @property
+    def most(self) -> bool:
+        return self.share > MOST_SKIPPED_SHARE
+
+    def text(self, verdict: str) -> str:
+        """``540 of 600 sweeps on /scan skipped (90.0 %, VERDICT); the main reason: ...``"""
+        return (f"{self.skipped} of {self.read} sweeps on {self.topic} skipped ({100 * self.share:.1f} %, {verdict}); "
+                f"the main reason: {self.reason}")
+
+
 @dataclass
 class _Stream:
     """Accepted stamps of one topic, and what was skipped on it."""
@@ -82,13 +122,15 @@ class LogInputs:
     the topics: :meth:`LogReader.raw_messages_by_time`): sweeps, and ticks or odometry as the
     motion prior; each message checked once, as it is decoded (module docstring).
 
-    Iterate once. :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
+    Iterate once. ``reading``: how a PointCloud2's point times and a 3-D cloud are read
+    (:mod:`fmcwlog.io.clouds`). :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
     the counts by kind. Raises :class:`LogError` at the end if nothing usable was left on the
     scan topic or the prior topic, and as soon as the two clocks are found far apart.
     """
 
-    def __init__(self, reader: LogReader, topics: InputTopics, cal: Calibration):
+    def __init__(self, reader: Log, topics: InputTopics, cal: Calibration, reading: CloudReading = CloudReading()):
         self.reader = reader
+        self.reading = reading
         self.path = reader.path
         self.topics = topics
         self.limits = InputLimits.from_calibration(cal)
@@ -98,7 +140,9 @@ class LogInputs:
             raise LogError(f"{self.path}: wheel ticks on {topics.ticks} need the wheels' calibration")
         self._ticks = TickGate(cal.wheels) if topics.ticks is not None and cal.wheels is not None else None
         self._poses = PoseGate()
-        self.untimed_sweeps = 0  # PointCloud2 sweeps without the field t: taken at their stamp
+        self.untimed_sweeps = 0  # PointCloud2 sweeps without a time field: taken at their stamp
+        self.time_fields: dict[str, int] = {}  # how point times were read, other than the log format's t: sweeps
+        self.clouds_3d = [0, 0, 0]  # 3-D sweeps, their points, those kept within the band
 
     @property
     def skipped(self) -> dict[str, int]:
@@ -113,6 +157,14 @@ class LogInputs:
     def skipped_sweeps(self) -> int:
         return sum(self.scan.skipped.values())
 
+    def skipped_share(self) -> SkippedShare | None:
+        """The share of the scan topic's sweeps skipped, and why most were (None: none was)."""
+        if not self.scan.skipped:
+            return None
+        kind = max(self.scan.skipped, key=lambda k: self.scan.skipped[k])  # ties: the first seen
+        read = self.scan.accepted + self.skipped_sweeps
+        return SkippedShare(self.scan.topic, self.skipped_sweeps, read, kind, self._skip_text(self.scan, kind))
+
     @property
     def repeated_prior_stamps(self) -> int:
         return self.prior.skipped.get("prior_repeated", 0) if self.prior is not None else 0
@@ -125,7 +177,8 @@ class LogInputs:
             try:
                 m = self.reader.decode(schema, channel, rec)
                 ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
-                if rec.log_time != ns:  # the log format has them equal; estimation goes by header.stamp
+                if rec.log_time != ns and not self.reader.receive_times:  # the log format has them equal; a
+                    # bag's are receive times. Estimation goes by header.stamp
                     stream.off_log_time += 1
                     stream.first_off_log_time = stream.first_off_log_time or \
                         f"log_time {rec.log_time * 1e-9:.3f} s, header.stamp {ns * 1e-9:.3f} s"
@@ -180,9 +233,14 @@ class LogInputs:
 
     def _read_sweep(self, m: Any) -> tuple[int, SweepInput]:
         if m.datatype.endswith("PointCloud2"):
-            sweep = sweep_from_pointcloud(self.path, m.msg, self.limits)
-            if not any(f.name == "t" for f in m.msg.fields):
+            sweep, layout = sweep_from_pointcloud(self.path, m.msg, self.limits, self.reading)
+            if layout.time is None:
                 self.untimed_sweeps += 1
+            elif (layout.time.name, layout.time.unit) != ("t", "s"):  # other than the log format's t
+                what = layout.time.describe(layout.time_datatype)
+                self.time_fields[what] = self.time_fields.get(what, 0) + 1
+            if layout.kept is not None:
+                self.clouds_3d = [a + b for a, b in zip(self.clouds_3d, (1, layout.points, layout.kept))]
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
         return sweep.stamp_ns, sweep
@@ -236,6 +294,14 @@ class LogInputs:
                            f"(first sweep at {s.first_ns * 1e-9:.3f} s, motion prior from {p.first_ns * 1e-9:.3f} s "
                            f"to {p.last_ns * 1e-9:.3f} s): the motion prior would never cover a sweep")
 
+    def _skip_text(self, stream: _Stream, kind: str) -> str:
+        """The warning for one kind of skipped message: count, topic, bound and (but for a repeated
+        stamp, which is its own case) the first case."""
+        values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
+                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
+        text = _SKIP_TEXT[kind].format(n=stream.skipped[kind], topic=stream.topic, **values)
+        return text if kind.endswith("_repeated") else f"{text} (first: {stream.first_detail[kind]})"
+
     def _skipped_text(self, stream: _Stream) -> str:
         if not stream.skipped:
             return ""
@@ -252,18 +318,13 @@ class LogInputs:
 
     def notes(self) -> list[str]:
         """One warning per kind of skipped message, with its count and the first case."""
-        values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
-                  "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
         out = []
         for stream in (self.scan, self.prior):
             if stream is None:
                 continue
-            for kind, n in stream.skipped.items():
-                text = _SKIP_TEXT[kind].format(n=n, topic=stream.topic, **values)
-                if kind.endswith("_repeated"):
-                    out.append(text)
-                else:
-                    out.append(f"skipped {text} (first: {stream.first_detail[kind]})")
+            for kind in stream.skipped:
+                text = self._skip_text(stream, kind)
+                out.append(text if kind.endswith("_repeated") else f"skipped {text}")
         for stream in (self.scan, self.prior):
             if stream is not None and stream.off_log_time:
                 out.append(f"{stream.off_log_time} messages on {stream.topic} have a log_time other than their "
@@ -272,6 +333,14 @@ class LogInputs:
         if self.untimed_sweeps:  # the log format requires t; without it nothing can be deskewed
             out.append(f"{self.untimed_sweeps} sweeps on {self.topics.scan} have no field 't' (each point's time "
                        "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")
+        for what, n in self.time_fields.items():
+            out.append(f"point times of {n} sweeps on {self.topics.scan}: {what}")
+        sweeps, points, kept = self.clouds_3d
+        if sweeps:
+            band = self.reading.inputs.plane_band_deg
+            out.append(f"3-D cloud: kept {kept} of {points} points ({100 * kept / points:.1f} %) of {sweeps} sweeps on "
+                       f"{self.topics.scan} within ±{band:g}° of the sensor plane (inputs.plane_band_deg), projected "
+                       "onto it, their Doppler corrected for elevation")
         gates = [(self._ticks, "wheel-tick counter"), (self._poses, "odometry")]
         for gate, what in gates:
             if gate is not None and gate.rebases:

@@ -454,6 +454,8 @@ class LogReader:
     before its damage is a :class:`LogError`.
     """
 
+    receive_times = False  # log_time is header.stamp, as the log format has it
+
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         if self.path.is_dir():

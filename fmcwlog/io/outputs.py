@@ -1,26 +1,31 @@
 """What ``fmcwlog process`` leaves in its output folder, in the field's usual formats.
 
-Frames (REP-105 style, one tree per trajectory so that methods never fight over a frame):
-each method ``M`` (and the motion prior, ``wheel_odometry``) has its own fixed frame
-``M/odom``, with its estimate of the robot as ``M/base_link`` and the sensor as
-``M/lidar``. Estimates start at the origin of ``M/odom``: estimation cannot know where
-in ``map`` (the ground truth's frame) the robot started, so no estimate claims ``map``.
+Frames (REP-105, one tree per trajectory so that methods never fight over a frame): each
+method ``M`` (and the motion prior, ``wheel_odometry``) has its own fixed frame ``M/odom``,
+with its estimate of the robot as ``M/base_link`` and the sensor as ``M/lidar``. Estimates
+start at the origin of ``M/odom``: the robot's pose at the first sweep. ``processed.mcap`` hangs
+every ``M/odom`` from ``map`` at the identity: estimation cannot know where in the input's
+``map`` the robot started (that is ground truth), so ``map`` here is the frame the robot started
+in, shared by every trajectory, and an estimate overlays the input's ``map`` exactly where the
+input has the robot start at its origin (an imported CARMEN log does).
 
 - ``<M>.tum``: ``t x y z qx qy qz qw`` per sweep, ``M/base_link`` in ``M/odom`` (evo);
 - ``trajectories.parquet``: a row per sweep and trajectory (pandas, pyarrow); units,
   frames and the angle convention are in the schema's metadata (:data:`PARQUET_COLUMNS`);
 - ``<M>_map.pgm`` + ``.yaml`` (ROS map_server) and ``<M>_map.png``, in ``M/odom``;
-- ``processed.mcap`` (Foxglove, rosbags): ``/tf_static`` (each ``M/base_link -> M/lidar``),
-  ``/tf`` (each ``M/odom -> M/base_link``, every sweep), ``/M/odom`` (Odometry with the
-  twist and the registration's covariance), ``/M/path`` and ``/M/map`` (every
+- ``processed.mcap`` (Foxglove, RViz, rosbags): ``/tf_static`` (each ``map -> M/odom``, the
+  identity, and ``M/base_link -> M/lidar``, the input's mount), ``/tf`` (each
+  ``M/odom -> M/base_link`` at every sweep: the poses of ``<M>.tum``, so the back end's
+  optimised ones where it ran), ``/M/odom`` (Odometry with the twist and the registration's
+  covariance: the front end's, as it ran), ``/M/path`` and ``/M/map`` (every
   ``publish_period`` seconds of log, less often once they outgrow :data:`PUBLISH_BYTES_PER_S`,
-  and at the end), ``/M/points/static|moving`` (in
-  ``M/odom``, with their ``velocity``), ``/M/moving_labels`` (index for index with the
-  input sweep);
+  and at the end), ``/M/points/static|moving`` (in ``M/odom``, with their ``velocity``),
+  ``/M/moving_labels`` (in ``M/lidar``, index for index with the input sweep). Every frame a
+  message names resolves to ``map`` through the file's own tf at the message's stamp;
 - ``<M>_frontend.tum`` (with a back end): the front end's own trajectory, before the back end
-  corrected it; ``<M>.tum``, the parquet's ``x, y, yaw`` and ``processed.mcap``'s final path and
-  map are then the optimised ones (:meth:`ProcessOutputs.correct`), the parquet keeping the front
-  end's beside them (``x_frontend, y_frontend, yaw_frontend``);
+  corrected it; ``<M>.tum``, the parquet's ``x, y, yaw``, ``processed.mcap``'s ``/tf`` and its
+  final path and map are then the optimised ones (:meth:`ProcessOutputs.correct`), the parquet
+  keeping the front end's beside them (``x_frontend, y_frontend, yaw_frontend``);
 - ``<M>_backend.json`` (with a back end): its nodes and loop closures;
 - ``run.json`` (:class:`fmcwlog.pipeline.run_record.RunRecord`): parameters, version, inputs, counts.
 """
@@ -50,7 +55,7 @@ from .messages import (
     tf_message,
     transform_dict,
 )
-from .topics import TF_STATIC_TOPIC, TF_TOPIC
+from .topics import MAP_FRAME, TF_STATIC_TOPIC, TF_TOPIC
 
 
 def odom_frame(name: str) -> str:
@@ -315,9 +320,10 @@ class ProcessOutputs:
     """Everything ``fmcwlog process`` writes into its (temporary) output folder, fed sweep by sweep.
 
     ``processed.mcap`` is streamed; trajectories and the parquet rows are kept (a few numbers
-    per sweep) and written by :meth:`finish`, with the maps. ``mount`` (x, y, yaw of the lidar
-    in base_link) goes to ``/tf_static``; paths and maps are published every
-    ``publish_period`` seconds of log.
+    per sweep) and written by :meth:`finish`, with the maps and ``/tf`` (the trajectories as
+    they end up, a back end's correction included). ``mount`` (x, y, yaw of the lidar in
+    base_link) goes to ``/tf_static`` with each ``map -> M/odom``; paths and maps are published
+    every ``publish_period`` seconds of log.
     """
 
     def __init__(self, folder: Path, trajectories: tuple[str, ...], mount: np.ndarray,
@@ -335,7 +341,7 @@ class ProcessOutputs:
         self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
         self.publishes = 0  # times end_sweep published the paths and maps
-        self._transforms: list[tuple[Stamp, str, str, Pose7]] = []  # this sweep's, for /tf
+        self._static_written = False  # /tf_static, once, at the first pose
         self.frontend: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # the front end's trajectories a back end corrected
 
     @property
@@ -360,13 +366,23 @@ class ProcessOutputs:
             self._decimated[name].append(stamp_ns, p7)
         return at, p7
 
+    def _static(self, stamp_ns: int) -> None:
+        """``/tf_static``, once: each trajectory's ``map -> M/odom`` (the identity: every estimate
+        starts at its origin) and ``M/base_link -> M/lidar`` (the input's mount)."""
+        if self._static_written:
+            return
+        self._static_written = True
+        origin = np.zeros(3)
+        self.writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(
+            [t for n in self.trajectories for t in (transform_dict(stamp_ns, MAP_FRAME, odom_frame(n), origin),
+                                                    transform_dict(stamp_ns, base_frame(n), lidar_frame(n),
+                                                                   self.mount))]), stamp_ns)
+
     def add(self, r: SweepResult) -> None:
         """One method's result for one sweep."""
-        if self._next_publish is None:  # the first sweep: the static transforms
+        self._static(r.stamp_ns)
+        if self._next_publish is None:  # the first sweep
             self._next_publish = r.stamp_ns + self.publish_period_ns
-            self.writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(
-                [transform_dict(r.stamp_ns, base_frame(n), lidar_frame(n), self.mount) for n in self.trajectories]),
-                r.stamp_ns)
         self._row(method=r.method, stamp_ns=r.stamp_ns, x=r.pose[0], y=r.pose[1], yaw=r.pose[2], v=r.twist[0],
                   omega=r.twist[1], icp_iterations=r.iterations, correspondences=r.correspondences,
                   moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms, x_frontend=r.pose[0],
@@ -380,31 +396,27 @@ class ProcessOutputs:
         w.write_cdr(f"/{r.method}/odom", ODOMETRY, odometry_cdr(
             at, frame, base, pose, planar_covariance(r.pose_covariance), _planar_twist(r.twist[0], r.twist[1]),
             planar_covariance(twist_cov)), r.stamp_ns)
-        self._transforms.append((at, frame, base, pose))
         w.write_cdr(f"/{r.method}/points/static", POINTCLOUD2, _cloud(at, frame, r.static_map_xy, r.static_velocity),
                     r.stamp_ns)
         w.write_cdr(f"/{r.method}/points/moving", POINTCLOUD2, _cloud(at, frame, r.moving_map_xy, r.moving_velocity),
                     r.stamp_ns)
         if r.segmented:  # the method's per-point verdict, index for index with the input sweep (1 = moving)
             w.write(f"/{r.method}/moving_labels", "fmcwlog_msgs/msg/PointLabels",
-                    {"header": {"stamp": stamp(r.stamp_ns), "frame_id": "lidar"},
+                    {"header": {"stamp": stamp(r.stamp_ns), "frame_id": lidar_frame(r.method)},
                      "moving": np.asarray(r.moving_mask, np.uint8).tobytes()}, r.stamp_ns)
 
     def add_pose(self, name: str, stamp_ns: int, pose: np.ndarray, twist: tuple[float, float] | None) -> None:
         """A pose of a trajectory that is not a method's (the motion prior's), and its twist if known."""
         v, omega = twist if twist is not None else (None, None)
+        self._static(stamp_ns)
         self._row(method=name, stamp_ns=stamp_ns, x=pose[0], y=pose[1], yaw=pose[2], v=v, omega=omega)
         at, p = self._track(name, stamp_ns, pose)
         zeros = planar_covariance(None)
         self.writer.write_cdr(f"/{name}/odom", ODOMETRY, odometry_cdr(
             at, odom_frame(name), base_frame(name), p, zeros, _planar_twist(v or 0.0, omega or 0.0), zeros), stamp_ns)
-        self._transforms.append((at, odom_frame(name), base_frame(name), p))
 
     def end_sweep(self, stamp_ns: int, grids: dict[str, OccupancyGrid]) -> None:
-        """All trajectories' transforms of this sweep in one ``/tf`` message; paths and maps when due."""
-        if self._transforms:
-            self.writer.write_cdr(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_cdr(self._transforms), stamp_ns)
-            self._transforms = []
+        """The end of a sweep: the paths and maps when they are due."""
         if self._next_publish is None:  # no method's result yet (only the motion prior's poses)
             self._next_publish = stamp_ns + self.publish_period_ns
         if stamp_ns >= self._next_publish:
@@ -450,6 +462,26 @@ class ProcessOutputs:
         rows = [i for i, m in enumerate(self.rows.method) if m == name]
         self.rows.set_pose(np.array(rows, np.int64), poses[: len(rows)])
 
+    def _write_tf(self) -> None:
+        """Every trajectory's poses as they end up (a back end's where it corrected them: those of
+        ``<M>.tum``) as ``M/odom -> M/base_link`` on ``/tf``: one message a sweep, holding each
+        trajectory's pose at its stamp. Written last, in stamp order: readers go by log time."""
+        kept = [(n, stamps.values, poses.values) for n, (stamps, poses) in self.trajectories.items() if len(stamps)]
+        if not kept:
+            return
+        stamps = np.concatenate([s for _, s, _ in kept])
+        which = np.concatenate([np.full(len(s), i) for i, (_, s, _) in enumerate(kept)])
+        row = np.concatenate([np.arange(len(s)) for _, s, _ in kept])
+        order = np.lexsort((which, stamps))  # by stamp, then in the trajectories' order
+        stamps, which, row = stamps[order], which[order], row[order]
+        starts = np.flatnonzero(np.r_[True, stamps[1:] != stamps[:-1]]).tolist() + [len(stamps)]
+        frames = [(odom_frame(n), base_frame(n)) for n, _, _ in kept]
+        for a, b in zip(starts[:-1], starts[1:]):
+            ns = int(stamps[a])
+            at = stamp_pair(ns)
+            self.writer.write_cdr(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_cdr(
+                [(at, *frames[i], pose7(kept[i][2][j])) for i, j in zip(which[a:b].tolist(), row[a:b].tolist())]), ns)
+
     def ms_median(self) -> dict[str, float]:
         """Per trajectory, the median processing time of its sweeps (ms); those never timed are left out."""
         method = np.asarray(self.rows.method)
@@ -462,6 +494,7 @@ class ProcessOutputs:
         """The last paths and maps, ``processed.mcap`` closed; the trajectories, the map files, the parquet."""
         last_ns = int(self.rows.column("stamp_ns")[0][-1])
         self._publish(last_ns, grids, final=True)
+        self._write_tf()
         self.writer.close()
         for method, grid in grids.items():
             write_grid(self.folder, f"{method}_map", grid)

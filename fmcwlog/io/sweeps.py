@@ -5,7 +5,10 @@ The bounds (:class:`InputLimits`) and why:
 
 - point times ``t`` in ``[0, 1/scan_rate]``: ``header.stamp`` is the first beam's
   time (docs/log-format.md) and a sweep ends before the next begins; 1 s where the
-  calibration gives no rate (no scanning LiDAR sweeps slower than 1 Hz);
+  calibration gives no rate (no scanning LiDAR sweeps slower than 1 Hz). Both ends
+  are widened by :func:`time_slack`, the precision of a float32 time at that bound:
+  a 360° scanner's last beam falls on the period itself, and the period stored as
+  float32 (0.1 s is 0.10000000149 s) lies beyond it;
 - points within twice the calibration's ``max_range`` of the sensor (bright targets
   return beyond the rated range; the logs here reach 30.0000004 m of 30 m), else 1 km
   (beyond every planar LiDAR; the longest-range ones reach ~300 m): a damaged
@@ -28,10 +31,26 @@ import numpy as np
 
 from ..errors import LogError
 from ..types import Calibration, SweepInput
+from .clouds import TIME_FIELD_HELP, CloudReading, TimeField, choose_time_field, is_3d, planar_doppler, plane_band, ring_field
 from .messages import POINTFIELD_DTYPES, pointcloud_columns, stamp_ns
 
 MAX_SPEED = 100.0  # m/s: beyond any wheeled robot carrying a 2-D LiDAR
 MAX_ODOM_POSITION = 1e8  # m: beyond any map frame on Earth (UTM northings reach 1e7 m)
+TIME_SLACK_ULPS = 4  # float32 ulps of the period that a point time may lie beyond it (time_slack)
+
+
+def time_slack(period_s: float) -> float:
+    """How far (s) a point time may lie outside ``[0, period_s]`` and still be read as within it:
+    :data:`TIME_SLACK_ULPS` float32 ulps of the period.
+
+    Point times and LaserScan's ``time_increment`` are float32 (PointCloud2 ``t`` often, LaserScan
+    always). A time stored as float32 is within half an ulp of the true one; a beam time computed
+    as ``i · time_increment`` carries ``time_increment``'s relative rounding (2^-24) over at most
+    the period, under one ulp of it; stored as float32 again, half an ulp more. That is under two
+    ulps; four leaves a margin of two, and at 10 Hz is 30 ns, far below any damage the bound is
+    there to catch (seconds, or 1e6 s).
+    """
+    return TIME_SLACK_ULPS * float(np.spacing(np.float32(period_s)))
 
 
 @dataclass(frozen=True)
@@ -104,8 +123,9 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
     for name, a in (("x or y", xy), ("t", t), ("velocity", velocity)):
         if a is not None and not np.all(np.isfinite(a)):
             raise Rejected(path, what, ns, "nonfinite", f"{name} holds NaN or infinite values")
-    if t.min() < 0.0 or t.max() > limits.max_sweep_s:
-        raise Rejected(path, what, ns, "times", f"point times span [{t.min():g}, {t.max():g}] s")
+    slack = time_slack(limits.max_sweep_s)
+    if t.min() < -slack or t.max() > limits.max_sweep_s + slack:
+        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s")
     reach = float(np.max(np.hypot(xy[:, 0], xy[:, 1])))
     if reach > limits.max_range_m:
         raise Rejected(path, what, ns, "range", f"a point lies {reach:.4g} m from the sensor")
@@ -113,15 +133,39 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
         raise Rejected(path, what, ns, "velocity", f"a radial velocity of {float(np.max(np.abs(velocity))):.4g} m/s")
 
 
-def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
-    """A PointCloud2 of the log format to a :class:`SweepInput` (fields by name and offset);
-    :class:`Rejected` if its layout or values cannot be used."""
+@dataclass(frozen=True)
+class CloudLayout:
+    """What :func:`sweep_from_pointcloud` found in a cloud beside its sweep: ``time`` how its point times
+    were read (None: no time field, every point at the stamp), ``time_datatype`` that field's
+    PointField datatype; of a 3-D cloud (``kept`` not None), ``kept`` of its ``points`` within the band."""
+
+    time: TimeField | None
+    time_datatype: int
+    points: int
+    kept: int | None
+
+
+def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits(),
+                          reading: CloudReading = CloudReading()) -> tuple[SweepInput, CloudLayout]:
+    """A PointCloud2 to a :class:`SweepInput` (fields by name and offset; each point's time by its
+    field's name and type, a 3-D cloud brought down to the sensor's plane: :mod:`fmcwlog.io.clouds`),
+    with what was found in the cloud. :class:`Rejected` if its layout or values cannot be used; a
+    time-like field whose layout is unknown raises :class:`~fmcwlog.errors.LogError` naming the
+    fields (every sweep would be read wrong, so the log is refused rather than each sweep skipped)."""
     ns = header_stamp(path, "PointCloud2", msg.header)
-    names = {f.name for f in msg.fields}
+    types = {f.name: int(f.datatype) for f in msg.fields}
+    names = set(types)
     missing = {"x", "y"} - names
     if missing:
         raise Rejected(path, "PointCloud2", ns, "layout", f"no field {sorted(missing)[0]!r}")
-    wanted = [n for n in ("x", "y", "t", "velocity", "intensity") if n in names]
+    try:
+        time = choose_time_field(types, reading.time_field)
+    except LogError as exc:
+        raise LogError(f"{path}: {exc}") from None
+    ring = ring_field(types)
+    # t is read even when another field holds the times: a damaged t is a damaged sweep, as it always was
+    extra = [n for n in dict.fromkeys(("z", "t", time.name if time else None, ring)) if n is not None and n in names]
+    wanted = [n for n in ("x", "y", "velocity", "intensity") if n in names] + extra
     problem = _cloud_layout_problem(msg, wanted)
     if problem is not None:
         raise Rejected(path, "PointCloud2", ns, "layout", problem)
@@ -130,11 +174,30 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
     except (ValueError, KeyError) as exc:
         raise Rejected(path, "PointCloud2", ns, "layout", str(exc)) from None
     n = len(cols["x"])
-    t = cols.get("t", np.zeros(n))
+    t = time.seconds(cols[time.name], ns) if time is not None else np.zeros(n)
     vel, inten = cols.get("velocity"), cols.get("intensity")
     xy = np.column_stack([cols["x"], cols["y"]])
-    _check_points(path, "PointCloud2", ns, xy, t, vel, limits)
-    return SweepInput(ns, xy, t, vel, inten)
+    kept = None
+    if is_3d(cols.get("z"), cols.get(ring) if ring else None):
+        xyz = np.column_stack([xy, cols["z"]])
+        band = plane_band(xyz, reading.inputs.plane_band_deg)
+        keep = band.keep
+        if not keep.any():
+            raise Rejected(path, "PointCloud2", ns, "empty", f"no point of the 3-D cloud's {n} within "
+                                                             f"±{band.half_angle_deg:g}° of the sensor's plane")
+        if vel is not None:
+            vel = planar_doppler(xyz[keep], vel[keep])
+        xy, t, kept = xy[keep], t[keep], int(keep.sum())
+        inten = inten[keep] if inten is not None else None
+    try:
+        _check_points(path, "PointCloud2", ns, xy, t, vel, limits)
+    except Rejected as exc:
+        if exc.kind != "times" or time is None:
+            raise
+        raise Rejected(path, "PointCloud2", None, "times",
+                       f"{exc.detail} ({time.describe(types[time.name])}; {TIME_FIELD_HELP})") from None
+    layout = CloudLayout(time, types[time.name] if time else 0, n, kept)
+    return SweepInput(ns, xy, t, vel, inten), layout
 
 
 def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
@@ -143,6 +206,12 @@ def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits
     Ranges outside ``[range_min, range_max]`` or not finite are no return (REP-117). Angles
     must be finite, ``angle_increment`` non-zero, and ``angle_max`` within 1.5 beams of
     ``angle_min + (n - 1)·angle_increment`` (drivers differ by one beam in how they count).
+
+    Any field of view up to a full turn. A 360° scan that counts both ends (721 beams at 0.5°
+    from -π to +π) ends on a beam whose direction repeats the first one's, a period later: the
+    very measurement that begins the next sweep. That beam (any beam a full turn, less half a
+    beam, past the first) is left out, so that a sweep never holds one surface twice, seen at
+    its two ends, and a scanner's 721 beams give the same sweep as its 720.
     """
     ns = header_stamp(path, "LaserScan", msg.header)
     r = np.asarray(msg.ranges, dtype=float)
@@ -156,7 +225,8 @@ def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits
                        f"{r.size} ranges from {a0:g} rad in steps of {inc:g} rad do not end at angle_max {a1:g} rad")
     i = np.arange(r.size)
     ang = a0 + i * inc
-    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max)
+    once_round = i * abs(inc) < 2 * math.pi - 0.5 * abs(inc)  # else the first beam's direction again
+    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max) & once_round
     inten = np.asarray(msg.intensities, dtype=float)[ok] if len(msg.intensities) == r.size else None
     xy = np.column_stack([r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok])])
     t = (i * dt)[ok]

@@ -1,14 +1,19 @@
-"""Which topics of a log ``fmcwlog process`` reads: a scan topic and at most one motion prior."""
+"""Which topics of a log ``fmcwlog process`` reads: a scan topic and at most one motion prior (wheel
+ticks, or odometry where the ticks have no wheel geometry to go with them)."""
 
 from __future__ import annotations
 
+import warnings
+from pathlib import Path
+
 from ..errors import LogError
 from ..types import InputTopics
-from .mcap_log import LogReader
+from .calibration import wheels_hint, wheels_missing
+from .logs import Log
 from .topics import GROUND_TRUTH_PREFIX, POINTS_TOPIC, TICKS_TOPIC
 
 
-def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None = None,
+def choose_topics(reader: Log, scan: str | None = None, ticks: str | None = None,
                   odom: str | None = None) -> InputTopics:
     """The topics to read: those named, else ``/fmcw/points`` (or ``/scan``, or the log's only
     scan topic) with ``/wheel/ticks`` (or ``/odom``) as the motion prior."""
@@ -40,7 +45,7 @@ def choose_topics(reader: LogReader, scan: str | None = None, ticks: str | None 
     return InputTopics(scan, ticks, None)
 
 
-def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...], expected: str) -> None:
+def _check_named_topic(reader: Log, topic: str, type_names: tuple[str, ...], expected: str) -> None:
     """An input topic (scan or motion prior) must exist, be of one of ``type_names`` (any package's:
     the fields are checked as the messages are read) and not be ground truth, which estimation never
     reads (``--odom-topic /ground_truth/odom`` once scored the ground truth against itself)."""
@@ -51,3 +56,20 @@ def _check_named_topic(reader: LogReader, topic: str, type_names: tuple[str, ...
         raise LogError(f"{path}: {topic} is ground truth, which estimation never reads; name the robot's own topic")
     if topics[topic].rsplit("/", 1)[-1] not in type_names:
         raise LogError(f"{path}: {topic} is {topics[topic] or 'of no known type'}, not a {expected}")
+
+
+def odometry_instead_of_ticks(reader: Log, topics: InputTopics, ticks_named: bool,
+                              calibration_file: Path | None = None) -> InputTopics:
+    """Wheel ticks that nothing gives the wheels' geometry for (a log converted by a tool that keeps the
+    topics and drops fmcwlog's metadata): the log's ``/odom`` as the motion prior instead, said in one
+    warning; where it has none, or the ticks were named (``--ticks-topic``), one error naming
+    ``--calibration`` and a file that would do."""
+    path = reader.path
+    why = wheels_missing(topics.ticks or "", calibration_file)
+    has_odom = reader.topics.get("/odom", "").endswith("Odometry")
+    if has_odom and not ticks_named:
+        warnings.warn(f"{path}: {why}: used /odom as the motion prior instead; to use the ticks, {wheels_hint(path)}",
+                      stacklevel=2)
+        return InputTopics(topics.scan, None, "/odom")
+    other = "; or --odom-topic /odom for the log's odometry" if has_odom else ""
+    raise LogError(f"{path}: {why}: {wheels_hint(path)}{other}{reader.damage_note()}")

@@ -21,3 +21,6 @@ IMPORT_KEY = "fmcwlog.import"
 MAP_FRAME = "map"
 BASE_FRAME = "base_link"
 LIDAR_FRAME = "lidar"
+# The true pose as a tree of its own on /tf (map -> ground_truth/base_link): a frame under ground_truth/
+# is ground truth wherever it appears, and no estimate names or looks one up
+GT_BASE_FRAME = "ground_truth/base_link"

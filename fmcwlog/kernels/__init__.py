@@ -5,6 +5,7 @@
 - ``occupancy``    log-odds occupancy grid by ray casting
 - ``voxel``        one point per voxel
 - ``growing``      arrays that grow by amortised doubling
+- ``compiled``     which kernels run (``FMCWLOG_KERNELS``: the compiled ``fmcwlog._core`` or numpy)
 
 They know nothing of logs, files or ground truth: arrays in, arrays out, in the units and frames
 each docstring gives.

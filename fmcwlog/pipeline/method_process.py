@@ -66,8 +66,9 @@ import numpy as np
 from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
+from ..io.clouds import CloudReading
 from ..io.inputs import LogInputs
-from ..io.mcap_log import LogReader
+from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
 from ..kernels.occupancy import OccupancyGrid
 from ..types import Calibration, InputTopics, SweepResult
@@ -100,8 +101,8 @@ def child_methods(methods: tuple[str, ...], jobs: int | None) -> tuple[str, ...]
 @dataclass(frozen=True)
 class ChildTask:
     """What the child runs: ``methods`` over ``log`` (read on ``topics``, with ``cal`` and
-    ``params``), each with a pose-graph back end if ``backend``; paths and maps are published
-    no more often than every ``publish_period_ns`` of log."""
+    ``params``, its clouds as ``reading`` says), each with a pose-graph back end if ``backend``; paths
+    and maps are published no more often than every ``publish_period_ns`` of log."""
 
     log: Path
     methods: tuple[str, ...]
@@ -110,6 +111,7 @@ class ChildTask:
     topics: InputTopics
     backend: bool
     publish_period_ns: int
+    reading: CloudReading = CloudReading()
 
 
 @dataclass(frozen=True)
@@ -352,14 +354,14 @@ def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
     keep_freed_memory()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the log's warnings are the parent's, which reads it too
-        reader = LogReader(task.log)
+        reader = open_log(task.log)
     runner = LogRunner(task.methods, task.params, task.cal, task.topics, reader.path)
     backends = {m: PoseGraphBackend(task.params.backend, np.asarray(task.cal.mount), task.params.map_resolution)
                 for m in task.methods} if task.backend else {}
     publish = _Schedule(schedule, task.publish_period_ns)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for step in runner.run(_without_warnings(LogInputs(reader, task.topics, task.cal))):
+        for step in runner.run(_without_warnings(LogInputs(reader, task.topics, task.cal, task.reading))):
             msg = _Sweep(step.sweep.stamp_ns, step.results, None, [])
             for r in step.results:
                 try:

@@ -20,14 +20,17 @@ from ..backend.params import BackendParams
 from ..config import apply_to_dataclass, naming, parse_set_option, read_config_file, toml_table
 from ..errors import ConfigError
 from ..frontend.params import FrontEndParams
+from ..io.clouds import InputParams
 
 
 @dataclass(frozen=True)
 class ProcessParams(FrontEndParams):
-    """Every parameter of ``fmcwlog process``: the front end's, and the pose-graph back end's
-    (:mod:`fmcwlog.backend`) as ``backend``; both methods share them."""
+    """Every parameter of ``fmcwlog process``: the front end's, the pose-graph back end's
+    (:mod:`fmcwlog.backend`) as ``backend``, and how the scans are read (a 3-D cloud's band about the
+    sensor's plane, :mod:`fmcwlog.io.clouds`) as ``inputs``; both methods share them."""
 
     backend: BackendParams = field(default_factory=BackendParams)
+    inputs: InputParams = field(default_factory=InputParams)
 
 
 def load_params(*sources: dict[str, Any] | None) -> ProcessParams:

@@ -2,7 +2,7 @@
 
 The path of a sweep, in one place (:func:`process` is the recipe, step by step):
 
-    LogReader -> LogInputs (decoded, checked sweeps, ticks, odometry; :mod:`fmcwlog.io.inputs`)
+    open_log -> LogInputs (decoded, checked sweeps, ticks, odometry; :mod:`fmcwlog.io.inputs`)
       -> LogRunner (each method's :class:`~fmcwlog.frontend.methods.FrontEnd` step, with the
          motion prior; :mod:`fmcwlog.pipeline.runner`) -> SweepResult
       -> ProcessOutputs (trajectories, maps, processed.mcap; :mod:`fmcwlog.io.outputs`)
@@ -32,12 +32,12 @@ from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import ConfigError, LogError, MapSizeError
 from ..io.atomic import atomic_folder, reported_write_errors, write_json
-from ..io.calibration import load_calibration
-from ..io.digest import file_sha256
-from ..io.inputs import LogInputs
-from ..io.mcap_log import LogReader
+from ..io.calibration import LoadedCalibration, load_calibration
+from ..io.digest import log_sha256, log_size
+from ..io.inputs import MANY_SKIPPED_SHARE, MOST_SKIPPED_SHARE, LogInputs, SkippedShare
+from ..io.logs import Log, open_log
 from ..io.outputs import ProcessOutputs, odom_frame
-from ..io.topic_choice import choose_topics
+from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
 from ..types import BASELINE, IMPROVED, WHEEL_ODOMETRY, Calibration, InputTopics
 from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest
@@ -65,6 +65,7 @@ class ProcessSummary:
     truncated: bool
     warnings: list[str]
     backend: dict[str, dict] = field(default_factory=dict)  # per method: BackendResult.summary()
+    many_skipped: str | None = None  # more than MANY_SKIPPED_SHARE of the sweeps skipped: how many, why
 
 
 def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = None, force: bool = False,
@@ -80,31 +81,37 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     run in a child process (:mod:`fmcwlog.pipeline.method_process`). The outputs are the same bytes
     but the timings (the parquet's ``ms``, ``run.json``'s ``wall_seconds``, ``ms_per_sweep_median``
     and the back ends' ``seconds``). Raises :class:`~fmcwlog.errors.FmcwlogError` for input it
-    cannot use, leaving ``out_dir`` as it was.
+    cannot use, leaving ``out_dir`` as it was; so is a log that lost more than half its sweeps as
+    damaged (:data:`~fmcwlog.io.inputs.MOST_SKIPPED_SHARE`), unless ``opts.keep_going``. A run
+    that lost more than :data:`~fmcwlog.io.inputs.MANY_SKIPPED_SHARE` says so in
+    ``summary.many_skipped``, the last of its warnings, and in run.json's ``many_skipped_sweeps``.
     """
     opts = opts or ProcessOptions()
     if opts.backend not in BACKENDS:
         raise ConfigError(f"unknown back end {opts.backend!r} (known: {', '.join(BACKENDS)})")
+    reading = opts.cloud_reading()
     log, out_dir = Path(log), Path(out_dir)
     keep_freed_memory()  # numpy's large temporaries reuse memory instead of faulting in fresh pages
     started = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # 1. the log: its topics, the calibration, how many sweeps
-        reader = LogReader(log)
+        reader = open_log(log)  # an MCAP log, a rosbag2 folder or a ROS 1 bag
+        log = reader.path  # a rosbag2 folder for its .db3
         topics = choose_topics(reader, opts.scan_topic, opts.ticks_topic, opts.odom_topic)
-        cal, cal_source = load_calibration(reader, log, topics.ticks is not None, opts.calibration)
+        topics, loaded = calibration_and_topics(reader, log, topics, opts)
+        cal = loaded.cal
         total = reader.message_count(topics.scan)
         logger.debug("%s: scan %s, prior %s, %s sweeps, lidar at x %.3f m, y %.3f m, yaw %.4f rad",
                      reader.path, topics.scan, topics.prior or "none",
                      total if total is not None else "an unknown number of", *cal.mount)
         with reported_write_errors(out_dir), atomic_folder(out_dir, force, (log,), "fmcwlog process") as tmp, \
                 _methods_elsewhere(log, opts, cal, topics, jobs) as elsewhere:
-            digest = file_sha256(log)  # report refuses a --log whose bytes differ
+            digest = log_sha256(log)  # report refuses a --log whose bytes differ
             # 2. the front ends here (and the rest in the child), the outputs, the back ends
             here = tuple(m for m in opts.methods if elsewhere is None or m not in elsewhere.methods)
             runner = LogRunner(here, opts.params, cal, topics, reader.path)
-            inputs = LogInputs(reader, topics, cal)
+            inputs = LogInputs(reader, topics, cal, reading)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
             outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
@@ -117,6 +124,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 # 3. every sweep: front ends -> outputs and back ends
                 searches = _feed(opts.methods, _steps(steps, log), outputs, backends, grids,
                                  lambda: on_sweep(runner.sweeps, total) if on_sweep else None)
+                skipped = _skipped_share(log, inputs, opts.keep_going)
                 # 4. the back ends' last optimisation replaces the front ends' poses and maps
                 optimised = _optimise(backends, outputs, grids, tmp)
                 if elsewhere is not None:
@@ -130,16 +138,18 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                                              merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
             notes = ([str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
                      + _backend_notes(optimised))
+            many_skipped = _many_skipped_line(skipped)
             prior = _prior_name(topics, opts.methods, bool(runner.doppler))
             summary = ProcessSummary(out_dir, runner.sweeps, bool(runner.doppler), prior, inputs.skipped_sweeps,
                                      inputs.repeated_prior_stamps, inputs.skipped, outputs.ms_median(),
-                                     reader.contents.truncated, notes,
-                                     {m: res.summary() for m, res in optimised.items()})
+                                     reader.contents.truncated, notes + ([many_skipped] if many_skipped else []),
+                                     {m: res.summary() for m, res in optimised.items()}, many_skipped)
             record = RunRecord(
-                fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log.stat().st_size,
+                fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log_size(log),
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
                 scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=cal.mount,
-                calibration_source=cal_source, motion_sources=diagnostics["motion_sources"],
+                calibration_source=loaded.sources.describe(), calibration_sources=loaded.sources.to_json(),
+                motion_sources=diagnostics["motion_sources"],
                 calibration_check=diagnostics.get("calibration_check"),
                 frames={name: odom_frame(name) for name in trajectories}, params=dataclasses.asdict(opts.params),
                 sweeps=summary.sweeps, skipped_sweeps=summary.skipped_sweeps,
@@ -147,9 +157,53 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 truncated_log=summary.truncated, warnings=summary.warnings, ms_per_sweep_median=summary.ms_median,
                 correlative_searches={m: {"run": n, "kept": k, "sweeps": summary.sweeps} for m, (n, k) in searches.items()},
                 backend={"kind": opts.backend, **summary.backend},
-                wall_seconds=round(time.perf_counter() - started, 3))
+                wall_seconds=round(time.perf_counter() - started, 3),
+                many_skipped_sweeps=_many_skipped_record(skipped, opts.keep_going))
             write_json(tmp / "run.json", record.to_json(), sort_keys=True)
     return summary
+
+
+def calibration_and_topics(reader: Log, log: Path, topics: InputTopics,
+                           opts: ProcessOptions) -> tuple[InputTopics, LoadedCalibration]:
+    """The calibration (:func:`fmcwlog.io.calibration.load_calibration`: the file, the log's record,
+    its tf) and the topics to read with it: wheel ticks that nothing gives the wheels for give way
+    to the log's ``/odom`` (:func:`fmcwlog.io.topic_choice.odometry_instead_of_ticks`)."""
+    loaded = load_calibration(reader, log, topics.scan, topics.ticks is not None, opts.calibration, opts.base_frame)
+    if topics.ticks is not None and loaded.cal.wheels is None:
+        topics = odometry_instead_of_ticks(reader, topics, opts.ticks_topic is not None, opts.calibration)
+        loaded = dataclasses.replace(loaded, sources=dataclasses.replace(loaded.sources, wheels=None))
+    return topics, loaded
+
+
+def _skipped_share(log: Path, inputs: LogInputs, keep_going: bool) -> SkippedShare | None:
+    """The share of sweeps the log lost, where it is more than :data:`MANY_SKIPPED_SHARE` (else None);
+    more than :data:`MOST_SKIPPED_SHARE` is refused, unless ``keep_going``: the results would be
+    those of the few sweeps left, not of the log."""
+    skipped = inputs.skipped_share()
+    if skipped is None or not skipped.many:
+        return None
+    if skipped.most and not keep_going:
+        raise LogError(f"{log}: " + skipped.text(f"more than half: not processed, as the results would not be the "
+                                                 f"log's; --keep-going processes the {skipped.read - skipped.skipped} left"))
+    return skipped
+
+
+def _many_skipped_line(skipped: SkippedShare | None) -> str | None:
+    """The run's last word where it lost many sweeps: how many, of how many, and why."""
+    if skipped is None:
+        return None
+    over = "more than half, processed as --keep-going asks" if skipped.most else \
+        f"more than {100 * MANY_SKIPPED_SHARE:g} %"
+    return skipped.text(f"{over}: the results stand on the {skipped.read - skipped.skipped} left")
+
+
+def _many_skipped_record(skipped: SkippedShare | None, keep_going: bool) -> dict[str, Any] | None:
+    """run.json's ``many_skipped_sweeps``: present only where more than MANY_SKIPPED_SHARE were skipped."""
+    if skipped is None:
+        return None
+    return {"skipped": skipped.skipped, "read": skipped.read, "share": round(skipped.share, 6),
+            "limit": MANY_SKIPPED_SHARE, "refused_above": MOST_SKIPPED_SHARE, "kept_going": skipped.most and keep_going,
+            "main_kind": skipped.kind, "main_reason": skipped.reason}
 
 
 def _prior_name(topics: InputTopics, methods: Sequence[str], doppler: bool) -> str:
@@ -189,7 +243,7 @@ def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9))  # as ProcessOutputs has it
+                     int(opts.publish_period * 1e9), opts.cloud_reading())  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 

@@ -23,8 +23,11 @@ class RunRecord:
         summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)``, or without either what
         guessed each sweep's pose and why, e.g. ``scan-to-map correlative search (no odometry, no
         wheel ticks, no Doppler in /scan)``). doppler: whether the scans carried Doppler velocity.
-    mount: the lidar's pose in ``base_link`` (m, m, rad); calibration_source: where the calibration
-        came from (a file's path, or the log's record).
+    mount: the lidar's pose in the base frame (m, m, rad); calibration_source: where the calibration
+        came from: one source (a file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
+        base_link->laser``, ``none (assumed 0, 0, 0)``) where it gave every value used, else
+        ``mount from ...; wheels from ...``; calibration_sources: the same per group (``mount``,
+        ``wheels``), :class:`fmcwlog.io.calibration.CalibrationSources`.
     motion_sources: per method, where its twist came from and what the sensor checks found.
     calibration_check: the calibration check's findings, where it ran (absent otherwise).
     frames: each trajectory's odometry frame. params: every parameter (``dataclasses.asdict`` of
@@ -37,6 +40,10 @@ class RunRecord:
     correlative_searches: per method, ``run`` (searches run), ``kept`` (matches they replaced), ``sweeps``.
     backend: ``kind`` (``pose-graph`` or ``none``) and, per method, the back end's summary.
     wall_seconds: the run's wall-clock time (s).
+    many_skipped_sweeps: only where more than ``limit`` (5 %) of the log's sweeps were skipped as
+        damaged: ``skipped`` of ``read``, their ``share``, the ``limit``, the share above which a run
+        is refused (``refused_above``), whether it went on past it (``kept_going``), and the kind most
+        of them were skipped as (``main_kind``) with its warning (``main_reason``).
     """
 
     fmcwlog_version: str
@@ -50,6 +57,7 @@ class RunRecord:
     doppler: bool
     mount: tuple[float, float, float]
     calibration_source: str
+    calibration_sources: dict[str, str]
     motion_sources: dict[str, dict[str, Any]]
     frames: dict[str, str]
     params: dict[str, Any]
@@ -64,12 +72,14 @@ class RunRecord:
     backend: dict[str, Any]
     wall_seconds: float
     calibration_check: CalibrationCheck | None = field(default=None)
+    many_skipped_sweeps: dict[str, Any] | None = field(default=None)
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
         diagnostics: dict[str, Any] = {"motion_sources": self.motion_sources}
         if self.calibration_check is not None:
             diagnostics["calibration_check"] = self.calibration_check.to_json()
+        skipped = {"many_skipped_sweeps": self.many_skipped_sweeps} if self.many_skipped_sweeps is not None else {}
         return {
             "fmcwlog_version": self.fmcwlog_version,
             "log": self.log,
@@ -82,6 +92,7 @@ class RunRecord:
             "doppler": self.doppler,
             "mount": list(self.mount),
             "calibration_source": self.calibration_source,
+            "calibration_sources": self.calibration_sources,
             **diagnostics,
             "frames": self.frames,
             "params": self.params,
@@ -89,6 +100,7 @@ class RunRecord:
             "skipped_sweeps": self.skipped_sweeps,
             "repeated_prior_stamps": self.repeated_prior_stamps,
             "skipped_inputs": self.skipped_inputs,
+            **skipped,
             "truncated_log": self.truncated_log,
             "warnings": self.warnings,
             "ms_per_sweep_median": self.ms_per_sweep_median,

@@ -140,7 +140,7 @@ class LogRunner:
             self._prior_first = item.stamp_ns * 1e-9
         try:
             if isinstance(item, TicksInput):
-                assert self.cal.wheels is not None  # parse_calibration requires them with a ticks topic
+                assert self.cal.wheels is not None  # load_calibration gives them, or process falls back to odometry
                 self.prior.add_ticks(item.stamp_ns * 1e-9, item.left, item.right, self.cal.wheels)
             else:
                 self.prior.add_pose(item.stamp_ns * 1e-9, item.pose)

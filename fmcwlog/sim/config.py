@@ -20,6 +20,9 @@ from ..errors import ConfigError
 # for any real one, and bounded on every side so that a typo cannot make the simulator run
 # for days or allocate without limit (``--set sensor.scan_rate=1e6`` would make the default 30 s
 # log 3e7 sweeps).
+# points a sweep: an Ouster OS1-128 at 1024 columns is 131 072; 20 sweeps cast at once hold ~40
+# arrays of this many float64s each (1.4 GB at the bound)
+MAX_POINTS_PER_SWEEP = 150_000
 MAX_SEED = 2**32 - 1  # numpy seeds any non-negative integer; 32 bits is what every tool prints and takes
 
 
@@ -44,6 +47,14 @@ class SensorConfig(Checked):
     mount_x: float = param(0.35, "m", ge=-10.0, le=10.0)  # lidar origin in base_link: on the robot
     mount_y: float = param(0.0, "m", ge=-10.0, le=10.0)
     mount_yaw_deg: float = param(0.0, "deg", ge=-180.0, le=180.0)
+    # Multi-ring mode (rings > 1): each beam direction fires this many rings at once, evenly spaced in
+    # elevation from ring_min_deg to ring_max_deg (a 3-D FMCW LiDAR: Aeva Aeries II, 16 rings like a
+    # VLP-16's -15..+15 deg); they hit walls (vertical, of unbounded height), movers (people 1.75 m, carts
+    # 1 m tall) and the floor mount_height below the sensor. 1: the planar sensor, z = 0, no ring field.
+    rings: int = param(1, "", ge=1, le=128)
+    ring_min_deg: float = param(-15.0, "deg", ge=-60.0, le=60.0)
+    ring_max_deg: float = param(15.0, "deg", ge=-60.0, le=60.0)
+    mount_height: float = param(0.5, "m", gt=0.0, le=10.0)  # the lidar's origin above the floor
 
     @property
     def n_beams(self) -> int:
@@ -54,6 +65,14 @@ class SensorConfig(Checked):
     def sweep_duration(self) -> float:
         """Seconds one sweep takes: its share of the rotation period (270/360 of 100 ms)."""
         return (self.fov_deg / 360.0) / self.scan_rate
+
+    @property
+    def ring_elevations(self) -> tuple[float, ...]:
+        """The rings' elevations above the sensor's plane, lowest first (rad); (0,) for the planar sensor."""
+        if self.rings == 1:
+            return (0.0,)
+        step = (self.ring_max_deg - self.ring_min_deg) / (self.rings - 1)
+        return tuple(math.radians(self.ring_min_deg + step * i) for i in range(self.rings))
 
     @property
     def mount(self) -> tuple[float, float, float]:
@@ -100,8 +119,17 @@ class SimConfig:
     run: RunConfig = field(default_factory=RunConfig)
 
     def as_dict(self) -> dict[str, Any]:
-        """The tables as nested dicts (as JSON, the ``fmcwlog.sim`` record's ``config``), in the fields' units."""
+        """The tables as nested dicts, in the fields' units."""
         return asdict(self)
+
+    def recorded(self) -> dict[str, Any]:
+        """:meth:`as_dict` as the ``fmcwlog.sim`` record's ``config`` holds it: a planar sensor's
+        without the ring parameters (:data:`RING_KEYS`), which it does not use, so that a planar log
+        is the bytes it was before the simulator had rings."""
+        doc = self.as_dict()
+        if self.sensor.rings == 1:
+            doc["sensor"] = {k: v for k, v in doc["sensor"].items() if k not in RING_KEYS}
+        return doc
 
     def validate(self) -> SimConfig:
         """Each field's range (:func:`fmcwlog.config.check_params`) and what the fields must satisfy together."""
@@ -109,6 +137,13 @@ class SimConfig:
         if self.sensor.min_range >= self.sensor.max_range:
             raise ConfigError(f"sensor.min_range = {self.sensor.min_range:g} m must be below "
                               f"sensor.max_range = {self.sensor.max_range:g} m")
+        s = self.sensor
+        if s.rings > 1 and s.ring_min_deg >= s.ring_max_deg:
+            raise ConfigError(f"sensor.ring_min_deg = {s.ring_min_deg:g} deg must be below sensor.ring_max_deg = "
+                              f"{s.ring_max_deg:g} deg with sensor.rings = {s.rings}")
+        if s.rings * s.n_beams > MAX_POINTS_PER_SWEEP:
+            raise ConfigError(f"sensor.rings = {s.rings} x {s.n_beams} beams (sensor.fov_deg / sensor.resolution_deg) "
+                              f"is {s.rings * s.n_beams} points a sweep, above {MAX_POINTS_PER_SWEEP}")
         if int(self.run.duration * self.sensor.scan_rate + 1e-9) < 1:  # the recorder's count of sweeps
             raise ConfigError(f"run.duration = {self.run.duration:g} s is shorter than one sweep "
                               f"(1 / sensor.scan_rate = {1 / self.sensor.scan_rate:g} s): the log would hold none")
@@ -122,6 +157,7 @@ class SimConfig:
                          + toml_table("run", self.run)).rstrip() + "\n"
 
 
+RING_KEYS = ("rings", "ring_min_deg", "ring_max_deg", "mount_height")
 _SECTIONS = ("sensor", "robot", "run")
 
 

@@ -39,7 +39,9 @@ from .chassis import BodyState
 from .config import SensorConfig
 from .movers import Mover, MoverGroup
 
-_REFLECTIVITY = {"wall": 0.6, "person": 0.3, "cart": 0.85}
+_REFLECTIVITY = {"wall": 0.6, "person": 0.3, "cart": 0.85, "floor": 0.4}
+# Movers are vertical cylinders and boxes standing on the floor; walls are of unbounded height (m).
+PERSON_HEIGHT, CART_HEIGHT = 1.75, 1.0
 # Slack in the test that rules out (beam, mover) pairs before casting (m, rad): far above rounding.
 _CULL_MARGIN, _CULL_MARGIN_ANGLE = 0.01, 1e-6
 _SWEEP_SPACING = 16.0 * np.pi  # rad between sweeps in the sorted key of _Beams.within
@@ -55,6 +57,8 @@ class Sweep:
     velocity: np.ndarray  # (N,) m/s, radial, positive when the range grows
     t: np.ndarray  # (N,) s after the sweep's stamp
     moving: np.ndarray  # (N,) uint8, 1 where the return came from a mover
+    z: np.ndarray | None = None  # (N,) m; None for the planar sensor (z = 0)
+    ring: np.ndarray | None = None  # (N,) uint16, 0 the lowest ring; None for the planar sensor
 
 
 def _cross(ax, ay, bx, by):
@@ -353,6 +357,8 @@ class FmcwLidar:
         # Each target is cast only against the beams that can reach it (``_Beams.within``); the
         # nearest surface wins. Kind: 0 wall, 1 person, 2 cart.
         nearest = self._hit_walls(g)  # static
+        if cfg.rings > 1:
+            return self._ring_sweeps(g, nearest, v_sensor, rng)
         if len(self.people):  # circles whose centre moves beam by beam
             nearest = self._hit_people(g, nearest)
         if len(self.carts):  # rectangles (4 segments each) oriented along their travel
@@ -388,4 +394,75 @@ class FmcwLidar:
                 t=self.beam_time[k],
                 moving=(kind[part][k] > 0).astype(np.uint8),
             ))
+        return out
+
+    def _ring_sweeps(self, g: _Beams, walls: tuple[np.ndarray, ...], v_sensor: np.ndarray,
+                     rng: np.random.Generator) -> list[Sweep]:
+        """The sweeps of the multi-ring sensor: each beam direction of ``g`` fires every ring at once.
+
+        A ring at elevation ``e`` travels ``d`` horizontally to reach height ``d·tan e``: it hits the
+        nearest of the wall, person and cart the planar cast finds along its direction (each the
+        nearest of its kind: a ray that passes over the nearest person passes over the farther
+        ones too, and one that goes down meets the floor first) whose top it passes below, or the
+        floor ``mount_height`` below the sensor, at ``d = mount_height / tan(−e)``. Its range is
+        ``d / cos e`` and its radial velocity ``u₃ · (v_target − v_sensor)`` with the 3-D bearing
+        ``u₃ = (cos e·dx, cos e·dy, sin e)``: every velocity here is horizontal, so that is
+        ``cos e`` times the planar range rate.
+        """
+        cfg, n, count = self.cfg, g.n, g.count
+        size = len(g.ang)
+        nothing = (np.zeros(size), np.zeros(size), np.zeros(size), np.zeros(size), np.zeros(size, dtype=np.int8),
+                   np.full(size, np.inf))
+        people = self._hit_people(g, nothing) if len(self.people) else nothing
+        carts = self._hit_carts(g, nothing) if len(self.carts) else nothing
+        elev = np.asarray(cfg.ring_elevations)
+        rings = len(elev)
+        cos_e, sin_e, tan_e = np.cos(elev), np.sin(elev), np.tan(elev)
+        with np.errstate(divide="ignore"):
+            floor = np.where(tan_e < 0.0, cfg.mount_height / np.where(tan_e < 0.0, -tan_e, 1.0), np.inf)
+        reach = np.broadcast_to(floor, (size, rings)).copy()  # horizontal distance to the surface hit, m
+        which = np.full((size, rings), 3, dtype=np.intp)  # 0 wall, 1 person, 2 cart, 3 floor
+        tops = (np.inf, PERSON_HEIGHT - cfg.mount_height, CART_HEIGHT - cfg.mount_height)
+        for k, (group, top) in enumerate(zip((walls, people, carts), tops)):
+            d = group[5][:, None]
+            with np.errstate(invalid="ignore"):
+                hit = (d < reach) & (d * tan_e <= top)
+            reach = np.where(hit, d, reach)
+            which = np.where(hit, k, which)
+        beam = np.arange(size)[:, None]
+
+        def pick(i: int) -> np.ndarray:  # a quantity of the surface each ring hit (the floor's: 0), (size, rings)
+            return np.stack([walls[i], people[i], carts[i], np.zeros(size)])[which, beam]
+
+        vtx, vty = pick(2), pick(3)
+        dx, dy = g.dx[:, None], g.dy[:, None]
+        rate = cos_e * (dx * (vtx - v_sensor[:, 0, None]) + dy * (vty - v_sensor[:, 1, None]))  # m/s
+        best = reach / cos_e  # 3-D range, m
+        incidence = np.where(which == 3, np.abs(sin_e), cos_e * np.abs(dx * pick(0) + dy * pick(1)))
+        reflect = np.array([_REFLECTIVITY[k] for k in ("wall", "person", "cart", "floor")])[which]
+        intensity = reflect * (0.2 + 0.8 * incidence) * np.exp(-np.where(np.isfinite(best), best, 0.0) / 60.0)
+
+        m = n * rings
+        draws = [(rng.standard_normal(m), rng.standard_normal(m), rng.random(m)) for _ in range(count)]
+        noise_r, noise_v, dropout = (np.concatenate(d).reshape(size, rings) for d in zip(*draws))
+        r_noisy = best + cfg.range_sigma * noise_r
+        v_noisy = rate + cfg.doppler_sigma * noise_v
+        keep = np.isfinite(best) & (best <= cfg.max_range) & (dropout >= cfg.dropout)
+        if cfg.range_resolution > 0:
+            r_noisy = np.round(r_noisy / cfg.range_resolution) * cfg.range_resolution
+        if cfg.doppler_resolution > 0:
+            v_noisy = np.round(v_noisy / cfg.doppler_resolution) * cfg.doppler_resolution
+        keep &= r_noisy >= cfg.min_range
+        flat = r_noisy * cos_e  # the range's horizontal part, m
+        x, y = flat * np.tile(self._beam_cos, count)[:, None], flat * np.tile(self._beam_sin, count)[:, None]
+        z = r_noisy * sin_e
+        t = np.broadcast_to(np.tile(self.beam_time, count)[:, None], (size, rings))
+        ring = np.broadcast_to(np.arange(rings, dtype=np.uint16), (size, rings))
+        moving = ((which == 1) | (which == 2)).astype(np.uint8)
+        out = []
+        for i in range(count):
+            part = slice(i * n, (i + 1) * n)
+            k = keep[part]
+            out.append(Sweep(x=x[part][k], y=y[part][k], intensity=intensity[part][k], velocity=v_noisy[part][k],
+                             t=t[part][k], moving=moving[part][k], z=z[part][k], ring=ring[part][k]))
         return out

@@ -2,9 +2,11 @@
 
 Messages go out in log-time order, a sweep period at a time: the sweep and
 its ground-truth labels at its first beam's stamp, then the encoder counts
-and ground-truth odometry falling in that period. Beside the contract's topics,
-``/tf_static`` holds the mount (``base_link`` -> ``lidar``) and ``/ground_truth/tf``
-the true pose (``map`` -> ``base_link``), so Foxglove places the points in ``map``. A Ctrl-C (SIGINT) stops
+and ground-truth odometry falling in that period. Beside the contract's topics, for viewers:
+``/tf_static`` holds the mount (``base_link`` -> ``lidar``), ``/ground_truth/tf`` the true pose
+(``map`` -> ``base_link``: where Foxglove, or RViz with it remapped to ``/tf``, draws the sweeps)
+and ``/tf`` the same true pose as a tree of its own (``map`` -> ``ground_truth/base_link``), which
+every viewer shows beside ``processed.mcap``'s trees and no estimator can take for ``base_link``. A Ctrl-C (SIGINT) stops
 the loop between two periods, so the log is finished cleanly and is simply
 shorter. Randomness comes from two streams derived from the seed (encoders,
 LiDAR), so the same seed gives the same bytes.
@@ -29,6 +31,7 @@ from ..io.mcap_log import (
     float32_cloud_cdr,
     odometry_cdr_batch,
     point_labels_cdr,
+    pointcloud2_cdr,
     stamp_pair,
     tf_cdr_batch,
     wheel_ticks_cdr_batch,
@@ -37,6 +40,7 @@ from ..io.messages import POINT_FIELDS, tf_message, transform_dict
 from ..io.topics import (
     BASE_FRAME,
     CALIBRATION_KEY,
+    GT_BASE_FRAME,
     GT_LABELS_TOPIC,
     GT_ODOM_TOPIC,
     GT_TF_TOPIC,
@@ -45,6 +49,7 @@ from ..io.topics import (
     POINTS_TOPIC,
     SIM_KEY,
     TF_STATIC_TOPIC,
+    TF_TOPIC,
     TICKS_TOPIC,
     WORLD_KEY,
 )
@@ -138,22 +143,39 @@ def _sweeps(chassis: Chassis, lidar: FmcwLidar, n_sweeps: int, scan_rate: float,
 
 
 def _ground_truth(ns_ticks: np.ndarray, body: BodyState, left: np.ndarray, right: np.ndarray,
-                  ticks: slice) -> list[tuple[int, bytes, bytes, bytes]]:
-    """Per tick of ``ticks``: its stamp (ns), then its wheel ticks, ground-truth odometry and tf
-    messages, CDR-encoded (many at once: ``mcap_log._batch``)."""
+                  ticks: slice) -> list[tuple[int, bytes, bytes, bytes, bytes]]:
+    """Per tick of ``ticks``: its stamp (ns), then its wheel ticks, ground-truth odometry, ground-truth
+    tf (``map`` -> ``base_link``) and ``/tf`` (``map`` -> ``ground_truth/base_link``) messages,
+    CDR-encoded (many at once: ``mcap_log._batch``)."""
     ns = ns_ticks[ticks]
     pose = np.zeros((len(ns), 7))  # pose7: x, y, z, then the quaternion
     pose[:, 0], pose[:, 1], pose[:, 3:] = body.x[ticks], body.y[ticks], yaw_to_quaternion(body.yaw[ticks])
     odom = np.zeros((len(ns), 85))  # pose7, its covariance (unknown: 0), twist (linear, angular), its covariance
     odom[:, :7], odom[:, 43], odom[:, 48] = pose, body.v[ticks], body.omega[ticks]
     return list(zip(ns.tolist(), wheel_ticks_cdr_batch(ns, BASE_FRAME, left[ticks], right[ticks]),
-                    odometry_cdr_batch(ns, MAP_FRAME, BASE_FRAME, odom), tf_cdr_batch(ns, MAP_FRAME, BASE_FRAME, pose)))
+                    odometry_cdr_batch(ns, MAP_FRAME, BASE_FRAME, odom), tf_cdr_batch(ns, MAP_FRAME, BASE_FRAME, pose),
+                    tf_cdr_batch(ns, MAP_FRAME, GT_BASE_FRAME, pose)))
+
+
+# The multi-ring sensor's points: the planar one's float32 fields, then the ring as uint16 (as Ouster's
+# and Velodyne's drivers write it), padded to 4 bytes.
+_RING_POINT = np.dtype({"names": [*POINT_FIELDS, "ring"], "formats": ["<f4"] * len(POINT_FIELDS) + ["<u2"],
+                        "offsets": [4 * i for i in range(len(POINT_FIELDS) + 1)], "itemsize": 4 * len(POINT_FIELDS) + 4})
+_RING_FIELDS = tuple((name, _RING_POINT.fields[name][1], 7 if name != "ring" else 4, 1) for name in _RING_POINT.names)
 
 
 def _cloud(ns: int, sweep: Sweep) -> bytes:
-    """The sweep as a PointCloud2 in ``lidar``: x y z (0) intensity velocity t, float32, point by point."""
-    columns = dict(zip(POINT_FIELDS, (sweep.x, sweep.y, None, sweep.intensity, sweep.velocity, sweep.t)))
-    return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
+    """The sweep as a PointCloud2 in ``lidar``: x y z (0 for the planar sensor) intensity velocity t, float32,
+    point by point; the multi-ring sensor's with its ``ring`` (uint16) after them."""
+    columns = dict(zip(POINT_FIELDS, (sweep.x, sweep.y, sweep.z, sweep.intensity, sweep.velocity, sweep.t)))
+    if sweep.ring is None:
+        return float32_cloud_cdr(stamp_pair(ns), LIDAR_FRAME, len(sweep.x), columns)
+    points = np.zeros(len(sweep.x), dtype=_RING_POINT)
+    for name, column in (*columns.items(), ("ring", sweep.ring)):
+        points[name] = column
+    step = _RING_POINT.itemsize
+    return pointcloud2_cdr(stamp_pair(ns), LIDAR_FRAME, 1, len(points), _RING_FIELDS, False, step, step * len(points),
+                           points.tobytes(), True)
 
 
 def record(world: World, cfg: SimConfig, out: str | Path,
@@ -193,7 +215,7 @@ def _record(world: World, cfg: SimConfig, out: str | Path, on_progress: Callable
         "generator": f"fmcwlog {__version__}",
         "scenario": world.name,
         "seed": str(run.seed),
-        "config": json.dumps(cfg.as_dict(), sort_keys=True),
+        "config": json.dumps(cfg.recorded(), sort_keys=True),
         "true_wheel_radius_left": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_left)),
         "true_wheel_radius_right": repr(r_cfg.wheel_radius * (1 + r_cfg.wheel_radius_error_right)),
     }
@@ -218,10 +240,11 @@ def _record(world: World, cfg: SimConfig, out: str | Path, on_progress: Callable
             write(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", _cloud(ns, sweep), ns)
             write(GT_LABELS_TOPIC, "fmcwlog_msgs/msg/PointLabels",
                   point_labels_cdr(stamp_pair(ns), LIDAR_FRAME, sweep.moving.tobytes()), ns)
-            for tns, ticks, odom, tf in gt[tick_bounds[j] - first:tick_bounds[j + 1] - first]:
+            for tns, ticks, odom, gt_tf, tf in gt[tick_bounds[j] - first:tick_bounds[j + 1] - first]:
                 write(TICKS_TOPIC, "fmcwlog_msgs/msg/WheelTicks", ticks, tns)
                 write(GT_ODOM_TOPIC, "nav_msgs/msg/Odometry", odom, tns)
-                write(GT_TF_TOPIC, "tf2_msgs/msg/TFMessage", tf, tns)
+                write(GT_TF_TOPIC, "tf2_msgs/msg/TFMessage", gt_tf, tns)
+                write(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf, tns)
             done += 1
             points += len(sweep.x)
             moving += int(sweep.moving.sum())

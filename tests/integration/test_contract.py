@@ -59,6 +59,10 @@ def test_estimates_depend_only_on_the_processed_topics(processed, tmp_path):
             msg.twist.twist.linear.x, msg.twist.twist.angular.z = rng.uniform(-5, 5, 2)
         elif topic == "/ground_truth/point_labels":
             msg.moving = rng.integers(0, 2, len(msg.moving), dtype=np.uint8).tobytes()
+        elif topic in ("/ground_truth/tf", "/tf"):  # the true pose, and its own tree on /tf
+            for tr in msg.transforms:
+                if topic == "/ground_truth/tf" or tr.child_frame_id.startswith("ground_truth/"):
+                    tr.transform.translation.x, tr.transform.translation.y = rng.uniform(-50, 50, 2)
 
     meta = _metadata(CORRIDOR)
     sim = dict(meta["fmcwlog.sim"], true_wheel_radius_left="0.13", true_wheel_radius_right="0.07",

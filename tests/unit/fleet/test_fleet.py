@@ -32,7 +32,7 @@ from fmcwlog import api
 from fmcwlog.cli import cli
 from fmcwlog.errors import ConfigError, FmcwlogError, LogError
 from fmcwlog.evaluation.fleet import FleetRow, flag_logs
-from fmcwlog.fleet.inputs import MCAP_PATTERNS, find_logs, unique_names
+from fmcwlog.fleet.inputs import LOG_PATTERNS, find_logs, unique_names
 from fmcwlog.fleet.local import run_one
 from fmcwlog.fleet.state import completeness
 from fmcwlog.fleet.tasks import Limits, LogTask
@@ -412,7 +412,7 @@ def test_force_on_a_batch_never_removes_a_file_fmcwlog_did_not_write(fleet, tmp_
     """A log's folder in the batch that holds the user's own file is not replaced, --force or not:
     that log fails with the reason, the file stays, and the batch's other logs are unaffected."""
     log = fleet["good"]["logs-a"]
-    name = unique_names([log], MCAP_PATTERNS)[0]
+    name = unique_names([log], LOG_PATTERNS)[0]
     mine = tmp_path / "out" / name / "my-notes.txt"
     mine.parent.mkdir(parents=True)
     mine.write_text("the user's own file\n")

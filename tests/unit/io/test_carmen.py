@@ -120,6 +120,10 @@ def test_intel_subset_imports_with_its_own_stamps(intel):
     both = [(round(a, 6) in ours and round(b, 6) in ours) for a, b in rel[:, :2]]
     assert sum(both) == 90  # as SOURCE.md says (stamps equal to the microsecond)
     assert not summary.doppler and summary.prior == "odometry (/odom)"
+    from helpers import replay_frames
+
+    assert replay_frames.unresolved(log, ("/tf", "/tf_static")) == {}  # a viewer places every message
+    assert replay_frames.unresolved(out / "processed.mcap") == {}
 
 
 @pytest.mark.slow
@@ -403,6 +407,75 @@ def test_scans_with_a_repeated_stamp_are_counted_and_the_summary_says_what_was_w
     with open(out, "rb") as fh:
         summary = make_reader(fh).get_summary()
     counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
-    assert counts == {"/scan": 1, "/odom": 1}
+    assert counts == {"/scan": 1, "/odom": 1, "/tf": 1, "/tf_static": 1}
     assert f"{src}: skipped 11 scans whose stamp repeats the one before" in err, err
     assert "1 scans, 1 odometry poses" in stdout, stdout
+
+
+def _moving_robot_clf(tmp_path: Path) -> Path:
+    """A robot driving and turning, its odometry on ODOM lines from t = 100 s; front (0.2 m ahead)
+    and rear (0.1 m behind, facing back) lasers, one front scan before the first ODOM line and one
+    rear scan after the last."""
+    r = " ".join(["2.0"] * 180)
+    lines = ["PARAM robot_frontlaser_offset 0.2 1.0 host 1.0", "PARAM robot_rearlaser_offset 0.1 1.0 host 1.0",
+             f"FLASER 180 {r} 0 0 0 0 0 0 99.95 host 99.95"]
+    for k in range(10):
+        t, (x, y, th) = 100 + 0.1 * k, (5 + 0.1 * k, 3 + 0.02 * k, 1.0 + 0.05 * k)
+        lines += [f"ODOM {x} {y} {th} 0.1 0 0 {t:.3f} host {t:.3f}",
+                  f"FLASER 180 {r} 0 0 0 {x} {y} {th} {t + 0.05:.3f} host {t:.3f}",
+                  f"RLASER 180 {r} 0 0 0 {x} {y} {th} {t + 0.06:.3f} host {t:.3f}"]
+    return _write(tmp_path, "\n".join(lines) + "\n")
+
+
+def test_an_import_carries_its_tf_tree_and_every_message_resolves_to_map(tmp_path):
+    """/tf_static: each laser's mount and map -> odom (map's origin where the robot is at the first
+    scan); /tf: odom -> base_link from the odometry, held at the scans beyond it. Read as a viewer
+    reads it (plain mcap + mcap_ros2), through /tf and /tf_static alone as RViz does."""
+    from helpers import decoded, replay_frames
+
+    from fmcwlog.geometry import between
+
+    log = tmp_path / "robot.mcap"
+    assert _import(_moving_robot_clf(tmp_path), log) == (0, [])
+    rviz = ("/tf", "/tf_static")
+    assert replay_frames.unresolved(log, rviz) == {}
+    static = [m for _, _, _, m in decoded(log, ["/tf_static"])]
+    assert len(static) == 1
+    links = {(t.header.frame_id, t.child_frame_id): replay_frames._planar(t.transform) for t in static[0].transforms}
+    assert set(links) == {("base_link", "laser"), ("base_link", "rear_laser"), ("map", "odom")}
+    assert links[("base_link", "laser")] == pytest.approx((0.2, 0.0, 0.0))
+    assert links[("base_link", "rear_laser")] == pytest.approx((-0.1, 0.0, math.pi))
+    frames = {t: {m.header.frame_id for _, _, _, m in decoded(log, [t])} for t in ("/scan", "/rear_scan", "/odom")}
+    assert frames == {"/scan": {"laser"}, "/rear_scan": {"rear_laser"}, "/odom": {"odom"}}
+    tree = replay_frames.read_tf(log, rviz)
+    first = (5.0, 3.0, 1.0)  # the first scan comes before the odometry: its first pose, held
+    assert tree.resolve("base_link", round(99.95e9)) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    for _, _, message, odom in decoded(log, ["/odom"]):
+        p = odom.pose.pose
+        pose = (p.position.x, p.position.y, 2 * math.atan2(p.orientation.z, p.orientation.w))
+        assert tree.resolve("base_link", message.log_time) == pytest.approx(
+            tuple(between(np.array(first), np.array(pose))), abs=1e-9)
+    last = max(m.log_time for _, _, m, _ in decoded(log, ["/rear_scan"]))
+    assert tree.resolve("rear_laser", last) == pytest.approx(
+        tuple(compose(between(np.array(first), np.array([5.9, 3.18, 1.45])), np.array([-0.1, 0.0, math.pi]))),
+        abs=1e-9)
+
+
+@pytest.mark.slow
+def test_processed_import_overlays_the_import_in_map(tmp_path):
+    """Processed, the import's estimates start where its map puts the robot: wheel_odometry/base_link
+    in processed.mcap's map is the import's base_link in its map at every sweep, and both files resolve."""
+    from helpers import replay_frames
+
+    from fmcwlog.api import ProcessOptions, process
+
+    log, out = tmp_path / "robot.mcap", tmp_path / "out"
+    assert _import(_moving_robot_clf(tmp_path), log) == (0, [])
+    process(log, out, ProcessOptions(methods=("baseline",), backend="none"))
+    assert replay_frames.unresolved(out / "processed.mcap") == {}
+    ours, theirs = replay_frames.read_tf(out / "processed.mcap"), replay_frames.read_tf(log)
+    stamps = np.loadtxt(out / "wheel_odometry.tum")[:, 0]
+    assert len(stamps) == 11  # the front scans
+    for t in stamps:
+        ns = round(t * 1e9)
+        assert ours.resolve("wheel_odometry/base_link", ns) == pytest.approx(theirs.resolve("base_link", ns), abs=1e-6)

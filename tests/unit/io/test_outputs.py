@@ -57,24 +57,31 @@ def test_tum_parquet_and_maps_open_in_evo_pandas_and_map_server(processed):
 
 
 @pytest.mark.slow
-def test_processed_mcap_in_rosbags_has_a_tf_tree_per_trajectory(processed):
+def test_processed_mcap_in_rosbags_has_a_tf_tree_per_trajectory_under_map(processed):
     out = processed["corridor_30s"]
     msgs = _rosbags(out / "processed.mcap")
+    names = ("improved", "baseline", "wheel_odometry")
     static = msgs["/tf_static"]
     assert len(static) == 1
     links = {(tf.header.frame_id, tf.child_frame_id): tf.transform for tf in static[0][1].transforms}
-    assert set(links) == {(f"{m}/base_link", f"{m}/lidar") for m in ("improved", "baseline", "wheel_odometry")}
+    assert set(links) == {(f"{m}/base_link", f"{m}/lidar") for m in names} | {("map", f"{m}/odom") for m in names}
     assert links[("improved/base_link", "improved/lidar")].translation.x == pytest.approx(0.35)
+    for m in names:  # every estimate starts at map's origin
+        tr = links[("map", f"{m}/odom")]
+        assert (tr.translation.x, tr.translation.y, tr.rotation.z, tr.rotation.w) == (0.0, 0.0, 0.0, 1.0)
     # every sweep: one /tf message with each trajectory's odom -> base_link, equal to its TUM pose
     tf = msgs["/tf"]
-    assert len(tf) == 300
-    tum = np.loadtxt(out / "improved.tum")
-    for (t, m), row in zip(tf, tum):
-        frames = {(x.header.frame_id, x.child_frame_id): x.transform for x in m.transforms}
-        assert set(frames) == {(f"{n}/odom", f"{n}/base_link") for n in ("improved", "baseline", "wheel_odometry")}
-        tr = frames[("improved/odom", "improved/base_link")]
-        assert t == round(row[0] * 1e9, -3) or abs(t * 1e-9 - row[0]) < 1e-6
-        assert (tr.translation.x, tr.translation.y) == pytest.approx((row[1], row[2]), abs=2e-6)
+    assert len(tf) == 300 and [t for t, _ in tf] == sorted(t for t, _ in tf)
+    for name in names:
+        tum = np.loadtxt(out / f"{name}.tum")
+        for (t, m), row in zip(tf, tum):
+            frames = {(x.header.frame_id, x.child_frame_id): x.transform for x in m.transforms}
+            assert set(frames) == {(f"{n}/odom", f"{n}/base_link") for n in names}
+            tr = frames[(f"{name}/odom", f"{name}/base_link")]
+            assert abs(t * 1e-9 - row[0]) < 1e-6
+            assert (tr.translation.x, tr.translation.y) == pytest.approx((row[1], row[2]), abs=2e-6)
+    labels = msgs["/improved/moving_labels"]
+    assert len(labels) == 300 and {m.header.frame_id for _, m in labels} == {"improved/lidar"}
 
 
 @pytest.mark.slow
@@ -195,6 +202,34 @@ def test_maps_are_published_less_often_once_they_outgrow_the_budget(tmp_path):
     big = map_stamps(300)  # 90,000 cells (+ the path): 9 s of budget or more
     gaps = np.diff(big)
     assert len(big) <= 120 / 9 and np.all(gaps >= 9.0), gaps
+
+
+def test_tf_carries_the_corrected_poses_and_everything_resolves_to_map(tmp_path):
+    """``/tf`` holds each trajectory's poses as they end up: a back end's correction replaces the
+    front end's there as in the TUM file; every frame a message names resolves to ``map``."""
+    from helpers import replay_frames
+
+    from fmcwlog.io.outputs import ProcessOutputs
+
+    out = ProcessOutputs(tmp_path, ("a", "b"), np.array([0.3, 0.1, 0.2]), publish_period=1.0)
+    stamps = [10**9 + k * 10**8 for k in range(30)]
+    for k, stamp in enumerate(stamps):
+        out.add_pose("a", stamp, np.array([0.1 * k, 0.0, 0.01 * k]), (1.0, 0.1))
+        if k >= 5:  # b starts later: its poses join the messages of its stamps
+            out.add_pose("b", stamp, np.array([0.0, 0.1 * k, 0.0]), None)
+        out.end_sweep(stamp, {})
+    corrected = np.column_stack([np.arange(30) * 0.1, np.full(30, 2.0), np.zeros(30)])
+    out.correct("a", corrected)
+    out.finish({})
+    folder = tmp_path / "processed.mcap"
+    assert replay_frames.unresolved(folder) == {}
+    tree = replay_frames.read_tf(folder)
+    for k, stamp in enumerate(stamps):
+        assert tree.resolve("a/lidar", stamp) == pytest.approx((0.1 * k + 0.3, 2.0 + 0.1, 0.2))
+    assert tree.resolve("b/base_link", stamps[4]).startswith("b/base_link: 'b/odom' -> 'b/base_link' is known from")
+    assert tree.resolve("b/base_link", stamps[-1]) == pytest.approx((0.0, 2.9, 0.0))
+    tum = np.loadtxt(tmp_path / "a.tum")
+    assert np.allclose(tum[:, 1:3], corrected[:, :2])
 
 
 def test_processed_messages_are_encoded_as_mcap_ros2_encodes_them():

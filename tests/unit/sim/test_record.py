@@ -105,11 +105,13 @@ def test_log_follows_the_format(corridor):
         "/ground_truth/point_labels": "fmcwlog_msgs/msg/PointLabels",
         "/tf_static": "tf2_msgs/msg/TFMessage",  # beyond the contract: for viewers
         "/ground_truth/tf": "tf2_msgs/msg/TFMessage",
+        "/tf": "tf2_msgs/msg/TFMessage",
     }
     assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
     # 26 s: 10 Hz sweeps and labels, 50 Hz ticks and ground truth.
     assert len(topics["/fmcw/points"]) == len(topics["/ground_truth/point_labels"]) == 260
-    assert len(topics["/wheel/ticks"]) == len(topics["/ground_truth/odom"]) == len(topics["/ground_truth/tf"]) == 1300
+    assert len(topics["/wheel/ticks"]) == len(topics["/ground_truth/odom"]) == len(topics["/ground_truth/tf"]) == \
+        len(topics["/tf"]) == 1300
     assert len(topics["/tf_static"]) == 1
 
     for topic, msgs in topics.items():
@@ -323,27 +325,50 @@ def test_crowd_has_20_to_40_percent_moving_returns(crowd_log):
 
 def test_rosbags_reads_the_log_and_its_tf_tree(corridor_log):
     """rosbags (the reader evo and KISS-ICP use) reads every message, and the transforms chain
-    lidar -> base_link (the mount) -> map (the ground truth, equal to /ground_truth/odom)."""
+    lidar -> base_link (the mount) -> map (the ground truth, equal to /ground_truth/odom); /tf holds
+    the same true pose as map -> ground_truth/base_link."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     with AnyReader([corridor_log], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         assert counts["/fmcw/points"] == 260 and counts["/tf_static"] == 1 and counts["/ground_truth/tf"] == 1300
+        assert counts["/tf"] == 1300
         static = [reader.deserialize(raw, c.msgtype) for c, _, raw in
                   reader.messages(connections=[c for c in reader.connections if c.topic == "/tf_static"])]
         tf = static[0].transforms[0]
         assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "lidar")
         odom = {}
         for c, t, raw in reader.messages(connections=[c for c in reader.connections
-                                                      if c.topic in ("/ground_truth/tf", "/ground_truth/odom")]):
+                                                      if c.topic in ("/ground_truth/tf", "/ground_truth/odom", "/tf")]):
             msg = reader.deserialize(raw, c.msgtype)
             if c.topic == "/ground_truth/odom":
                 odom[t] = (msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.orientation.z)
             else:
                 g = msg.transforms[0]
-                assert (g.header.frame_id, g.child_frame_id) == ("map", "base_link")
-                odom.setdefault(("tf", t), (g.transform.translation.x, g.transform.translation.y, g.transform.rotation.z))
+                child = "base_link" if c.topic == "/ground_truth/tf" else "ground_truth/base_link"
+                assert len(msg.transforms) == 1 and (g.header.frame_id, g.child_frame_id) == ("map", child)
+                odom[(c.topic, t)] = (g.transform.translation.x, g.transform.translation.y, g.transform.rotation.z)
     assert tf.transform.translation.x == pytest.approx(0.35)  # the default mount (calibration lidar_x)
-    pairs = [(odom[t], odom[("tf", t)]) for t in odom if not isinstance(t, tuple) and ("tf", t) in odom]
-    assert len(pairs) == 1300 and all(np.allclose(a, b) for a, b in pairs)
+    for topic in ("/ground_truth/tf", "/tf"):
+        pairs = [(odom[t], odom[(topic, t)]) for t in odom if not isinstance(t, tuple) and (topic, t) in odom]
+        assert len(pairs) == 1300 and all(np.allclose(a, b) for a, b in pairs)
+
+
+def test_a_replay_places_every_message_and_shows_the_truth_as_its_own_tree(corridor_log):
+    """Every frame a message names resolves to map at its stamp through the log's tf topics (as
+    Foxglove reads them); through /tf and /tf_static alone (RViz), the truth's own tree does, at the
+    pose /ground_truth/odom gives, and the log's own frames wait for /ground_truth/tf (remapped to
+    /tf): the true pose never reaches /tf as base_link's parent."""
+    from helpers import ground_truth, replay_frames
+
+    assert replay_frames.unresolved(corridor_log) == {}
+    rviz = ("/tf", "/tf_static")
+    tree = replay_frames.read_tf(corridor_log, rviz)
+    gt = ground_truth(corridor_log)
+    for t, x, y, yaw in gt[::50]:
+        assert tree.resolve("ground_truth/base_link", round(t * 1e9)) == pytest.approx((x, y, yaw), abs=1e-9)
+    left = replay_frames.unresolved(corridor_log, rviz, tree=tree)
+    assert {frame for _, frame in left} == {"lidar", "base_link"}
+    assert {topic for topic, _ in left} == {"/fmcw/points", "/ground_truth/point_labels", "/wheel/ticks",
+                                           "/ground_truth/odom", "/tf_static"}

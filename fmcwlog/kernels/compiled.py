@@ -1,0 +1,123 @@
+"""Which kernels run: the compiled ones (``fmcwlog._core``, built from ``src/core.cpp``) or the numpy
+reference, and the compiled ones' Python face.
+
+The switch is the environment variable ``FMCWLOG_KERNELS``, read once, at the first registration:
+
+- unset or empty: the compiled kernels where the module imports, the numpy ones otherwise (no error);
+- ``numpy``: the numpy reference;
+- ``compiled``: the compiled kernels, and an :class:`~fmcwlog.errors.FmcwlogError` where they cannot load.
+
+Both give the same pairs and iteration counts and poses within about 1e-9 (``tests/unit/kernels/
+test_compiled.py``); a build gives the same bytes on every run, but the compiled kernels are not
+promised to equal numpy bit for bit.
+
+Where the package is imported from a checkout (``python -m pytest`` in it puts the checkout first
+on ``sys.path``) the checkout holds no build: the module is then taken from the installed package
+(``pip install .``), if it was built from the same ``src/core.cpp`` (its SHA-256 is compiled in).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from importlib.machinery import EXTENSION_SUFFIXES
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import FmcwlogError
+
+ENV = "FMCWLOG_KERNELS"
+CHOICES = ("compiled", "numpy")
+_PACKAGE = Path(__file__).resolve().parent.parent
+_SOURCE = _PACKAGE.parent / "src" / "core.cpp"  # present in a checkout only
+
+_core: ModuleType | None = None
+_why_not = ""  # why the compiled module did not load
+_chosen: str | None = None
+
+
+def _from(path: Path) -> ModuleType:
+    """The extension module at ``path`` as ``fmcwlog._core`` (loaded once: a second load of the
+    same extension would register its types twice)."""
+    loaded = sys.modules.get("fmcwlog._core")
+    if loaded is not None:
+        return loaded
+    spec = importlib.util.spec_from_file_location("fmcwlog._core", path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"cannot load {path}")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules["fmcwlog._core"] = module
+    return module
+
+
+def _installed_builds() -> list[Path]:
+    """``fmcwlog/_core*`` of the other fmcwlog installs on ``sys.path`` (a checkout's installed build)."""
+    found = []
+    for entry in sys.path:
+        folder = Path(entry or ".").resolve() / "fmcwlog"
+        if folder == _PACKAGE or not folder.is_dir():
+            continue
+        found += [folder / f"_core{suffix}" for suffix in EXTENSION_SUFFIXES if (folder / f"_core{suffix}").is_file()]
+    return found
+
+
+def _load() -> tuple[ModuleType | None, str]:
+    """The compiled module and "", or None and why not."""
+    want = hashlib.sha256(_SOURCE.read_bytes()).hexdigest() if _SOURCE.is_file() else None
+    candidates: list[ModuleType] = []
+    try:
+        from .. import _core as own  # type: ignore[attr-defined]
+
+        candidates.append(own)
+    except ImportError:
+        for path in _installed_builds():
+            try:
+                candidates.append(_from(path))
+            except ImportError:
+                continue
+    if not candidates:
+        return None, "fmcwlog._core is not built (pip install . builds it)"
+    for module in candidates:
+        if want is None or module.SOURCE_SHA256 == want:
+            return module, ""
+    return None, f"fmcwlog._core was built from another {_SOURCE} (pip install . rebuilds it)"
+
+
+def core() -> ModuleType | None:
+    """The compiled module where ``FMCWLOG_KERNELS`` selects it (module docstring), else None."""
+    global _core, _why_not, _chosen
+    if _chosen is None:
+        value = os.environ.get(ENV, "").strip().lower()
+        if value not in ("", *CHOICES):
+            raise FmcwlogError(f"{ENV}={value!r}: expected one of {', '.join(CHOICES)}")
+        if value != "numpy":
+            _core, _why_not = _load()
+            if _core is None and value == "compiled":
+                raise FmcwlogError(f"{ENV}=compiled: {_why_not}")
+        _chosen = "compiled" if _core is not None and value != "numpy" else "numpy"
+    return _core if _chosen == "compiled" else None
+
+
+class CompiledNearest:
+    """The nearest target point of every source point under a pose, within ``bound`` (m), from the
+    compiled module's grid over the target: what :meth:`~fmcwlog.kernels.nearest.NearestPairs.nearest`
+    answers, for :func:`~fmcwlog.frontend.recovery.inlier_fraction`. ``source`` (N, 2) and ``tree``
+    are those of the registration, ``grid`` the module's ``TargetGrid`` of the tree's points."""
+
+    def __init__(self, module: ModuleType, source_xy: np.ndarray, tree: cKDTree, grid: object, bound: float):
+        self._module, self.source, self.tree, self.grid, self.bound = module, source_xy, tree, grid, bound
+
+    def nearest(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Under ``pose``: the moved source (N, 2), each point's nearest target index (N,; -1 where none
+        is within ``bound``) and its distance (N,; inf where none)."""
+        n = len(self.source)
+        moved, index, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
+        x, y, th = np.asarray(pose, dtype=float).tolist()
+        self._module.nearest(self.grid, self.source, x, y, th, moved, index, dist)
+        return moved, index, dist

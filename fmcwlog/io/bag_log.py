@@ -34,7 +34,7 @@ from rosbags.rosbag2 import Reader as Ros2Reader
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
 from ..errors import LogError
-from .mcap_log import LogContents, LogMessage, UndecodableMessage
+from .mcap_log import ContentsReader, LogContents, LogMessage, UndecodableMessage
 from .schemas import SCHEMA_DIR, message_definition
 
 # The log format's own types, for a bag that does not define them.
@@ -61,7 +61,7 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0].rstrip(".")
 
 
-class BagReader:
+class BagReader(ContentsReader):
     """A rosbag2 folder (or one of its storage files alone) or, with ``ros1``, a ROS 1 bag.
 
     Each pass over the messages opens the bag afresh, so passes may run side by side (one per
@@ -85,23 +85,6 @@ class BagReader:
         self._embedded = self._embedded_types(connections)
 
     # ------------------------------------------------------------------ the interface of LogReader
-
-    @property
-    def metadata(self) -> dict[str, dict[str, str]]:
-        """None: a bag holds no fmcwlog metadata records."""
-        return self.contents.metadata
-
-    @property
-    def topics(self) -> dict[str, str]:
-        """Topic -> its type's ROS 2 name."""
-        return self.contents.topics
-
-    def metadata_all(self, name: str) -> list[dict[str, str]]:
-        return [values for n, values in self.contents.metadata_records if n == name]
-
-    def message_count(self, topic: str) -> int | None:
-        """Messages on ``topic`` by the bag's index (rosbag2's metadata.yaml, a ROS 1 bag's index)."""
-        return self.contents.counts.get(topic)
 
     def damage_note(self) -> str:
         """'': a bag that cannot be read is refused at once, not read around."""

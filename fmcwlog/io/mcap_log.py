@@ -444,7 +444,31 @@ class UndecodableMessage(LogError):
     """One message's bytes do not decode with its schema (damage local to that message)."""
 
 
-class LogReader:
+class ContentsReader:
+    """What every log reader answers from its :class:`LogContents` (an MCAP log, a bag)."""
+
+    contents: LogContents
+
+    @property
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """The first metadata record of each name (:attr:`LogContents.metadata`; a bag has none)."""
+        return self.contents.metadata
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Topic -> its type's ROS 2 name, of every channel found so far."""
+        return self.contents.topics
+
+    def metadata_all(self, name: str) -> list[dict[str, str]]:
+        """Every metadata record called ``name``, in file order."""
+        return [values for n, values in self.contents.metadata_records if n == name]
+
+    def message_count(self, topic: str) -> int | None:
+        """Messages on ``topic`` by the file's index (an MCAP summary, a bag's index); None without one."""
+        return self.contents.counts.get(topic)
+
+
+class LogReader(ContentsReader):
     """Streams decoded messages of a log in file order, whoever wrote it, damaged or not.
 
     The container is read by :class:`fmcwlog.io.mcap_scan.McapScan`: an indexed file
@@ -513,24 +537,6 @@ class LogReader:
         if not self.contents.topics:
             why = self._causes[0] if self._causes else "it holds no channels"
             raise LogError(f"{self.path}: nothing readable: {why}")
-
-    @property
-    def metadata(self) -> dict[str, dict[str, str]]:
-        """The first metadata record of each name (:attr:`LogContents.metadata`)."""
-        return self.contents.metadata
-
-    @property
-    def topics(self) -> dict[str, str]:
-        """Topic -> schema name, of every channel found so far."""
-        return self.contents.topics
-
-    def metadata_all(self, name: str) -> list[dict[str, str]]:
-        """Every metadata record called ``name``, in file order."""
-        return [values for n, values in self.contents.metadata_records if n == name]
-
-    def message_count(self, topic: str) -> int | None:
-        """Messages on ``topic`` by the summary's statistics; None for an unindexed file."""
-        return self.contents.counts.get(topic)
 
     def _records(self, wanted: set[str] | None,
                  metadata: bool = False) -> Generator[tuple[Schema | None, Channel, Message], None, None]:

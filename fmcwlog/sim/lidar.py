@@ -369,14 +369,7 @@ class FmcwLidar:
         draws = [(rng.standard_normal(n), rng.standard_normal(n), rng.random(n)) for _ in range(count)]
         noise_r, noise_v, dropout = (np.concatenate(d) for d in zip(*draws))
         rate = dx * (vtx - v_sensor[:, 0]) + dy * (vty - v_sensor[:, 1])  # true range rate, m/s
-        r_noisy = best + cfg.range_sigma * noise_r
-        v_noisy = rate + cfg.doppler_sigma * noise_v
-        keep = np.isfinite(best) & (best <= cfg.max_range) & (dropout >= cfg.dropout)
-        if cfg.range_resolution > 0:
-            r_noisy = np.round(r_noisy / cfg.range_resolution) * cfg.range_resolution
-        if cfg.doppler_resolution > 0:
-            v_noisy = np.round(v_noisy / cfg.doppler_resolution) * cfg.doppler_resolution
-        keep &= r_noisy >= cfg.min_range
+        r_noisy, v_noisy, keep = _measured(best, rate, noise_r, noise_v, dropout, cfg)
         incidence = np.abs(dx * nx + dy * ny)
         reflect = np.array([_REFLECTIVITY["wall"], _REFLECTIVITY["person"], _REFLECTIVITY["cart"]])[kind]
         intensity = reflect * (0.2 + 0.8 * incidence) * np.exp(-np.where(np.isfinite(best), best, 0.0) / 60.0)
@@ -445,14 +438,7 @@ class FmcwLidar:
         m = n * rings
         draws = [(rng.standard_normal(m), rng.standard_normal(m), rng.random(m)) for _ in range(count)]
         noise_r, noise_v, dropout = (np.concatenate(d).reshape(size, rings) for d in zip(*draws))
-        r_noisy = best + cfg.range_sigma * noise_r
-        v_noisy = rate + cfg.doppler_sigma * noise_v
-        keep = np.isfinite(best) & (best <= cfg.max_range) & (dropout >= cfg.dropout)
-        if cfg.range_resolution > 0:
-            r_noisy = np.round(r_noisy / cfg.range_resolution) * cfg.range_resolution
-        if cfg.doppler_resolution > 0:
-            v_noisy = np.round(v_noisy / cfg.doppler_resolution) * cfg.doppler_resolution
-        keep &= r_noisy >= cfg.min_range
+        r_noisy, v_noisy, keep = _measured(best, rate, noise_r, noise_v, dropout, cfg)
         flat = r_noisy * cos_e  # the range's horizontal part, m
         x, y = flat * np.tile(self._beam_cos, count)[:, None], flat * np.tile(self._beam_sin, count)[:, None]
         z = r_noisy * sin_e
@@ -466,3 +452,19 @@ class FmcwLidar:
             out.append(Sweep(x=x[part][k], y=y[part][k], intensity=intensity[part][k], velocity=v_noisy[part][k],
                              t=t[part][k], moving=moving[part][k], z=z[part][k], ring=ring[part][k]))
         return out
+
+
+def _measured(best: np.ndarray, rate: np.ndarray, noise_r: np.ndarray, noise_v: np.ndarray, dropout: np.ndarray,
+              cfg: SensorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the sensor reports of true ranges ``best`` (m) and range rates ``rate`` (m/s): each with its
+    Gaussian noise and quantisation, and which returns it keeps (in range, not dropped, beyond
+    ``min_range``). ``noise_r``, ``noise_v``: standard normal draws; ``dropout``: uniform draws."""
+    r_noisy = best + cfg.range_sigma * noise_r
+    v_noisy = rate + cfg.doppler_sigma * noise_v
+    keep = np.isfinite(best) & (best <= cfg.max_range) & (dropout >= cfg.dropout)
+    if cfg.range_resolution > 0:
+        r_noisy = np.round(r_noisy / cfg.range_resolution) * cfg.range_resolution
+    if cfg.doppler_resolution > 0:
+        v_noisy = np.round(v_noisy / cfg.doppler_resolution) * cfg.doppler_resolution
+    keep &= r_noisy >= cfg.min_range
+    return r_noisy, v_noisy, keep

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from helpers import ROOT, SAMPLE_LOGS, ate_rmse, copy_log, decoded, ground_truth, tum
+from helpers import ROOT, SAMPLE_LOGS, ate_rmse, copy_log, decoded, ground_truth, tum, wheel_odometry
 from mcap.reader import make_reader
 from mcap_ros2.writer import Writer
 
@@ -116,24 +116,6 @@ def test_point_fields_are_found_by_name_and_offset(processed, tmp_path):
     _same_estimates(out, processed["corridor_30s"])
 
 
-def _wheel_odometry(path: Path) -> list[tuple[int, np.ndarray]]:
-    """The robot's own odometry, as its driver would publish it: the log's ticks integrated with the
-    calibrated radii (a second implementation: exact arcs, composed in a loop)."""
-    cal = {k: float(v) for k, v in _metadata(path)["fmcwlog.calibration"].items()}
-    k = 2 * math.pi / cal["ticks_per_revolution"]
-    out, pose, last = [], np.zeros(3), None
-    for _, _, message, m in decoded(path, ["/wheel/ticks"]):
-        if last is not None:
-            sl = (m.left - last[0]) * k * cal["wheel_radius_left"]
-            sr = (m.right - last[1]) * k * cal["wheel_radius_right"]
-            s, dth = (sl + sr) / 2, (sr - sl) / cal["track_width"]
-            chord = s if abs(dth) < 1e-12 else 2 * s / dth * math.sin(dth / 2)
-            pose = pose + [chord * math.cos(pose[2] + dth / 2), chord * math.sin(pose[2] + dth / 2), dth]
-        last = (m.left, m.right)
-        out.append((message.log_time, pose.copy()))
-    return out
-
-
 def test_laserscan_with_the_robots_own_odometry(tmp_path):
     """No Doppler, no ground truth in the prior: the robot's drifting wheel odometry on /odom."""
     src = CORRIDOR
@@ -141,7 +123,7 @@ def test_laserscan_with_the_robots_own_odometry(tmp_path):
     schemas = ROOT / "schemas"
     header = ("=" * 80 + "\nMSG: std_msgs/msg/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
               + "=" * 80 + "\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n")
-    odometry = _wheel_odometry(src)
+    odometry = wheel_odometry(src)
     with open(dst, "wb") as out:
         w = Writer(out)
         w.add_metadata("fmcwlog.calibration", _metadata(src)["fmcwlog.calibration"])  # where the lidar sits

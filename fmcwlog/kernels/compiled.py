@@ -1,4 +1,4 @@
-"""Which kernels run: the compiled ones (``fmcwlog._core``, built from ``src/core.cpp``) or the numpy
+"""Which kernels run: the compiled ones (``fmcwlog._core``, built from ``src/core/``) or the numpy
 reference, and the compiled ones' Python face.
 
 The switch is the environment variable ``FMCWLOG_KERNELS``, read once, at the first registration:
@@ -7,13 +7,13 @@ The switch is the environment variable ``FMCWLOG_KERNELS``, read once, at the fi
 - ``numpy``: the numpy reference;
 - ``compiled``: the compiled kernels, and an :class:`~fmcwlog.errors.FmcwlogError` where they cannot load.
 
-Both give the same pairs and iteration counts and poses within about 1e-9 (``tests/unit/kernels/
-test_compiled.py``); a build gives the same bytes on every run, but the compiled kernels are not
+Both give the same pairs and iteration counts and poses within about 1e-9 (``tests/unit/frontend/
+test_compiled_kernels.py``); a build gives the same bytes on every run, but the compiled kernels are not
 promised to equal numpy bit for bit.
 
 Where the package is imported from a checkout (``python -m pytest`` in it puts the checkout first
 on ``sys.path``) the checkout holds no build: the module is then taken from the installed package
-(``pip install .``), if it was built from the same ``src/core.cpp`` (its SHA-256 is compiled in).
+(``pip install .``), if it was built from the same ``src/core/`` (its digest is compiled in).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from ..errors import FmcwlogError
 ENV = "FMCWLOG_KERNELS"
 CHOICES = ("compiled", "numpy")
 _PACKAGE = Path(__file__).resolve().parent.parent
-_SOURCE = _PACKAGE.parent / "src" / "core.cpp"  # present in a checkout only
+_SOURCE = _PACKAGE.parent / "src" / "core"  # present in a checkout only
 
 _core: ModuleType | None = None
 _why_not = ""  # why the compiled module did not load
@@ -67,9 +67,17 @@ def _installed_builds() -> list[Path]:
     return found
 
 
+def source_digest(folder: Path) -> str:
+    """The digest CMakeLists.txt compiles in: SHA-256 of the lines "<name> <SHA-256 of the file>\\n",
+    one per ``.cpp`` and ``.hpp`` file of ``folder``, sorted by name."""
+    files = sorted((p for p in folder.iterdir() if p.suffix in (".cpp", ".hpp")), key=lambda p: p.name)
+    lines = "".join(f"{p.name} {hashlib.sha256(p.read_bytes()).hexdigest()}\n" for p in files)
+    return hashlib.sha256(lines.encode()).hexdigest()
+
+
 def _load() -> tuple[ModuleType | None, str]:
     """The compiled module and "", or None and why not."""
-    want = hashlib.sha256(_SOURCE.read_bytes()).hexdigest() if _SOURCE.is_file() else None
+    want = source_digest(_SOURCE) if _SOURCE.is_dir() else None
     candidates: list[ModuleType] = []
     try:
         from .. import _core as own  # type: ignore[attr-defined]

@@ -1,0 +1,11 @@
+// One bind_* per kernel file; module.cpp calls each. A new kernel: its own .cpp with a bind_*
+// function, declared here and called in module.cpp (CMakeLists.txt compiles every src/core/*.cpp).
+#pragma once
+
+#include <nanobind/nanobind.h>
+
+namespace fmcwlog {
+
+void bind_point_to_point_icp(nanobind::module_& m);
+
+}  // namespace fmcwlog

@@ -74,12 +74,13 @@ class SegmentationParams(Checked):
 
 
 def cluster_points(
-    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
+    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams(), labeller=None
 ) -> np.ndarray:
     """DBSCAN labels (N,) over ``(x, y, √α·ε)`` (eq. 17, with the compensated ``ε`` in place of
-    ``v_r``); -1 marks noise. ``xy`` (N, 2) m, ``epsilon`` (N,) m/s."""
+    ``v_r``); -1 marks noise. ``xy`` (N, 2) m, ``epsilon`` (N,) m/s. ``labeller``: the DBSCAN,
+    :func:`dbscan` where None (:func:`dbscan_numpy` for the numpy reference)."""
     feats = np.column_stack([xy, np.sqrt(params.alpha) * np.asarray(epsilon, float)])
-    return dbscan(feats, params.eps, params.min_samples)
+    return (labeller or dbscan)(feats, params.eps, params.min_samples)
 
 
 def dbscan(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
@@ -255,8 +256,7 @@ def segment_clusters_numpy(
         near[inside] = np.isfinite(dist)
     moving = np.zeros(n, bool)
     if near.any():
-        feats = np.column_stack([xy[near], np.sqrt(params.alpha) * epsilon[near]])  # cluster_points, in numpy
-        labels[near] = dbscan_numpy(feats, params.eps, params.min_samples)
+        labels[near] = cluster_points(xy[near], epsilon[near], params, dbscan_numpy)
         moving[near] = moving_from_labels(labels[near], epsilon[near], params)
     return Segmentation(labels, near, moving)
 

@@ -43,43 +43,96 @@ def assert_same_segmentation(fast, ref):
         np.testing.assert_array_equal(got, want, err_msg=name)
 
 
+def _state(tracker):
+    return tuple(a.copy() for a in (tracker.x, tracker.cov, tracker.time, tracker.last_update, tracker.moving_hits))
+
+
+def _set_state(tracker, state):
+    tracker.x, tracker.cov, tracker.time, tracker.last_update, tracker.moving_hits = (a.copy() for a in state)
+
+
+def _select(kind):
+    os.environ[compiled.ENV] = kind
+    compiled._chosen = None
+
+
+def _both(segment, tracker, *args, **kw):
+    """``segment`` (MoverTracker.segment) from the tracker's state with the numpy and the compiled
+    kernels: (mask, state) of each; the tracker is left in the numpy run's state."""
+    before, runs = _state(tracker), {}
+    for kind in ("compiled", "numpy"):
+        _set_state(tracker, before)
+        _select(kind)
+        runs[kind] = (segment(tracker, *args, **kw), _state(tracker))
+    return runs["numpy"], runs["compiled"]
+
+
+def assert_same_tracks(fast, ref):
+    """Masks, track counts, hits and times exactly; states and covariances to 1e-9."""
+    (mask, state), (want_mask, want) = fast, ref
+    assert mask.dtype == want_mask.dtype
+    np.testing.assert_array_equal(mask, want_mask)
+    assert state[0].shape == want[0].shape
+    np.testing.assert_allclose(state[0], want[0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(state[1], want[1], rtol=0, atol=1e-9)
+    for got, expected in zip(state[2:], want[2:]):
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got, expected)
+
+
 @pytest.fixture(scope="module")
-def recorded_sweeps():
-    """What the tracker gives DBSCAN on every third sweep of the two 30 s logs (numpy kernels):
+def recorded():
+    """The two 30 s logs processed by the improved method, every sweep's tracking done with both
+    kernels from the same state (the run goes on from the numpy one): "sweeps", the (numpy, compiled)
+    results of each, and "segmentations", what the tracker gave DBSCAN on every third sweep
     (xy, epsilon, params, seeds, seed_points)."""
     from fmcwlog.api import ProcessOptions, process
 
-    seen, original = [], tracking.segment_clusters
+    sweeps, segmentations = [], []
+    original_segment, original_clusters = tracking.MoverTracker.segment, tracking.segment_clusters
 
-    def capture(xy, epsilon, params, seeds=None, seed_points=None):
-        seen.append((xy.copy(), np.array(epsilon, float), params, seeds, seed_points))
-        return sg.segment_clusters_numpy(xy, epsilon, params, seeds, seed_points)
+    def clusters(xy, epsilon, params, seeds=None, seed_points=None):
+        segmentations.append((xy.copy(), np.array(epsilon, float), params, seeds, seed_points))
+        return original_clusters(xy, epsilon, params, seeds, seed_points)
 
-    tracking.segment_clusters = capture
+    def segment(tracker, *args, **kw):
+        ref, fast = _both(original_segment, tracker, *args, **kw)
+        sweeps.append((ref, fast))
+        return ref[0]
+
     kind = os.environ.get(compiled.ENV)
+    tracking.MoverTracker.segment, tracking.segment_clusters = segment, clusters
     try:
-        os.environ[compiled.ENV] = "numpy"
-        compiled._chosen = None
         for log in ("crowd_30s", "corridor_30s"):
             with tempfile.TemporaryDirectory() as tmp:
                 process(str(SAMPLE_LOGS / f"{log}.mcap"), tmp + "/out",
                         ProcessOptions(methods=("improved",), backend="none"), jobs=1)
     finally:
-        tracking.segment_clusters = original
+        tracking.MoverTracker.segment, tracking.segment_clusters = original_segment, original_clusters
         if kind is None:
             os.environ.pop(compiled.ENV, None)
         else:
             os.environ[compiled.ENV] = kind
         compiled._chosen = None
-    return seen[::3]
+    return {"sweeps": sweeps, "segmentations": segmentations[::3]}
 
 
 @needs_core
-def test_recorded_segmentations_agree(recorded_sweeps, use):
-    assert len(recorded_sweeps) > 150
+def test_recorded_tracking_agrees(recorded):
+    sweeps = recorded["sweeps"]
+    assert len(sweeps) == 600
+    for ref, fast in sweeps:
+        assert_same_tracks(fast, ref)
+    assert sum(len(ref[1][0]) for ref, _ in sweeps) > 3000  # tracks were followed (crowd_30s holds movers)
+    assert sum(int(ref[0].sum()) for ref, _ in sweeps) > 50_000
+
+
+@needs_core
+def test_recorded_segmentations_agree(recorded, use):
+    assert len(recorded["segmentations"]) > 150
     use("compiled")
     clusters = 0
-    for xy, epsilon, params, seeds, seed_points in recorded_sweeps:
+    for xy, epsilon, params, seeds, seed_points in recorded["segmentations"]:
         ref = sg.segment_clusters_numpy(xy, epsilon, params, seeds, seed_points)
         fast = sg.segment_clusters(xy, epsilon, params, seeds, seed_points)
         assert_same_segmentation(fast, ref)
@@ -158,6 +211,57 @@ def test_odd_inputs(use):
     for run in (sg.dbscan_numpy, sg.dbscan):
         with pytest.raises(ValueError, match="finite"):
             run(np.column_stack([xy, np.ones(9)]), 0.3, 2)
+
+
+class _Free:
+    """The recent grids' stand-in: seen_free answers a given mask."""
+
+    def __init__(self):
+        self.mask = None
+
+    def seen_free(self, map_xy, placed, threshold):
+        return self.mask & placed
+
+
+@needs_core
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n_walkers=st.integers(0, 8), n_sweeps=st.integers(1, 12),
+       min_hits=st.integers(1, 3), min_speed=st.sampled_from([0.0, 0.3]), claim_radius=st.sampled_from([0.0, 0.5, 1.5]),
+       max_tracks=st.sampled_from([1, 3, 64]), free=st.sampled_from([0.0, 0.3]), gate=st.sampled_from([0.5, 1.0, 3.0]))
+def test_generated_tracking_agrees(use, seed, n_walkers, n_sweeps, min_hits, min_speed, claim_radius, max_tracks,
+                                   free, gate):
+    """Walkers (blobs moving at constant velocity, with the Doppler of their motion, some across the
+    beams) among walls, seen from a robot driving ahead, a sweep every 0.1 s; parts of the scene in
+    free space at random; the tracker run by both kernels from the same state every sweep."""
+    use("compiled")  # the switch comes back as it was after the test
+    rng = np.random.default_rng(seed)
+    params = replace(tracking.TrackingParams(), min_moving_hits=min_hits, min_speed=min_speed,
+                     claim_radius=claim_radius, max_tracks=max_tracks, gate_distance=gate)
+    tracker = tracking.MoverTracker(params)
+    tracker.recent = _Free()
+    start = rng.uniform(-8, 8, (n_walkers, 2))
+    velocity = rng.normal(0, 1.0, (n_walkers, 2))
+    walls = np.concatenate([np.column_stack([np.linspace(-10, 10, 200), np.full(200, y)]) for y in (-6.0, 7.0)])
+    mount = np.array([0.1, 0.0, 0.0])
+    for k in range(n_sweeps):
+        stamp = 0.1 * k
+        base = np.array([0.3 * stamp, 0.0, 0.02 * stamp])
+        lidar = tracking.compose(base, mount)
+        centres = start + velocity * stamp
+        which = rng.integers(0, max(n_walkers, 1), 30 * n_walkers)
+        blobs = centres[which] + rng.normal(0, 0.15, (len(which), 2)) if n_walkers else np.empty((0, 2))
+        world = np.concatenate([blobs, walls + rng.normal(0, 0.01, walls.shape)])
+        xy = tracking.transform_points(tracking.inverse(lidar), world)
+        u = (world - lidar[:2]) / np.linalg.norm(world - lidar[:2], axis=1)[:, None]
+        v = np.concatenate([velocity[which], np.zeros((len(walls), 2))]) if n_walkers else np.zeros((len(walls), 2))
+        epsilon = np.round(np.einsum("ij,ij->i", u, v) / 0.1) * 0.1 + rng.normal(0, 0.02, len(xy))
+        order = np.argsort(np.arctan2(xy[:, 1], xy[:, 0]))
+        xy, epsilon = np.ascontiguousarray(xy[order]), epsilon[order]
+        t = np.linspace(0.0, 0.1, len(xy), endpoint=False)
+        tracker.recent.mask = rng.random(len(xy)) < free
+        ref, fast = _both(tracking.MoverTracker.segment, tracker, xy, t, epsilon, stamp, base, (0.3, 0.02), mount,
+                          None, SegmentationParams(), 0.0)
+        assert_same_tracks(fast, ref)
 
 
 def test_numpy_switch(use):

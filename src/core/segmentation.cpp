@@ -8,7 +8,9 @@
 
 #include <nanobind/stl/optional.h>
 
+#include <memory>
 #include <optional>
+#include <stdexcept>
 
 #include "common.hpp"
 #include "kernels.hpp"
@@ -129,20 +131,38 @@ void moving_from_labels(const int64_t* labels, const double* epsilon, size_t n, 
 
 }  // namespace
 
+constexpr int64_t kReach = 2;  // pairs_within's cells: eps / kReach wide
+
+// Pairs of point indices, appended without initialising the storage first.
+struct PairList {
+    struct Pair {
+        int32_t a, b;
+    };
+    std::unique_ptr<Pair[]> data;
+    size_t size = 0, capacity = 0;
+    void reserve_more(size_t extra) {
+        if (size + extra <= capacity) return;
+        const size_t grown = std::max(2 * capacity, size + extra);
+        std::unique_ptr<Pair[]> next(new Pair[grown]);
+        std::copy(data.get(), data.get() + size, next.get());
+        data = std::move(next);
+        capacity = grown;
+    }
+};
+
 template <size_t Fixed>
 void scan_rows(const double* sorted, size_t d_runtime, int64_t ny, const std::vector<int64_t>& row_start,
                const std::vector<int64_t>& col, const std::vector<int64_t>& order, double r2,
-               std::vector<int64_t>& pa, std::vector<int64_t>& pb, std::integral_constant<size_t, Fixed>);
+               PairList& pairs, std::integral_constant<size_t, Fixed>);
 
 // The pairs (a, b), a < b, of n points of dimension d within `eps` (d^2 <= eps^2, cKDTree's sum):
 // the query_pairs of the reference, in another order. The points are sorted into rows and columns
-// of cells at least eps wide (counting sorts, by column then row); a point is compared with the
-// points after it in its own row up to the next column and with the three columns about its own
-// in the next row, whose range moves forward with it (each pair is looked at once).
-void pairs_within(const double* feats, size_t n, size_t d, double eps, std::vector<int64_t>& pa,
-                  std::vector<int64_t>& pb) {
-    pa.clear();
-    pb.clear();
+// of cells eps / kReach wide (counting sorts, by column then row); a point is compared with the
+// points after it in its own row up to kReach columns on and with the 2 kReach + 1 columns about
+// its own in each of the next kReach rows, whose ranges move forward with it (each pair is looked
+// at once).
+void pairs_within(const double* feats, size_t n, size_t d, double eps, PairList& pairs) {
+    pairs.size = 0;
     double x0 = kInf, y0 = kInf, x1 = -kInf, y1 = -kInf;
     for (size_t i = 0; i < n; ++i) {
         const double x = feats[i * d], y = d > 1 ? feats[i * d + 1] : 0.0;
@@ -151,7 +171,8 @@ void pairs_within(const double* feats, size_t n, size_t d, double eps, std::vect
         x1 = std::max(x1, x);
         y1 = std::max(y1, y);
     }
-    double cell = eps * (1.0 + 1e-6);  // wider than eps, so that rounding keeps neighbours one cell apart
+    // kReach cells span more than eps, so that neighbours lie at most kReach cells apart, rounding included
+    double cell = eps / double(kReach) * (1.0 + 1e-6);
     while (std::max(x1 - x0, y1 - y0) / cell > double(1 << 20)) cell *= 2.0;
     const int64_t nx = int64_t(std::floor((x1 - x0) / cell)) + 1, ny = int64_t(std::floor((y1 - y0) / cell)) + 1;
     std::vector<int64_t> cx(n), cy(n);
@@ -181,69 +202,72 @@ void pairs_within(const double* feats, size_t n, size_t d, double eps, std::vect
         std::copy(feats + size_t(order[k]) * d, feats + size_t(order[k]) * d + d, sorted.begin() + long(k * d));
     }
     const double r2 = eps * eps;
-    pa.resize(16 * n);
-    pb.resize(16 * n);
+    pairs.reserve_more(16 * n);
     if (d == 3)
-        scan_rows(sorted.data(), 3, ny, row_start, col, order, r2, pa, pb, std::integral_constant<size_t, 3>());
+        scan_rows(sorted.data(), 3, ny, row_start, col, order, r2, pairs, std::integral_constant<size_t, 3>());
     else if (d == 2)
-        scan_rows(sorted.data(), 2, ny, row_start, col, order, r2, pa, pb, std::integral_constant<size_t, 2>());
+        scan_rows(sorted.data(), 2, ny, row_start, col, order, r2, pairs, std::integral_constant<size_t, 2>());
     else
-        scan_rows(sorted.data(), d, ny, row_start, col, order, r2, pa, pb, std::integral_constant<size_t, 0>());
+        scan_rows(sorted.data(), d, ny, row_start, col, order, r2, pairs, std::integral_constant<size_t, 0>());
 }
 
 // pairs_within's scan of the sorted points; Fixed is d where it is known when compiling (else 0).
 template <size_t Fixed>
 void scan_rows(const double* sorted, size_t d_runtime, int64_t ny, const std::vector<int64_t>& row_start,
                const std::vector<int64_t>& col, const std::vector<int64_t>& order, double r2,
-               std::vector<int64_t>& pa, std::vector<int64_t>& pb, std::integral_constant<size_t, Fixed>) {
+               PairList& pairs, std::integral_constant<size_t, Fixed>) {
     const size_t d = Fixed ? Fixed : d_runtime;
     size_t found = 0;
-    pa.resize(std::max<size_t>(pa.size(), 64));
-    pb.resize(pa.size());
     // the points b in [from, to) within reach of a, appended without a branch on the distance
     auto check = [&](size_t a, size_t from, size_t to) {
-        if (found + (to - from) > pa.size()) {
-            pa.resize(std::max(2 * pa.size(), found + (to - from)));
-            pb.resize(pa.size());
-        }
+        pairs.size = found;
+        pairs.reserve_more(to - from);
+        PairList::Pair* out = pairs.data.get();
         const double* u = sorted + a * d;
         for (size_t b = from; b < to; ++b) {
-            pa[found] = order[a];
-            pb[found] = order[b];
+            out[found] = {int32_t(order[a]), int32_t(order[b])};
             found += squared_distance(u, sorted + b * d, d) <= r2;
         }
     };
     for (int64_t r = 0; r < ny; ++r) {
-        const size_t end = size_t(row_start[size_t(r + 1)]);
-        size_t lo = end, hi = end;  // the next row's points in the columns about the current one
-        const size_t next_end = r + 1 < ny ? size_t(row_start[size_t(r + 2)]) : end;
-        size_t same = size_t(row_start[size_t(r)]);  // the own row's points up to the next column
-        for (size_t a = size_t(row_start[size_t(r)]); a < end; ++a) {
+        const size_t begin = size_t(row_start[size_t(r)]), end = size_t(row_start[size_t(r + 1)]);
+        // the next kReach rows' points in the columns about the current one: [lo, hi) of each
+        size_t lo[kReach], hi[kReach], stop[kReach];
+        for (int64_t q = 0; q < kReach; ++q) {
+            const int64_t row = std::min(r + 1 + q, ny);
+            lo[q] = hi[q] = size_t(row_start[size_t(row)]);
+            stop[q] = size_t(row_start[size_t(std::min(row + 1, ny))]);
+        }
+        size_t same = begin;  // the own row's points up to kReach columns on
+        for (size_t a = begin; a < end; ++a) {
             const int64_t c = col[a];
             if (same <= a) same = a + 1;
-            while (same < end && col[same] <= c + 1) ++same;
+            while (same < end && col[same] <= c + kReach) ++same;
             check(a, a + 1, same);
-            while (lo < next_end && col[lo] < c - 1) ++lo;
-            if (hi < lo) hi = lo;
-            while (hi < next_end && col[hi] <= c + 1) ++hi;
-            check(a, lo, hi);
+            for (int64_t q = 0; q < kReach; ++q) {
+                while (lo[q] < stop[q] && col[lo[q]] < c - kReach) ++lo[q];
+                if (hi[q] < lo[q]) hi[q] = lo[q];
+                while (hi[q] < stop[q] && col[hi[q]] <= c + kReach) ++hi[q];
+                check(a, lo[q], hi[q]);
+            }
         }
     }
-    pa.resize(found);
-    pb.resize(found);
+    pairs.size = found;
 }
 
 void dbscan_labels(const double* feats, size_t n, size_t d, double eps, int64_t min_samples, int64_t* labels) {
     std::fill(labels, labels + n, int64_t(-1));
     if (n == 0) return;
-    std::vector<int64_t> pa, pb;
-    pairs_within(feats, n, d, eps, pa, pb);
-    const size_t m = pa.size();
+    if (n >= size_t(INT32_MAX)) throw std::length_error("dbscan: too many points");
+    PairList pairs;
+    pairs_within(feats, n, d, eps, pairs);
+    const size_t m = pairs.size;
+    const PairList::Pair* pair = pairs.data.get();
     // core points: at least min_samples neighbours, themselves counted
     std::vector<int64_t> count(n, 1);
     for (size_t k = 0; k < m; ++k) {
-        ++count[size_t(pa[k])];
-        ++count[size_t(pb[k])];
+        ++count[size_t(pair[k].a)];
+        ++count[size_t(pair[k].b)];
     }
     std::vector<char> core(n);
     bool any_core = false;
@@ -256,8 +280,8 @@ void dbscan_labels(const double* feats, size_t n, size_t d, double eps, int64_t 
     std::vector<int64_t> parent(n);
     for (size_t i = 0; i < n; ++i) parent[i] = int64_t(i);
     for (size_t k = 0; k < m; ++k) {
-        if (!core[size_t(pa[k])] || !core[size_t(pb[k])]) continue;
-        const int64_t a = find_root(parent, pa[k]), b = find_root(parent, pb[k]);
+        if (!core[size_t(pair[k].a)] || !core[size_t(pair[k].b)]) continue;
+        const int64_t a = find_root(parent, pair[k].a), b = find_root(parent, pair[k].b);
         if (a != b) parent[size_t(std::max(a, b))] = std::min(a, b);
     }
     // clusters numbered in the order of their lowest point
@@ -269,7 +293,7 @@ void dbscan_labels(const double* feats, size_t n, size_t d, double eps, int64_t 
         }
     // a border point takes the lowest cluster among its core neighbours
     for (size_t k = 0; k < m; ++k) {
-        const size_t a = size_t(pa[k]), b = size_t(pb[k]);
+        const size_t a = size_t(pair[k].a), b = size_t(pair[k].b);
         if (core[a] == core[b]) continue;
         const size_t border = core[a] ? b : a, from = core[a] ? a : b;
         if (labels[border] < 0 || labels[from] < labels[border]) labels[border] = labels[from];

@@ -19,7 +19,9 @@ Each track is a constant-velocity Kalman filter over ``(x, y, vx, vy)``, measure
 its cluster's centroid (m) and mean compensated Doppler ``ε̄ = ūᵀV`` (m/s) along the
 centroid's bearing ``ū``: the Doppler gives the radial speed at once, the centroid's
 motion the tangential one. Per sweep, for a few dozen tracks and clusters, all in
-arrays (no loop over points or tracks):
+arrays (no loop over points or tracks; where :func:`fmcwlog.kernels.compiled.core` selects the
+compiled kernel, steps 1-6 are one call of it, with the same labels and track counts and the
+states to rounding, :meth:`MoverTracker._segment_compiled`):
 
 1. DBSCAN (:func:`.segmentation.segment_clusters`) also around where confirmed
    tracks are expected and around points in free space, not only around points

@@ -243,3 +243,36 @@ def test_record_does_not_import_the_estimation_stack(tmp_path):
                              cwd=PACKAGE.parent, check=True)
         assert out.stdout.strip().splitlines()[-1] == "[]", (args, out.stdout[-500:])
     assert log.stat().st_size > 0
+
+
+OTHER_COMMANDS = ("fmcwlog.cli.record", "fmcwlog.cli.report", "fmcwlog.cli.run", "fmcwlog.cli.import_carmen",
+                  "fmcwlog.cli.calibrate", "fmcwlog.sim", "fmcwlog.evaluation", "fmcwlog.fleet.imports")
+
+
+@pytest.mark.parametrize("args", [["--help"], ["process", "--help"]])
+def test_help_loads_no_numpy_and_no_other_command(args):
+    """``fmcwlog --help`` and ``fmcwlog process --help`` answer from click and the command's own module:
+    no numpy, no file format, no other command's module (they cost 0.2 s of a 0.25 s answer)."""
+    code = ("import sys\n"
+            "from fmcwlog.cli import cli\n"
+            "cli.main(sys.argv[1:], standalone_mode=False)\n"
+            f"print(sorted(m for m in sys.modules if m.startswith({('numpy', 'mcap', *OTHER_COMMANDS)!r})))")
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=PACKAGE.parent,
+                         check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout[-500:]
+
+
+def test_process_loads_no_other_command_plots_or_evaluation(tmp_path):
+    """``fmcwlog process`` loads the estimation stack and its outputs' writers, and nothing of the
+    other commands: no simulator, no evaluation or plotting, no CARMEN import, no scikit-learn."""
+    log, out = tmp_path / "short.mcap", tmp_path / "out"
+    code = ("import sys\n"
+            "from fmcwlog.cli import cli\n"
+            "cli.main(sys.argv[1:], standalone_mode=False)\n"
+            f"print(sorted(m for m in sys.modules if m.startswith({(*OTHER_COMMANDS, 'matplotlib', 'sklearn')!r})))")
+    subprocess.run([sys.executable, "-c", code, "-q", "record", "--duration", "0.5", "-o", str(log)],
+                   cwd=PACKAGE.parent, check=True, capture_output=True)
+    ran = subprocess.run([sys.executable, "-c", code, "-q", "process", str(log), "-o", str(out)],
+                         capture_output=True, text=True, cwd=PACKAGE.parent, check=True)
+    assert ran.stdout.strip().splitlines()[-1] == "[]", ran.stdout[-500:]
+    assert (out / "trajectories.parquet").stat().st_size > 0

@@ -11,6 +11,13 @@ _.relinearizeSkip  # fmcwlog/backend/graph.py: gtsam reads it (an ISAM2Params at
 file  # fmcwlog/cli/console.py: warnings.showwarning's signature
 _.showwarning  # fmcwlog/cli/console.py: the warnings module calls it
 import_carmen_cmd  # fmcwlog/cli/import_carmen.py: a click command, registered by its decorator
+calibrate_cmd  # fmcwlog/cli/calibrate.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+process_cmd  # fmcwlog/cli/process.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+record_cmd  # fmcwlog/cli/record.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+report_cmd  # fmcwlog/cli/report.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+run_cmd  # fmcwlog/cli/run.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+_.get_command  # fmcwlog/cli/__init__.py: click.Group's hook, which click calls
+_.format_commands  # fmcwlog/cli/__init__.py: click.Group's hook, which click calls
 _.current_item  # fmcwlog/cli/process.py: click's progress bar reads it
 current_item  # fmcwlog/cli/progress.py: click's progress bar reads it
 current_item  # fmcwlog/cli/progress.py: click's progress bar reads it

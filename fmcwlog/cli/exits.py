@@ -13,8 +13,7 @@ import sys
 
 import click
 
-from ..errors import FmcwlogError
-from ..io.atomic import os_reason
+from ..errors import FmcwlogError, os_reason
 from .interrupts import Terminated, sigterm_as_interrupt
 
 

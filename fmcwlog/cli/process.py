@@ -10,6 +10,7 @@ import click
 from ..fleet.tasks import Limits
 from .console import console
 from .exits import SomeFailed, UserError
+from .loading import loading_modules
 from .paths import as_path, as_paths
 from .progress import NoBar, progress
 
@@ -150,8 +151,9 @@ TIME_FIELD_OPTION_HELP = ("The PointCloud2 field holding each point's time, and 
 def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks_topic, odom_topic, calibration_file,
                 base_frame, time_field, backend, force, keep_going, show_config, jobs, timeout_s, memory_limit_mb, ray_address,
                 retries):
-    from ..pipeline.options import ProcessOptions  # here: --help needs none of the estimation stack
-    from ..pipeline.params import params_from, params_toml
+    with loading_modules():  # here: --help needs none of the estimation stack
+        from ..pipeline.options import ProcessOptions
+        from ..pipeline.params import params_from, params_toml
 
     params = params_from(config_file, set_items)
     if show_config:
@@ -189,7 +191,8 @@ def process_log(log: Path, out_dir: Path, opts: ProcessOptions, force: bool, job
     line."""
     import time
 
-    from ..pipeline.process import process
+    with loading_modules():
+        from ..pipeline.process import process
 
     bar = None
     started = time.perf_counter()

@@ -37,7 +37,7 @@ from mcap_ros2.decoder import DecoderFactory
 from .. import __version__
 from ..errors import LogError
 from .atomic import partial_path
-from .mcap_scan import Damaged, McapScan
+from .mcap_scan import Damaged, McapScan, Summary
 from .messages import FLOAT32
 from .schemas import message_definition
 
@@ -538,12 +538,15 @@ class LogReader(ContentsReader):
             why = self._causes[0] if self._causes else "it holds no channels"
             raise LogError(f"{self.path}: nothing readable: {why}")
 
-    def _records(self, wanted: set[str] | None,
-                 metadata: bool = False) -> Generator[tuple[Schema | None, Channel, Message], None, None]:
+    def _records(self, wanted: set[str] | None, metadata: bool = False,
+                 indexed: bool = False) -> Generator[tuple[Schema | None, Channel, Message], None, None]:
+        """The messages on ``wanted`` topics (all when None); ``indexed``: the chunks the summary's index
+        lists without one of their channels are not read (:meth:`_without_wanted`)."""
         summary = self._scan.summary
         schemas: dict[int, Schema] = dict(summary.schemas) if summary is not None else {}
         channels: dict[int, Channel] = dict(summary.channels) if summary is not None else {}
-        for rec in self._scan.records():
+        skip = self._without_wanted(summary, wanted) if indexed and summary is not None and wanted is not None else None
+        for rec in self._scan.records(skip):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
             elif isinstance(rec, Channel):
@@ -566,13 +569,25 @@ class LogReader(ContentsReader):
                           f"(0x80-0xFF, which the MCAP specification leaves to applications; the first: 0x"
                           f"{self._scan.extensions[first]:02x} at byte {first})", stacklevel=2)
 
+    @staticmethod
+    def _without_wanted(summary: Summary, wanted: set[str]) -> Callable[[frozenset[int]], bool]:
+        """Whether a chunk holding these channels (ids, by the summary's index) holds none on ``wanted``:
+        each is a channel of the summary's, on another topic. A channel the summary does not name
+        could be on one: that chunk is read."""
+        known = summary.channels
+        return lambda ids: all(i in known and known[i].topic not in wanted for i in ids)
+
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """Undecoded messages on ``topics`` (all when None), in file order; :meth:`decode` decodes one.
 
         Always a sequential scan, chunk by chunk: memory stays at one chunk. (mcap's
-        indexed reader holds ~87 MB at its peak over a 5-minute log, growing with length.)
+        indexed reader holds ~87 MB at its peak over a 5-minute log, growing with length.) For
+        named topics the chunks that the summary's index lists without them are stepped over,
+        unread: reading a log's one ``/tf_static`` message decompresses one chunk, not the log.
+        The damage of a chunk stepped over is left to the passes that read it (``process``
+        reads every chunk that holds its scan or its motion prior: :meth:`raw_messages_by_time`).
         """
-        return self._records(None if topics is None else set(topics))
+        return self._records(None if topics is None else set(topics), indexed=topics is not None)
 
     def raw_messages_by_time(self, topics: Sequence[str],
                              hold_bytes: int = MERGE_HOLD_BYTES) -> Iterator[tuple[Schema | None, Channel, Message]]:

@@ -107,6 +107,7 @@ class Summary:
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
     chunks: dict[int, int] = field(default_factory=dict)  # chunk record offset -> record length (prefix included)
+    chunk_channels: dict[int, frozenset[int]] = field(default_factory=dict)  # chunk offset -> the channels it holds
     metadata: list[MetadataIndex] = field(default_factory=list)
     message_counts: dict[int, int] | None = None  # channel id -> messages, from the statistics
 
@@ -219,6 +220,7 @@ def read_summary(fh: IO[bytes], size: int) -> tuple[int | None, Summary | None, 
             elif op == Opcode.CHUNK_INDEX:
                 index = parse(ChunkIndex, body)
                 summary.chunks[index.chunk_start_offset] = index.chunk_length
+                summary.chunk_channels[index.chunk_start_offset] = frozenset(index.message_index_offsets)
             elif op == Opcode.METADATA_INDEX:
                 summary.metadata.append(parse(MetadataIndex, body))
             elif op == Opcode.STATISTICS:
@@ -267,11 +269,14 @@ class McapScan:
                     self.report(index.offset, f"the metadata record {index.name!r} at byte {index.offset} "
                                               f"is damaged ({exc})", "skipped it")
 
-    def records(self) -> Iterator[Schema | Channel | Message | Metadata]:
+    def records(self, skip_chunk: Callable[[frozenset[int]], bool] | None = None
+                ) -> Iterator[Schema | Channel | Message | Metadata]:
         """Schema, channel, message and metadata records of the data section, in file order.
 
         Returns at the data section's end, at a cut, or at damage it cannot step over (reported);
-        :attr:`complete` then says whether it read to the data section's end.
+        :attr:`complete` then says whether it read to the data section's end. ``skip_chunk(channels)``:
+        a chunk the summary's index lists, with the ids of the channels it holds, is stepped over
+        unread (not decompressed, its damage unseen by this pass) where it says True.
         """
         self.complete = False
         if self.summary is not None:
@@ -281,6 +286,10 @@ class McapScan:
         with open(self.path, "rb") as fh:
             pos: int | None = len(MAGIC)
             while pos is not None and pos < end:
+                if skip_chunk is not None and self._skippable(pos, end, skip_chunk):
+                    assert self.summary is not None
+                    pos += self.summary.chunks[pos]
+                    continue
                 fh.seek(pos)
                 body = None
                 try:
@@ -306,6 +315,16 @@ class McapScan:
         elif pos is not None:
             self.report(pos, f"the log ends early, at byte {pos}, without its summary and footer "
                              "(a recording cut off)", "read everything before it")
+
+    def _skippable(self, pos: int, end: int, skip_chunk: Callable[[frozenset[int]], bool]) -> bool:
+        """Whether the summary's index lists a chunk at ``pos`` inside the data section, with the
+        channels it holds (a writer may leave them out: then it is read), and ``skip_chunk`` says so."""
+        if self.summary is None:
+            return False
+        length = self.summary.chunks.get(pos)
+        channels = self.summary.chunk_channels.get(pos)
+        return length is not None and length >= _PREFIX and pos + length <= end and bool(channels) \
+            and skip_chunk(channels)
 
     def _frame(self, fh: IO[bytes], pos: int, end: int) -> tuple[int, bytes]:
         """The opcode and body of the record at ``pos``; a chunk the index lists is framed by it."""

@@ -58,9 +58,12 @@ def test_every_option_of_every_command_says_what_it_is():
 
     def commands(cmd: click.Command, path: str):
         yield path, cmd
-        if isinstance(cmd, click.Group):
-            for name, sub in cmd.commands.items():
-                yield from commands(sub, f"{path} {name}")
+        if isinstance(cmd, click.Group):  # list_commands: the group's commands, loaded or not yet
+            with click.Context(cmd) as ctx:
+                for name in cmd.list_commands(ctx):
+                    sub = cmd.get_command(ctx, name)
+                    assert sub is not None, f"{path} lists {name} but has no such command"
+                    yield from commands(sub, f"{path} {name}")
 
     bare = [f"{path} {'/'.join(p.opts)}" for path, cmd in commands(cli, "fmcwlog") for p in cmd.params
             if isinstance(p, click.Option) and not (p.help or "").strip()]

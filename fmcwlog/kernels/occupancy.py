@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import MapSizeError
+from . import compiled
 
 PENDING_SCANS = 32  # scans queued at most before they are cast (about 1 MB of points)
 
@@ -145,7 +146,24 @@ def rays(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> tuple[np.ndarray
 
 
 def cast(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
-    """Ray-cast one scan, ``pts`` (N ≥ 1, 2) seen from ``o`` (2,) (both ``map``, m), on the lattice."""
+    """Ray-cast one scan, ``pts`` (N ≥ 1, 2) seen from ``o`` (2,) (both ``map``, m), on the lattice.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call; the same
+    cells and float32 increments, bit for bit), else :func:`cast_numpy`; numpy too for a scan the
+    kernel declines (a coordinate not finite, a window of the lattice over ``max_cells``)."""
+    core = compiled.core()
+    if core is not None:
+        ox, oy = np.asarray(o, float).reshape(2).tolist()
+        found = core.occupancy_cast(
+            np.ascontiguousarray(pts, dtype=float), ox, oy, p.resolution, p.step_fraction, p.l_occ, p.l_free,
+            p.max_range is not None, 0.0 if p.max_range is None else p.max_range, p.protect_hits, p.max_cells)
+        if found is not None:
+            return ScanUpdate(*found)
+    return cast_numpy(o, pts, p)
+
+
+def cast_numpy(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
+    """:func:`cast` in numpy: the reference the compiled kernel is tested against."""
     d, length, hit = rays(o, pts, p)
     end = o + d
     res = p.resolution
@@ -369,7 +387,20 @@ class OccupancyGrid:
         del self._pending[:done]
 
     def _apply(self, update: ScanUpdate) -> None:
-        """Add a scan's increments to its cells, clamped (the arrays already hold them)."""
+        """Add a scan's increments to its cells, clamped (the arrays already hold them): the
+        compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (the same float32
+        values), else :meth:`_apply_numpy`."""
+        core = compiled.core()
+        if core is None:
+            self._apply_numpy(update)
+            return
+        p = self.params
+        core.occupancy_apply(
+            self._log_odds, self._observed, update.y0 - self._iy0, update.x0 - self._ix0, update.rows, update.cols,
+            update.increment, p.l_min, p.l_max)
+
+    def _apply_numpy(self, update: ScanUpdate) -> None:
+        """:meth:`_apply` in numpy: the reference the compiled kernel is tested against."""
         p = self.params
         width = self._log_odds.shape[1]
         at = update.rows.astype(np.intp)  # window -> flat array indices, in place

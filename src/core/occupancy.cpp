@@ -14,6 +14,10 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#define FMCWLOG_OCCUPANCY_AVX2 1
+#endif
 
 namespace fmcwlog {
 
@@ -117,6 +121,63 @@ struct Counts {
 constexpr size_t kKeptCells = size_t(1) << 22;  // 32 MB
 thread_local std::vector<Counts> t_counts;
 
+// The widest sample loop count_ray may use: 2 AVX2 (where the CPU has it), 1 SSE2, 0 scalar. They
+// give the same cells (the same operations per sample); tests set lower ones to compare them.
+int g_simd = 2;
+
+// A ray's new cells that are not its end cell, in order (count_ray).
+struct Kept {
+    int64_t* cells;
+    size_t n;
+    int64_t prev, end_flat;
+    void keep(int64_t flat) {  // no branch: one on each sample would mispredict often
+        cells[n] = flat;
+        n += size_t((flat != prev) & (flat != end_flat));
+        prev = flat;
+    }
+};
+
+#if defined(FMCWLOG_OCCUPANCY_AVX2)
+// count_ray's samples 0, 1, ... four at a time (AVX2), before the last; returns the next sample.
+// The window's cells lie within +-2^30 and it holds at most 2^31 - 1 cells (int32 lanes).
+__attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double ox, double oy, double res, double step,
+                                                           double inv_res, double guard, int64_t last, int64_t x0,
+                                                           int64_t y0, int64_t ww, Kept& kept) {
+    const __m256d ux = _mm256_set1_pd(r.ux), uy = _mm256_set1_pd(r.uy), vox = _mm256_set1_pd(ox),
+                  voy = _mm256_set1_pd(oy), inv = _mm256_set1_pd(inv_res), lo = _mm256_set1_pd(guard),
+                  hi = _mm256_set1_pd(1.0 - guard), vstep = _mm256_set1_pd(step), lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
+    const __m128i vx0 = _mm_set1_epi32(int32_t(x0)), vy0 = _mm_set1_epi32(int32_t(y0)), vww = _mm_set1_epi32(int32_t(ww));
+    int64_t k = 0;
+    for (; k + 3 < last; k += 4) {
+        const __m256d s = _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(double(k)), lanes), vstep);  // double(k + j) step
+        const __m256d ax = _mm256_add_pd(_mm256_mul_pd(ux, s), vox), ay = _mm256_add_pd(_mm256_mul_pd(uy, s), voy);
+        const __m256d qx = _mm256_mul_pd(ax, inv), qy = _mm256_mul_pd(ay, inv);
+        const __m256d fx = _mm256_floor_pd(qx), fy = _mm256_floor_pd(qy);
+        const __m256d rx = _mm256_sub_pd(qx, fx), ry = _mm256_sub_pd(qy, fy);
+        const __m256d clear = _mm256_and_pd(
+            _mm256_and_pd(_mm256_cmp_pd(rx, lo, _CMP_GT_OQ), _mm256_cmp_pd(rx, hi, _CMP_LT_OQ)),
+            _mm256_and_pd(_mm256_cmp_pd(ry, lo, _CMP_GT_OQ), _mm256_cmp_pd(ry, hi, _CMP_LT_OQ)));
+        if (_mm256_movemask_pd(clear) == 15) {
+            const __m128i cx = _mm_sub_epi32(_mm256_cvttpd_epi32(fx), vx0), cy = _mm_sub_epi32(_mm256_cvttpd_epi32(fy), vy0);
+            alignas(16) int32_t flat[4];
+            _mm_store_si128(reinterpret_cast<__m128i*>(flat), _mm_add_epi32(_mm_mullo_epi32(cy, vww), cx));
+            for (int j = 0; j < 4; ++j) kept.keep(flat[j]);
+        } else {
+            alignas(32) double px[4], py[4];
+            _mm256_store_pd(px, ax);
+            _mm256_store_pd(py, ay);
+            for (int j = 0; j < 4; ++j) kept.keep((floor_int(py[j] / res) - y0) * ww + (floor_int(px[j] / res) - x0));
+        }
+    }
+    return k;
+}
+
+bool has_avx2() {
+    static const bool yes = __builtin_cpu_supports("avx2");
+    return yes;
+}
+#endif
+
 // cast_numpy's free and hit counts of one ray into the window (x0, y0, width ww) `counts`: one free
 // update per (ray, cell) at the cell's first sample, not in the ray's end cell (cast_numpy excludes
 // the end cell too, or, where protect_hits and every ray hits, zeroes it as a hit cell: the same
@@ -129,22 +190,18 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
     const int64_t last = int64_t(r.samples) - 1;
     const double inv_res = 1.0 / p.res;
     const double guard = ray_guard(r, ox, oy, std::min(double(last) * p.step, r.length), inv_res);
-    // the ray's new cells that are not its end cell, in order, then their counts (a branch on each
-    // sample would mispredict often); a ray has at most its samples' cells
+    // the ray's new cells that are not its end cell, in order, then their counts; a ray has at
+    // most its samples' cells
     static thread_local std::vector<int64_t> t_cells;
     if (t_cells.size() < size_t(last) + 2) t_cells.resize(size_t(last) + 2);
-    int64_t* cells = t_cells.data();
-    size_t kept = 0;
-    int64_t prev = -1;
-    auto keep = [&](int64_t cx, int64_t cy) {
-        const int64_t flat = (cy - y0) * ww + (cx - x0);
-        cells[kept] = flat;
-        kept += size_t((flat != prev) & (flat != end_flat));
-        prev = flat;
-    };
+    Kept kept{t_cells.data(), 0, -1, end_flat};
     int64_t k = 0;
+#if defined(FMCWLOG_OCCUPANCY_AVX2)
+    if (int32_cells && g_simd >= 2 && has_avx2())
+        k = keep_samples_avx2(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
+#endif
 #if defined(__SSE2__)
-    if (int32_cells) {  // samples k and k + 1 side by side, the same operations per lane
+    if (int32_cells && g_simd >= 1) {  // samples k and k + 1 side by side, the same operations per lane
         const __m128d ux = _mm_set1_pd(r.ux), uy = _mm_set1_pd(r.uy), vox = _mm_set1_pd(ox), voy = _mm_set1_pd(oy);
         const __m128d inv = _mm_set1_pd(inv_res), one = _mm_set1_pd(1.0);
         const __m128d lo = _mm_set1_pd(guard), hi = _mm_set1_pd(1.0 - guard), step = _mm_set1_pd(p.step);
@@ -155,6 +212,7 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
             clear &= _mm_movemask_pd(_mm_and_pd(_mm_cmpgt_pd(frac, lo), _mm_cmplt_pd(frac, hi)));
             return _mm_cvttpd_epi32(c);
         };
+        auto keep = [&](int64_t cx, int64_t cy) { kept.keep((cy - y0) * ww + (cx - x0)); };
         for (; k + 1 < last; k += 2) {  // the last sample (cut at the length) is left to the scalar code
             const __m128d s = _mm_mul_pd(_mm_set_pd(double(k + 1), double(k)), step);
             const __m128d ax = _mm_add_pd(_mm_mul_pd(ux, s), vox), ay = _mm_add_pd(_mm_mul_pd(uy, s), voy);
@@ -173,9 +231,10 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
 #endif
     for (; k <= last; ++k) {
         const double s = sample_s(r, k, last, p.step);
-        keep(fast_sample_cell(r.ux, s, ox, p.res, inv_res, guard), fast_sample_cell(r.uy, s, oy, p.res, inv_res, guard));
+        kept.keep((fast_sample_cell(r.uy, s, oy, p.res, inv_res, guard) - y0) * ww +
+                  (fast_sample_cell(r.ux, s, ox, p.res, inv_res, guard) - x0));
     }
-    for (size_t i = 0; i < kept; ++i) ++counts[cells[i]].free;
+    for (size_t i = 0; i < kept.n; ++i) ++counts[kept.cells[i]].free;
 }
 
 // cast_numpy's cells and increments from the window's counts (`size` cells, width ww), which are
@@ -394,6 +453,14 @@ void bind_occupancy(nb::module_& m) {
           nb::arg("protect_hits"), nb::arg("max_cells"));
     m.def("occupancy_apply", &occupancy_apply, nb::arg("log_odds"), nb::arg("observed"), nb::arg("row0"),
           nb::arg("col0"), nb::arg("rows"), nb::arg("cols"), nb::arg("increment"), nb::arg("l_min"), nb::arg("l_max"));
+    m.def(
+        "_occupancy_simd",
+        [](int level) {
+            const int was = g_simd;
+            g_simd = level;
+            return was;
+        },
+        nb::arg("level"), "Tests: the widest ray-sample loop (2 AVX2 where the CPU has it, 1 SSE2, 0 scalar); the old one.");
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));
     m.def("occupancy_local_max", &occupancy_local_max, nb::arg("grid"), nb::arg("ix0"), nb::arg("iy0"),

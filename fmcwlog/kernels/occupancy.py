@@ -424,8 +424,24 @@ class OccupancyGrid:
     def to_ros_int8(self) -> np.ndarray:
         """``nav_msgs/OccupancyGrid.data`` (H·W,) int8: -1 unknown, else round(100·p).
 
-        Row-major starting at cell (0, 0) = ``origin`` (lowest y row first).
+        Row-major starting at cell (0, 0) = ``origin`` (lowest y row first). The compiled kernel
+        where :func:`fmcwlog.kernels.compiled.core` selects it (one pass, the same values: where
+        its exp could round 100·p the other way than numpy's, numpy decides), else
+        :meth:`to_ros_int8_numpy`.
         """
+        core = compiled.core()
+        if core is None:
+            return self.to_ros_int8_numpy()
+        log_odds, observed = self.log_odds, self.observed
+        out = np.empty(log_odds.size, np.int8)
+        unsure = core.occupancy_ros_int8(log_odds, observed, out)
+        if unsure.size:
+            prob = 1.0 / (1.0 + np.exp(-log_odds.reshape(-1)[unsure].astype(float)))
+            out[unsure] = np.rint(100.0 * prob).astype(np.int8)
+        return out
+
+    def to_ros_int8_numpy(self) -> np.ndarray:
+        """:meth:`to_ros_int8` in numpy: the reference the compiled kernel is tested against."""
         prob = self.probability()
         out = np.full(prob.shape, -1, np.int8)
         seen = self.observed

@@ -11,6 +11,8 @@
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
+#include <cstring>
+
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -445,6 +447,59 @@ void occupancy_local_max(GridLogOdds grid, int64_t ix0, int64_t iy0, Points map_
     }
 }
 
+// --- export: OccupancyGrid.to_ros_int8 -----------------------------------------------------------
+
+using ObservedIn = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutInt8 = nb::ndarray<int8_t, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+
+// to_ros_int8_numpy of one observed cell's log-odds l: rint(100 / (1 + exp(-l))) in float64, rounded
+// half to even as np.rint. std::exp and numpy's exp may differ in the last bit, so where 100 p lies
+// within 1e-7 of a half `sure` is false and numpy decides.
+inline int8_t ros_value(float l, bool& sure) {
+    const double v = 100.0 * (1.0 / (1.0 + std::exp(-double(l))));
+    sure = std::fabs(v - std::floor(v) - 0.5) > 1e-7;
+    return int8_t(std::nearbyint(v));
+}
+
+// to_ros_int8_numpy into `out` (H W,): -1 where never observed; returns the flat indices of the
+// cells numpy must decide (ros_value). The grid holds few distinct values, so each cell looks its
+// value up in a small cache by its bits first (the answers do not depend on the cache).
+nb::ndarray<nb::numpy, int64_t, nb::ndim<1>> occupancy_ros_int8(GridLogOdds log_odds, ObservedIn observed, OutInt8 out) {
+    const size_t n = log_odds.shape(0) * log_odds.shape(1);
+    if (observed.shape(0) != log_odds.shape(0) || observed.shape(1) != log_odds.shape(1) || out.shape(0) != n)
+        throw nb::value_error("occupancy_ros_int8: log_odds, observed and out must have one size");
+    const float* l = log_odds.data();
+    const bool* seen = observed.data();
+    int8_t* o = out.data();
+    std::vector<int64_t> unsure;
+    {
+        nb::gil_scoped_release release;
+        struct Entry {
+            uint32_t bits;
+            bool filled, sure;
+            int8_t value;
+        };
+        std::vector<Entry> cache(4096, Entry{0, false, false, 0});
+        for (size_t i = 0; i < n; ++i) {
+            if (!seen[i]) {
+                o[i] = -1;
+                continue;
+            }
+            uint32_t bits;
+            std::memcpy(&bits, &l[i], sizeof bits);
+            Entry& e = cache[(bits ^ (bits >> 12) ^ (bits >> 24)) & 4095u];
+            if (!e.filled || e.bits != bits) {
+                e.bits = bits;
+                e.filled = true;
+                e.value = ros_value(l[i], e.sure);
+            }
+            o[i] = e.value;
+            if (!e.sure) unsure.push_back(int64_t(i));
+        }
+    }
+    return owned(std::move(unsure));
+}
+
 }  // namespace
 
 void bind_occupancy(nb::module_& m) {
@@ -461,6 +516,7 @@ void bind_occupancy(nb::module_& m) {
             return was;
         },
         nb::arg("level"), "Tests: the widest ray-sample loop (2 AVX2 where the CPU has it, 1 SSE2, 0 scalar); the old one.");
+    m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));
     m.def("occupancy_local_max", &occupancy_local_max, nb::arg("grid"), nb::arg("ix0"), nb::arg("iy0"),

@@ -236,3 +236,38 @@ def test_apply_rejects_cells_outside_the_grid(use):
     with pytest.raises(IndexError):
         core.occupancy_apply(log_odds, observed, 0, 1, cells, cells, np.ones(2, np.float32), -2.0, 3.5)
     assert not observed.any() and not log_odds.any()  # nothing written
+
+
+def _ros_pair(grid, use):
+    use("compiled")
+    fast = grid.to_ros_int8()
+    return fast, grid.to_ros_int8_numpy()
+
+
+@needs_core
+def test_recorded_map_messages_agree(recorded, use):
+    casts, _ = recorded
+    grid = OccupancyGrid()
+    for origin, points, _ in casts:
+        grid.integrate(origin, points)
+    fast, ref = _ros_pair(grid, use)
+    assert fast.dtype == ref.dtype == np.int8 and fast.tobytes() == ref.tobytes()
+    assert (ref == -1).any() and (ref > 65).any() and ((ref >= 0) & (ref < 25)).any()
+
+
+@needs_core
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), shape=st.tuples(st.integers(0, 40), st.integers(0, 40)))
+def test_map_messages_agree_at_the_rounding_edges(use, seed, shape):
+    """Log-odds where 100 p is a half (to float32) and a float32 step either side, clamps, zeros and
+    any value, observed or not: the same int8 values."""
+    rng = np.random.default_rng(seed)
+    halves = (np.arange(100) + 0.5) / 100.0
+    edge = np.log(halves / (1.0 - halves)).astype(np.float32)
+    edges = np.concatenate([edge, np.nextafter(edge, np.float32(-np.inf)), np.nextafter(edge, np.float32(np.inf)),
+                            np.float32([0.0, -0.0, -2.0, 3.5, 20.0, -20.0, 100.0, -100.0])])
+    values = np.where(rng.random(shape) < 0.5, rng.choice(edges, shape), rng.normal(0, 3, shape)).astype(np.float32)
+    grid = OccupancyGrid()
+    grid._log_odds, grid._observed = values, rng.random(shape) < 0.8
+    fast, ref = _ros_pair(grid, use)
+    assert fast.tobytes() == ref.tobytes()

@@ -120,7 +120,7 @@ inline double sample_s(const Ray& r, int64_t k, int64_t last, double step) {
 struct Counts {
     int32_t free, hit;
 };
-constexpr size_t kKeptCells = size_t(1) << 22;  // 32 MB
+constexpr size_t kKeptCells = size_t(1) << 21;  // 16 MB
 thread_local std::vector<Counts> t_counts;
 
 // The widest sample loop count_ray may use: 2 AVX2 (where the CPU has it), 1 SSE2, 0 scalar. They
@@ -241,14 +241,19 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
 
 // cast_numpy's cells and increments from the window's counts (`size` cells, width ww), which are
 // zeroed on the way: the cells only traversed, by flat index, then the hit cells, by flat index
-// (protect_hits: a hit cell gets no free update). `expect` sizes the outputs.
-void collect(Counts* counts, int64_t size, int64_t ww, int64_t expect, const ScanParams& p, std::vector<int32_t>& rows,
+// (protect_hits: a hit cell gets no free update). The outputs are sized exactly (they are kept
+// with the scan until every grid holding it has applied them).
+void collect(Counts* counts, int64_t size, int64_t ww, const ScanParams& p, std::vector<int32_t>& rows,
              std::vector<int32_t>& cols, std::vector<float>& increment) {
-    rows.reserve(size_t(expect));
-    cols.reserve(size_t(expect));
-    increment.reserve(size_t(expect));
-    std::vector<int32_t> hit_rows, hit_cols;
-    std::vector<float> hit_increment;
+    size_t traversed_only = 0, hit = 0;
+    for (int64_t c = 0; c < size; ++c) {
+        hit += size_t(counts[c].hit != 0);
+        traversed_only += size_t(counts[c].hit == 0 && counts[c].free != 0);
+    }
+    rows.resize(traversed_only + hit);
+    cols.resize(traversed_only + hit);
+    increment.resize(traversed_only + hit);
+    size_t f = 0, h = traversed_only;  // where the next traversed-only and hit cell go
     const int32_t height = int32_t(size / ww), width = int32_t(ww);
     for (int32_t row = 0; row < height; ++row) {
         Counts* line = counts + int64_t(row) * ww;
@@ -256,22 +261,19 @@ void collect(Counts* counts, int64_t size, int64_t ww, int64_t expect, const Sca
             const Counts k = line[col];
             if (k.hit != 0) {
                 const double traversed = p.protect_hits ? 0.0 : double(k.free);
-                hit_rows.push_back(row);
-                hit_cols.push_back(col);
-                hit_increment.push_back(float(p.l_free * traversed + p.l_occ * double(k.hit)));
+                rows[h] = row;
+                cols[h] = col;
+                increment[h++] = float(p.l_free * traversed + p.l_occ * double(k.hit));
             } else if (k.free != 0) {
-                rows.push_back(row);
-                cols.push_back(col);
-                increment.push_back(float(p.l_free * double(k.free)));
+                rows[f] = row;
+                cols[f] = col;
+                increment[f++] = float(p.l_free * double(k.free));
             } else {
                 continue;
             }
             line[col] = Counts{0, 0};
         }
     }
-    rows.insert(rows.end(), hit_rows.begin(), hit_rows.end());
-    cols.insert(cols.end(), hit_cols.begin(), hit_cols.end());
-    increment.insert(increment.end(), hit_increment.begin(), hit_increment.end());
 }
 
 // cast_numpy: (y0, x0, rows, cols, increment) of the scan, or None where a coordinate is not
@@ -317,14 +319,15 @@ nb::object occupancy_cast(Points points, double ox, double oy, double resolution
             std::vector<Counts> own;
             std::vector<Counts>& counts = size_t(size) <= kKeptCells ? t_counts : own;
             if (counts.size() < size_t(size)) counts.resize(size_t(size));
-            int64_t samples = 0;
             const double small = double(int64_t(1) << 30);
             const bool int32_cells = wx0 > -small && wy0 > -small && wx1 < small && wy1 < small;
-            for (const Ray& r : rays) {
-                count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data());
-                samples += int64_t(r.samples);
+            try {
+                for (const Ray& r : rays) count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data());
+                collect(counts.data(), size, ww, p, rows, cols, increment);
+            } catch (...) {  // out of memory: the kept buffer may hold counts, so let it go
+                t_counts = std::vector<Counts>();
+                throw;
             }
-            collect(counts.data(), size, ww, std::min(samples + int64_t(n), size), p, rows, cols, increment);
         }
     }
     if (!fits) return nb::none();

@@ -39,6 +39,12 @@ hit cells anyway. The grids, maps and outputs are bit-identical to a plain per-r
 (``tests/unit/frontend/test_occupancy.py`` checks the cast against a per-ray reference); in a whole ``process``
 run of the 20 s crowd log (both methods), casting and applying take 0.75-0.90 s CPU against
 1.81-2.09 s with the plain passes (docs/design/speed-experiments.md).
+
+Where :func:`fmcwlog.kernels.compiled.core` selects them, the compiled kernels of
+``src/core/occupancy.cpp`` cast, apply and export (:func:`cast`, :meth:`OccupancyGrid._apply`,
+:meth:`OccupancyGrid.to_ros_int8`) with the same cells, float32 values and int8 values as the numpy
+code here, bit for bit (``tests/unit/frontend/test_compiled_occupancy.py``); a cast of a crowd_30s
+scan takes about a third of :func:`cast_numpy`'s time.
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan, lattice_cells
 
 
@@ -61,6 +62,22 @@ class RecentOccupancy:
         """(N,) whether each of the ``candidates`` (N,) among points ``map_xy`` (N, 2) lies where the
         summed log-odds of its cell and of each of its 8 neighbours is at most ``threshold`` (cells
         never observed or outside a grid hold 0 there); False for the others.
+
+        The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the
+        same answers: the same float32 values summed in float64 in the grids' order), else
+        :meth:`seen_free_numpy`."""
+        core = compiled.core()
+        if core is None or len(map_xy) == 0:
+            return self.seen_free_numpy(map_xy, candidates, threshold)
+        grids = [(grid.log_odds, grid.ix0, grid.iy0) for grid in self.grids]  # each read flushes the grid's queue
+        out = np.zeros(len(map_xy), bool)
+        core.occupancy_seen_free(
+            [g[0] for g in grids], [g[1] for g in grids], [g[2] for g in grids], np.ascontiguousarray(map_xy, dtype=float),
+            np.ascontiguousarray(candidates, dtype=bool), float(threshold), self.resolution, out)
+        return out
+
+    def seen_free_numpy(self, map_xy: np.ndarray, candidates: np.ndarray, threshold: float) -> np.ndarray:
+        """:meth:`seen_free` in numpy: the reference the compiled kernel is tested against.
 
         The point's own cell is looked up first, for all at once, and the 8 neighbours only where it
         passed; each point's lattice cell is computed once for every grid and both lookups."""
@@ -106,8 +123,21 @@ class _GridView:
 
 
 def local_max_log_odds(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
-    """(N,) the largest log-odds of a point's cell in ``grid`` and its 8 neighbours (0 where never
-    observed or outside the grid): ≥ a few hits is static structure mapped repeatedly."""
+    """(N,) the largest log-odds (float32) of a point's cell in ``grid`` and its 8 neighbours (0 where
+    never observed or outside the grid): ≥ a few hits is static structure mapped repeatedly. The
+    compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the same
+    values), else :func:`local_max_log_odds_numpy`."""
+    core = compiled.core()
+    if core is None or len(map_xy) == 0:
+        return local_max_log_odds_numpy(grid, map_xy)
+    log_odds = grid.log_odds  # read first: it flushes the grid's queue
+    out = np.empty(len(map_xy), np.float32)
+    core.occupancy_local_max(log_odds, grid.ix0, grid.iy0, np.ascontiguousarray(map_xy, dtype=float), grid.resolution, out)
+    return out
+
+
+def local_max_log_odds_numpy(grid: OccupancyGrid, map_xy: np.ndarray) -> np.ndarray:
+    """:func:`local_max_log_odds` in numpy: the reference the compiled kernel is tested against."""
     if len(map_xy) == 0:
         return np.zeros(0)
     ix, iy = lattice_cells(map_xy, grid.resolution)

@@ -39,6 +39,12 @@ hit cells anyway. The grids, maps and outputs are bit-identical to a plain per-r
 (``tests/unit/frontend/test_occupancy.py`` checks the cast against a per-ray reference); in a whole ``process``
 run of the 20 s crowd log (both methods), casting and applying take 0.75-0.90 s CPU against
 1.81-2.09 s with the plain passes (docs/design/speed-experiments.md).
+
+Where :func:`fmcwlog.kernels.compiled.core` selects them, the compiled kernels of
+``src/core/occupancy.cpp`` cast, apply and export (:func:`cast`, :meth:`OccupancyGrid._apply`,
+:meth:`OccupancyGrid.to_ros_int8`) with the same cells, float32 values and int8 values as the numpy
+code here, bit for bit (``tests/unit/frontend/test_compiled_occupancy.py``); a cast of a crowd_30s
+scan takes about a third of :func:`cast_numpy`'s time.
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import MapSizeError
+from . import compiled
 
 PENDING_SCANS = 32  # scans queued at most before they are cast (about 1 MB of points)
 
@@ -145,7 +152,24 @@ def rays(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> tuple[np.ndarray
 
 
 def cast(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
-    """Ray-cast one scan, ``pts`` (N ≥ 1, 2) seen from ``o`` (2,) (both ``map``, m), on the lattice."""
+    """Ray-cast one scan, ``pts`` (N ≥ 1, 2) seen from ``o`` (2,) (both ``map``, m), on the lattice.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call; the same
+    cells and float32 increments, bit for bit), else :func:`cast_numpy`; numpy too for a scan the
+    kernel declines (a coordinate not finite, a window of the lattice over ``max_cells``)."""
+    core = compiled.core()
+    if core is not None:
+        ox, oy = np.asarray(o, float).reshape(2).tolist()
+        found = core.occupancy_cast(
+            np.ascontiguousarray(pts, dtype=float), ox, oy, p.resolution, p.step_fraction, p.l_occ, p.l_free,
+            p.max_range is not None, 0.0 if p.max_range is None else p.max_range, p.protect_hits, p.max_cells)
+        if found is not None:
+            return ScanUpdate(*found)
+    return cast_numpy(o, pts, p)
+
+
+def cast_numpy(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
+    """:func:`cast` in numpy: the reference the compiled kernel is tested against."""
     d, length, hit = rays(o, pts, p)
     end = o + d
     res = p.resolution
@@ -369,7 +393,20 @@ class OccupancyGrid:
         del self._pending[:done]
 
     def _apply(self, update: ScanUpdate) -> None:
-        """Add a scan's increments to its cells, clamped (the arrays already hold them)."""
+        """Add a scan's increments to its cells, clamped (the arrays already hold them): the
+        compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (the same float32
+        values), else :meth:`_apply_numpy`."""
+        core = compiled.core()
+        if core is None:
+            self._apply_numpy(update)
+            return
+        p = self.params
+        core.occupancy_apply(
+            self._log_odds, self._observed, update.y0 - self._iy0, update.x0 - self._ix0, update.rows, update.cols,
+            update.increment, p.l_min, p.l_max)
+
+    def _apply_numpy(self, update: ScanUpdate) -> None:
+        """:meth:`_apply` in numpy: the reference the compiled kernel is tested against."""
         p = self.params
         width = self._log_odds.shape[1]
         at = update.rows.astype(np.intp)  # window -> flat array indices, in place
@@ -393,8 +430,24 @@ class OccupancyGrid:
     def to_ros_int8(self) -> np.ndarray:
         """``nav_msgs/OccupancyGrid.data`` (H·W,) int8: -1 unknown, else round(100·p).
 
-        Row-major starting at cell (0, 0) = ``origin`` (lowest y row first).
+        Row-major starting at cell (0, 0) = ``origin`` (lowest y row first). The compiled kernel
+        where :func:`fmcwlog.kernels.compiled.core` selects it (one pass, the same values: where
+        its exp could round 100·p the other way than numpy's, numpy decides), else
+        :meth:`to_ros_int8_numpy`.
         """
+        core = compiled.core()
+        if core is None:
+            return self.to_ros_int8_numpy()
+        log_odds, observed = self.log_odds, self.observed
+        out = np.empty(log_odds.size, np.int8)
+        unsure = core.occupancy_ros_int8(log_odds, observed, out)
+        if unsure.size:
+            prob = 1.0 / (1.0 + np.exp(-log_odds.reshape(-1)[unsure].astype(float)))
+            out[unsure] = np.rint(100.0 * prob).astype(np.int8)
+        return out
+
+    def to_ros_int8_numpy(self) -> np.ndarray:
+        """:meth:`to_ros_int8` in numpy: the reference the compiled kernel is tested against."""
         prob = self.probability()
         out = np.full(prob.shape, -1, np.int8)
         seen = self.observed

@@ -9,5 +9,6 @@ namespace fmcwlog {
 void bind_point_to_point_icp(nanobind::module_& m);
 void bind_segmentation(nanobind::module_& m);
 void bind_tracking(nanobind::module_& m);
+void bind_occupancy(nanobind::module_& m);
 
 }  // namespace fmcwlog

@@ -20,4 +20,5 @@ NB_MODULE(_core, m) {
     bind_point_to_point_icp(m);
     bind_segmentation(m);
     bind_tracking(m);
+    bind_occupancy(m);
 }

@@ -1,0 +1,529 @@
+// Ray casting of one scan into log-odds increments, and their application to a grid: the compiled
+// twins of fmcwlog/kernels/occupancy.py cast_numpy and OccupancyGrid._apply_numpy.
+//
+// Frames and units as there: the map frame, metres; lattice cell (ix, iy) covers
+// [ix res, (ix+1) res) x [iy res, (iy+1) res). Every coordinate is computed with the numpy
+// reference's operations in its order (no FMA: CMakeLists.txt), so the samples fall in the same
+// cells and the cells, counts and float32 increments are those of the reference, bit for bit.
+#include "common.hpp"
+#include "kernels.hpp"
+
+#include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
+
+#include <cstring>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#define FMCWLOG_OCCUPANCY_AVX2 1
+#endif
+
+namespace fmcwlog {
+
+namespace {
+
+using Cells = nb::ndarray<nb::numpy, int32_t, nb::ndim<1>>;
+using Increments = nb::ndarray<nb::numpy, float, nb::ndim<1>>;
+using InCells = nb::ndarray<const int32_t, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using InIncrements = nb::ndarray<const float, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using LogOdds = nb::ndarray<float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Observed = nb::ndarray<bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+// A numpy array that owns the vector's buffer (freed with the array).
+template <class T>
+nb::ndarray<nb::numpy, T, nb::ndim<1>> owned(std::vector<T>&& values) {
+    auto* heap = new std::vector<T>(std::move(values));
+    nb::capsule owner(heap, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T, nb::ndim<1>>(heap->data(), {heap->size()}, owner);
+}
+
+// One beam (occupancy.rays): its direction, length, whether it ends in a hit, its end cell and
+// its number of samples (whole numbers held as doubles until the scan's window is known to fit).
+struct Ray {
+    double ux, uy, length, ex, ey, samples;
+    bool hit;
+};
+
+// The lattice cell of a ray's sample at s (m) along it: cast_numpy's floor((o + u s) / res).
+inline double sample_cell(double u, double s, double o, double res) { return std::floor((u * s + o) / res); }
+
+// floor(q) for a q well inside int64's range.
+inline int64_t floor_int(double q) {
+    const int64_t t = int64_t(q);
+    return t - int64_t(double(t) > q);
+}
+
+// The fast cells: q = a (1 / res) is within 3.3e-16 |a / res| of the rounded a / res that
+// cast_numpy floors (two roundings each way), so where q lies farther than `guard` >= 1e-12 (1 + |q|)
+// from a whole number both have one floor; nearer, the division decides.
+inline bool clear_of_whole(double frac, double guard) { return frac > guard && frac < 1.0 - guard; }
+
+// The guard of a ray's samples: |q| is largest at a ray's first or last sample (monotone).
+inline double ray_guard(const Ray& r, double ox, double oy, double s_last, double inv_res) {
+    const double qmax = std::max({std::fabs(ox * inv_res), std::fabs(oy * inv_res), std::fabs((r.ux * s_last + ox) * inv_res),
+                                  std::fabs((r.uy * s_last + oy) * inv_res)});
+    return 1e-12 * (2.0 + qmax);
+}
+
+// int64_t(sample_cell(u, s, o, res)), the same number, for a sample inside the scan's window.
+inline int64_t fast_sample_cell(double u, double s, double o, double res, double inv_res, double guard) {
+    const double a = u * s + o;
+    const double q = a * inv_res;
+    const int64_t c = floor_int(q);
+    if (clear_of_whole(q - double(c), guard)) return c;
+    return floor_int(a / res);
+}
+
+struct ScanParams {
+    double res, step, l_occ, l_free;
+    bool has_max_range;
+    double max_range;
+    bool protect_hits;
+};
+
+// occupancy.rays, then the direction u = d / length (0 for a zero-length beam), the end cell
+// floor((o + d) / res) and the sample count floor(length / step) + 1 of cast_numpy.
+Ray make_ray(double px, double py, double ox, double oy, const ScanParams& p) {
+    double dx = px - ox, dy = py - oy;
+    double length = std::hypot(dx, dy);
+    bool hit = true;
+    if (p.has_max_range && length > p.max_range) {
+        const double f = p.max_range / length;
+        dx *= f;
+        dy *= f;
+        length = p.max_range;
+        hit = false;
+    }
+    Ray r;
+    r.ux = length > 0.0 ? dx / length : 0.0;
+    r.uy = length > 0.0 ? dy / length : 0.0;
+    r.length = length;
+    r.ex = std::floor((ox + dx) / p.res);
+    r.ey = std::floor((oy + dy) / p.res);
+    r.samples = std::floor(length / p.step) + 1.0;
+    r.hit = hit;
+    return r;
+}
+
+// Sample k of a ray (of `last` + 1) at k step, the last cut at the ray's length (cast_numpy's
+// min(s, length)).
+inline double sample_s(const Ray& r, int64_t k, int64_t last, double step) {
+    const double s = double(k) * step;
+    return k == last ? std::min(s, r.length) : s;
+}
+
+// A window cell's count of rays that traverse it (in a sample not in their end cell) and that end
+// in it with a hit.
+struct Counts {
+    int32_t free, hit;
+};
+constexpr size_t kKeptCells = size_t(1) << 21;  // 16 MB
+thread_local std::vector<Counts> t_counts;
+
+// The widest sample loop count_ray may use: 2 AVX2 (where the CPU has it), 1 SSE2, 0 scalar. They
+// give the same cells (the same operations per sample); tests set lower ones to compare them.
+int g_simd = 2;
+
+// A ray's new cells that are not its end cell, in order (count_ray).
+struct Kept {
+    int64_t* cells;
+    size_t n;
+    int64_t prev, end_flat;
+    void keep(int64_t flat) {  // no branch: one on each sample would mispredict often
+        cells[n] = flat;
+        n += size_t((flat != prev) & (flat != end_flat));
+        prev = flat;
+    }
+};
+
+#if defined(FMCWLOG_OCCUPANCY_AVX2)
+// count_ray's samples 0, 1, ... four at a time (AVX2), before the last; returns the next sample.
+// The window's cells lie within +-2^30 and it holds at most 2^31 - 1 cells (int32 lanes).
+__attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double ox, double oy, double res, double step,
+                                                           double inv_res, double guard, int64_t last, int64_t x0,
+                                                           int64_t y0, int64_t ww, Kept& kept) {
+    const __m256d ux = _mm256_set1_pd(r.ux), uy = _mm256_set1_pd(r.uy), vox = _mm256_set1_pd(ox),
+                  voy = _mm256_set1_pd(oy), inv = _mm256_set1_pd(inv_res), lo = _mm256_set1_pd(guard),
+                  hi = _mm256_set1_pd(1.0 - guard), vstep = _mm256_set1_pd(step), lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
+    const __m128i vx0 = _mm_set1_epi32(int32_t(x0)), vy0 = _mm_set1_epi32(int32_t(y0)), vww = _mm_set1_epi32(int32_t(ww));
+    int64_t k = 0;
+    for (; k + 3 < last; k += 4) {
+        const __m256d s = _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(double(k)), lanes), vstep);  // double(k + j) step
+        const __m256d ax = _mm256_add_pd(_mm256_mul_pd(ux, s), vox), ay = _mm256_add_pd(_mm256_mul_pd(uy, s), voy);
+        const __m256d qx = _mm256_mul_pd(ax, inv), qy = _mm256_mul_pd(ay, inv);
+        const __m256d fx = _mm256_floor_pd(qx), fy = _mm256_floor_pd(qy);
+        const __m256d rx = _mm256_sub_pd(qx, fx), ry = _mm256_sub_pd(qy, fy);
+        const __m256d clear = _mm256_and_pd(
+            _mm256_and_pd(_mm256_cmp_pd(rx, lo, _CMP_GT_OQ), _mm256_cmp_pd(rx, hi, _CMP_LT_OQ)),
+            _mm256_and_pd(_mm256_cmp_pd(ry, lo, _CMP_GT_OQ), _mm256_cmp_pd(ry, hi, _CMP_LT_OQ)));
+        if (_mm256_movemask_pd(clear) == 15) {
+            const __m128i cx = _mm_sub_epi32(_mm256_cvttpd_epi32(fx), vx0), cy = _mm_sub_epi32(_mm256_cvttpd_epi32(fy), vy0);
+            alignas(16) int32_t flat[4];
+            _mm_store_si128(reinterpret_cast<__m128i*>(flat), _mm_add_epi32(_mm_mullo_epi32(cy, vww), cx));
+            for (int j = 0; j < 4; ++j) kept.keep(flat[j]);
+        } else {
+            alignas(32) double px[4], py[4];
+            _mm256_store_pd(px, ax);
+            _mm256_store_pd(py, ay);
+            for (int j = 0; j < 4; ++j) kept.keep((floor_int(py[j] / res) - y0) * ww + (floor_int(px[j] / res) - x0));
+        }
+    }
+    return k;
+}
+
+bool has_avx2() {
+    static const bool yes = __builtin_cpu_supports("avx2");
+    return yes;
+}
+#endif
+
+// cast_numpy's free and hit counts of one ray into the window (x0, y0, width ww) `counts`: one free
+// update per (ray, cell) at the cell's first sample, not in the ray's end cell (cast_numpy excludes
+// the end cell too, or, where protect_hits and every ray hits, zeroes it as a hit cell: the same
+// increments); the cells along a ray are monotone, so its samples in a cell are consecutive.
+// `int32_cells`: the window's cells lie within +-2^30 (SSE2 converts through int32).
+void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64_t ww, const ScanParams& p,
+               bool int32_cells, Counts* counts) {
+    const int64_t end_flat = (int64_t(r.ey) - y0) * ww + (int64_t(r.ex) - x0);
+    if (r.hit) ++counts[end_flat].hit;
+    const int64_t last = int64_t(r.samples) - 1;
+    const double inv_res = 1.0 / p.res;
+    const double guard = ray_guard(r, ox, oy, std::min(double(last) * p.step, r.length), inv_res);
+    // the ray's new cells that are not its end cell, in order, then their counts; a ray has at
+    // most its samples' cells
+    static thread_local std::vector<int64_t> t_cells;
+    if (t_cells.size() < size_t(last) + 2) t_cells.resize(size_t(last) + 2);
+    Kept kept{t_cells.data(), 0, -1, end_flat};
+    int64_t k = 0;
+#if defined(FMCWLOG_OCCUPANCY_AVX2)
+    if (int32_cells && g_simd >= 2 && has_avx2())
+        k = keep_samples_avx2(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
+#endif
+#if defined(__SSE2__)
+    if (int32_cells && g_simd >= 1) {  // samples k and k + 1 side by side, the same operations per lane
+        const __m128d ux = _mm_set1_pd(r.ux), uy = _mm_set1_pd(r.uy), vox = _mm_set1_pd(ox), voy = _mm_set1_pd(oy);
+        const __m128d inv = _mm_set1_pd(inv_res), one = _mm_set1_pd(1.0);
+        const __m128d lo = _mm_set1_pd(guard), hi = _mm_set1_pd(1.0 - guard), step = _mm_set1_pd(p.step);
+        auto floor_clear = [&](__m128d q, int& clear) {  // floor(q), and whether clear_of_whole in both lanes
+            const __m128d t = _mm_cvtepi32_pd(_mm_cvttpd_epi32(q));
+            const __m128d c = _mm_sub_pd(t, _mm_and_pd(_mm_cmpgt_pd(t, q), one));
+            const __m128d frac = _mm_sub_pd(q, c);
+            clear &= _mm_movemask_pd(_mm_and_pd(_mm_cmpgt_pd(frac, lo), _mm_cmplt_pd(frac, hi)));
+            return _mm_cvttpd_epi32(c);
+        };
+        auto keep = [&](int64_t cx, int64_t cy) { kept.keep((cy - y0) * ww + (cx - x0)); };
+        for (; k + 1 < last; k += 2) {  // the last sample (cut at the length) is left to the scalar code
+            const __m128d s = _mm_mul_pd(_mm_set_pd(double(k + 1), double(k)), step);
+            const __m128d ax = _mm_add_pd(_mm_mul_pd(ux, s), vox), ay = _mm_add_pd(_mm_mul_pd(uy, s), voy);
+            int clear = 3;
+            const __m128i cx = floor_clear(_mm_mul_pd(ax, inv), clear), cy = floor_clear(_mm_mul_pd(ay, inv), clear);
+            if (clear == 3) {
+                keep(_mm_cvtsi128_si32(cx), _mm_cvtsi128_si32(cy));
+                keep(_mm_cvtsi128_si32(_mm_shuffle_epi32(cx, 1)), _mm_cvtsi128_si32(_mm_shuffle_epi32(cy, 1)));
+            } else {
+                keep(floor_int(_mm_cvtsd_f64(ax) / p.res), floor_int(_mm_cvtsd_f64(ay) / p.res));
+                keep(floor_int(_mm_cvtsd_f64(_mm_unpackhi_pd(ax, ax)) / p.res),
+                     floor_int(_mm_cvtsd_f64(_mm_unpackhi_pd(ay, ay)) / p.res));
+            }
+        }
+    }
+#endif
+    for (; k <= last; ++k) {
+        const double s = sample_s(r, k, last, p.step);
+        kept.keep((fast_sample_cell(r.uy, s, oy, p.res, inv_res, guard) - y0) * ww +
+                  (fast_sample_cell(r.ux, s, ox, p.res, inv_res, guard) - x0));
+    }
+    for (size_t i = 0; i < kept.n; ++i) ++counts[kept.cells[i]].free;
+}
+
+// cast_numpy's cells and increments from the window's counts (`size` cells, width ww), which are
+// zeroed on the way: the cells only traversed, by flat index, then the hit cells, by flat index
+// (protect_hits: a hit cell gets no free update). The outputs are sized exactly (they are kept
+// with the scan until every grid holding it has applied them).
+void collect(Counts* counts, int64_t size, int64_t ww, const ScanParams& p, std::vector<int32_t>& rows,
+             std::vector<int32_t>& cols, std::vector<float>& increment) {
+    size_t traversed_only = 0, hit = 0;
+    for (int64_t c = 0; c < size; ++c) {
+        hit += size_t(counts[c].hit != 0);
+        traversed_only += size_t(counts[c].hit == 0 && counts[c].free != 0);
+    }
+    rows.resize(traversed_only + hit);
+    cols.resize(traversed_only + hit);
+    increment.resize(traversed_only + hit);
+    size_t f = 0, h = traversed_only;  // where the next traversed-only and hit cell go
+    const int32_t height = int32_t(size / ww), width = int32_t(ww);
+    for (int32_t row = 0; row < height; ++row) {
+        Counts* line = counts + int64_t(row) * ww;
+        for (int32_t col = 0; col < width; ++col) {
+            const Counts k = line[col];
+            if (k.hit != 0) {
+                const double traversed = p.protect_hits ? 0.0 : double(k.free);
+                rows[h] = row;
+                cols[h] = col;
+                increment[h++] = float(p.l_free * traversed + p.l_occ * double(k.hit));
+            } else if (k.free != 0) {
+                rows[f] = row;
+                cols[f] = col;
+                increment[f++] = float(p.l_free * double(k.free));
+            } else {
+                continue;
+            }
+            line[col] = Counts{0, 0};
+        }
+    }
+}
+
+// cast_numpy: (y0, x0, rows, cols, increment) of the scan, or None where a coordinate is not
+// finite or the scan's window of the lattice would exceed max_cells (the caller casts in numpy).
+nb::object occupancy_cast(Points points, double ox, double oy, double resolution, double step_fraction, double l_occ,
+                          double l_free, bool has_max_range, double max_range, bool protect_hits, int64_t max_cells) {
+    const size_t n = points.shape(0);
+    const double* xy = points.data();
+    if (n == 0 || !std::isfinite(ox) || !std::isfinite(oy)) return nb::none();
+    for (size_t i = 0; i < 2 * n; ++i)
+        if (!std::isfinite(xy[i])) return nb::none();
+    const ScanParams p{resolution, step_fraction * resolution, l_occ, l_free, has_max_range, max_range, protect_hits};
+    std::vector<int32_t> rows, cols;
+    std::vector<float> increment;
+    int64_t x0 = 0, y0 = 0;
+    bool fits = true;
+    {
+        nb::gil_scoped_release release;
+        std::vector<Ray> rays(n);
+        // the scan's window: a ray's cells are monotone in s, so its extreme cells are those of
+        // its first and last samples; the end cells join them
+        double wx0 = kInf, wy0 = kInf, wx1 = -kInf, wy1 = -kInf;
+        for (size_t i = 0; i < n; ++i) {
+            Ray& r = rays[i];
+            r = make_ray(xy[2 * i], xy[2 * i + 1], ox, oy, p);
+            const double s_last = std::min((r.samples - 1.0) * p.step, r.length);
+            const double cx[3] = {sample_cell(r.ux, 0.0, ox, p.res), sample_cell(r.ux, s_last, ox, p.res), r.ex};
+            const double cy[3] = {sample_cell(r.uy, 0.0, oy, p.res), sample_cell(r.uy, s_last, oy, p.res), r.ey};
+            for (int j = 0; j < 3; ++j) {
+                wx0 = std::min(wx0, cx[j]);
+                wx1 = std::max(wx1, cx[j]);
+                wy0 = std::min(wy0, cy[j]);
+                wy1 = std::max(wy1, cy[j]);
+            }
+        }
+        const double cells = (wx1 - wx0 + 1.0) * (wy1 - wy0 + 1.0);
+        fits = cells <= double(max_cells) && cells <= double(std::numeric_limits<int32_t>::max());
+        if (fits) {
+            x0 = int64_t(wx0);
+            y0 = int64_t(wy0);
+            const int64_t ww = int64_t(wx1) + 1 - x0, size = (int64_t(wy1) + 1 - y0) * ww;
+            // the window's counts: a buffer kept by the thread (clean between casts) up to kKeptCells
+            std::vector<Counts> own;
+            std::vector<Counts>& counts = size_t(size) <= kKeptCells ? t_counts : own;
+            if (counts.size() < size_t(size)) counts.resize(size_t(size));
+            const double small = double(int64_t(1) << 30);
+            const bool int32_cells = wx0 > -small && wy0 > -small && wx1 < small && wy1 < small;
+            try {
+                for (const Ray& r : rays) count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data());
+                collect(counts.data(), size, ww, p, rows, cols, increment);
+            } catch (...) {  // out of memory: the kept buffer may hold counts, so let it go
+                t_counts = std::vector<Counts>();
+                throw;
+            }
+        }
+    }
+    if (!fits) return nb::none();
+    return nb::make_tuple(y0, x0, owned(std::move(rows)), owned(std::move(cols)), owned(std::move(increment)));
+}
+
+// OccupancyGrid._apply_numpy: cell (row0 + rows[i], col0 + cols[i]) of the grid gets increment[i]
+// in float32, clamped to [l_min, l_max] (as float32), and is marked observed.
+void occupancy_apply(LogOdds log_odds, Observed observed, int64_t row0, int64_t col0, InCells rows, InCells cols,
+                     InIncrements increment, double l_min, double l_max) {
+    const size_t m = rows.shape(0);
+    if (cols.shape(0) != m || increment.shape(0) != m)
+        throw nb::value_error("occupancy_apply: rows, cols and increment must have one length");
+    const int64_t height = int64_t(log_odds.shape(0)), width = int64_t(log_odds.shape(1));
+    if (int64_t(observed.shape(0)) != height || int64_t(observed.shape(1)) != width)
+        throw nb::value_error("occupancy_apply: log_odds and observed must have one shape");
+    const int32_t* r = rows.data();
+    const int32_t* c = cols.data();
+    for (size_t i = 0; i < m; ++i) {
+        const int64_t row = row0 + r[i], col = col0 + c[i];
+        if (row < 0 || row >= height || col < 0 || col >= width)
+            throw nb::index_error("occupancy_apply: a cell lies outside the grid");
+    }
+    const float lo = float(l_min), hi = float(l_max);
+    float* value = log_odds.data();
+    bool* seen = observed.data();
+    const float* inc = increment.data();
+    nb::gil_scoped_release release;
+    for (size_t i = 0; i < m; ++i) {
+        const size_t at = size_t((row0 + r[i]) * width + (col0 + c[i]));
+        value[at] = std::min(std::max(value[at] + inc[i], lo), hi);
+        seen[at] = true;
+    }
+}
+
+// --- lookups: fmcwlog/frontend/recent_grid.py --------------------------------------------------
+
+using GridLogOdds = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Flags = nb::ndarray<const bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using OutFlags = nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using OutValues = nb::ndarray<float, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+
+// _GridView: a grid's log-odds by lattice cell, 0 outside it.
+struct View {
+    const float* data;
+    int64_t height, width, ix0, iy0;
+    float at(int64_t ix, int64_t iy) const {
+        const uint64_t r = uint64_t(iy - iy0), c = uint64_t(ix - ix0);  // negatives wrap past, as there
+        return r < uint64_t(height) && c < uint64_t(width) ? data[r * uint64_t(width) + c] : 0.0f;
+    }
+};
+
+std::vector<View> views(const std::vector<GridLogOdds>& grids, const std::vector<int64_t>& ix0,
+                        const std::vector<int64_t>& iy0) {
+    if (ix0.size() != grids.size() || iy0.size() != grids.size())
+        throw nb::value_error("occupancy lookups: one ix0 and one iy0 per grid");
+    std::vector<View> out;
+    for (size_t g = 0; g < grids.size(); ++g)
+        out.push_back(View{grids[g].data(), int64_t(grids[g].shape(0)), int64_t(grids[g].shape(1)), ix0[g], iy0[g]});
+    return out;
+}
+
+// occupancy.lattice_cells of one point: floor(xy / res) as int64. Where that is not within +-2^62
+// (not finite, or beyond any grid: numpy's conversion gives some far or wrapped index there),
+// `far` is set: every lookup about it gives 0.
+inline void lattice_cell(double x, double y, double res, int64_t& ix, int64_t& iy, bool& far) {
+    const double qx = std::floor(x / res), qy = std::floor(y / res), lim = 4611686018427387904.0;
+    far = !(std::fabs(qx) < lim && std::fabs(qy) < lim);
+    ix = far ? 0 : int64_t(qx);
+    iy = far ? 0 : int64_t(qy);
+}
+
+// The summed log-odds (double, in the grids' order, as recent_grid adds them) of cell (ix, iy).
+inline double summed(const std::vector<View>& grids, int64_t ix, int64_t iy) {
+    double sum = 0.0;
+    for (const View& v : grids) sum += double(v.at(ix, iy));
+    return sum;
+}
+
+// RecentOccupancy.seen_free: out[i] = candidates[i] and the summed log-odds of the point's cell and
+// of each of its 8 neighbours are all <= threshold.
+void occupancy_seen_free(const std::vector<GridLogOdds>& grids, const std::vector<int64_t>& ix0,
+                         const std::vector<int64_t>& iy0, Points map_xy, Flags candidates, double threshold,
+                         double resolution, OutFlags out) {
+    const size_t n = map_xy.shape(0);
+    if (candidates.shape(0) != n || out.shape(0) != n)
+        throw nb::value_error("occupancy_seen_free: candidates and out must have the points' length");
+    const std::vector<View> v = views(grids, ix0, iy0);
+    const double* xy = map_xy.data();
+    const bool* cand = candidates.data();
+    bool* o = out.data();
+    nb::gil_scoped_release release;
+    for (size_t i = 0; i < n; ++i) {
+        int64_t ix, iy;
+        bool far;
+        lattice_cell(xy[2 * i], xy[2 * i + 1], resolution, ix, iy, far);
+        bool free = cand[i] && (far ? 0.0 : summed(v, ix, iy)) <= threshold;
+        for (int64_t dr = -1; free && dr <= 1; ++dr)
+            for (int64_t dc = -1; free && dc <= 1; ++dc) free = (far ? 0.0 : summed(v, ix + dc, iy + dr)) <= threshold;
+        o[i] = free;
+    }
+}
+
+// local_max_log_odds: the largest float32 log-odds of each point's cell and its 8 neighbours.
+void occupancy_local_max(GridLogOdds grid, int64_t ix0, int64_t iy0, Points map_xy, double resolution, OutValues out) {
+    const size_t n = map_xy.shape(0);
+    if (out.shape(0) != n) throw nb::value_error("occupancy_local_max: out must have the points' length");
+    const View v{grid.data(), int64_t(grid.shape(0)), int64_t(grid.shape(1)), ix0, iy0};
+    const double* xy = map_xy.data();
+    float* o = out.data();
+    nb::gil_scoped_release release;
+    for (size_t i = 0; i < n; ++i) {
+        int64_t ix, iy;
+        bool far;
+        lattice_cell(xy[2 * i], xy[2 * i + 1], resolution, ix, iy, far);
+        float best = -std::numeric_limits<float>::infinity();
+        for (int64_t dr = -1; dr <= 1; ++dr)
+            for (int64_t dc = -1; dc <= 1; ++dc) best = std::max(best, far ? 0.0f : v.at(ix + dc, iy + dr));
+        o[i] = best;
+    }
+}
+
+// --- export: OccupancyGrid.to_ros_int8 -----------------------------------------------------------
+
+using ObservedIn = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutInt8 = nb::ndarray<int8_t, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+
+// to_ros_int8_numpy of one observed cell's log-odds l: rint(100 / (1 + exp(-l))) in float64, rounded
+// half to even as np.rint. std::exp and numpy's exp may differ in the last bit, so where 100 p lies
+// within 1e-7 of a half `sure` is false and numpy decides.
+inline int8_t ros_value(float l, bool& sure) {
+    const double v = 100.0 * (1.0 / (1.0 + std::exp(-double(l))));
+    sure = std::fabs(v - std::floor(v) - 0.5) > 1e-7;
+    return int8_t(std::nearbyint(v));
+}
+
+// to_ros_int8_numpy into `out` (H W,): -1 where never observed; returns the flat indices of the
+// cells numpy must decide (ros_value). The grid holds few distinct values, so each cell looks its
+// value up in a small cache by its bits first (the answers do not depend on the cache).
+nb::ndarray<nb::numpy, int64_t, nb::ndim<1>> occupancy_ros_int8(GridLogOdds log_odds, ObservedIn observed, OutInt8 out) {
+    const size_t n = log_odds.shape(0) * log_odds.shape(1);
+    if (observed.shape(0) != log_odds.shape(0) || observed.shape(1) != log_odds.shape(1) || out.shape(0) != n)
+        throw nb::value_error("occupancy_ros_int8: log_odds, observed and out must have one size");
+    const float* l = log_odds.data();
+    const bool* seen = observed.data();
+    int8_t* o = out.data();
+    std::vector<int64_t> unsure;
+    {
+        nb::gil_scoped_release release;
+        struct Entry {
+            uint32_t bits;
+            bool filled, sure;
+            int8_t value;
+        };
+        std::vector<Entry> cache(4096, Entry{0, false, false, 0});
+        for (size_t i = 0; i < n; ++i) {
+            if (!seen[i]) {
+                o[i] = -1;
+                continue;
+            }
+            uint32_t bits;
+            std::memcpy(&bits, &l[i], sizeof bits);
+            Entry& e = cache[(bits ^ (bits >> 12) ^ (bits >> 24)) & 4095u];
+            if (!e.filled || e.bits != bits) {
+                e.bits = bits;
+                e.filled = true;
+                e.value = ros_value(l[i], e.sure);
+            }
+            o[i] = e.value;
+            if (!e.sure) unsure.push_back(int64_t(i));
+        }
+    }
+    return owned(std::move(unsure));
+}
+
+}  // namespace
+
+void bind_occupancy(nb::module_& m) {
+    m.def("occupancy_cast", &occupancy_cast, nb::arg("points"), nb::arg("ox"), nb::arg("oy"), nb::arg("resolution"),
+          nb::arg("step_fraction"), nb::arg("l_occ"), nb::arg("l_free"), nb::arg("has_max_range"), nb::arg("max_range"),
+          nb::arg("protect_hits"), nb::arg("max_cells"));
+    m.def("occupancy_apply", &occupancy_apply, nb::arg("log_odds"), nb::arg("observed"), nb::arg("row0"),
+          nb::arg("col0"), nb::arg("rows"), nb::arg("cols"), nb::arg("increment"), nb::arg("l_min"), nb::arg("l_max"));
+    m.def(
+        "_occupancy_simd",
+        [](int level) {
+            const int was = g_simd;
+            g_simd = level;
+            return was;
+        },
+        nb::arg("level"), "Tests: the widest ray-sample loop (2 AVX2 where the CPU has it, 1 SSE2, 0 scalar); the old one.");
+    m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
+    m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
+          nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));
+    m.def("occupancy_local_max", &occupancy_local_max, nb::arg("grid"), nb::arg("ix0"), nb::arg("iy0"),
+          nb::arg("map_xy"), nb::arg("resolution"), nb::arg("out"));
+}
+
+}  // namespace fmcwlog

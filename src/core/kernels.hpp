@@ -7,5 +7,8 @@
 namespace fmcwlog {
 
 void bind_point_to_point_icp(nanobind::module_& m);
+void bind_egomotion(nanobind::module_& m);
+void bind_deskew(nanobind::module_& m);
+void bind_voxel(nanobind::module_& m);
 
 }  // namespace fmcwlog

@@ -174,16 +174,17 @@ def fit_sensor_velocity(
     drawn here by numpy's generator, so the same hypotheses, inliers and scores; the velocity and
     covariance to rounding), else :func:`fit_sensor_velocity_numpy`.
     """
-    args = (inlier_threshold, n_hypotheses, min_pair_sine, refinements, score_points, random_state, prior,
-            prior_gate, bearings)
+    args = dict(inlier_threshold=inlier_threshold, n_hypotheses=n_hypotheses, min_pair_sine=min_pair_sine,
+                refinements=refinements, score_points=score_points, random_state=random_state, prior=prior,
+                prior_gate=prior_gate, bearings=bearings)
     core = compiled.core()
     if core is None:
-        return fit_sensor_velocity_numpy(xy, v_r, *args)
+        return fit_sensor_velocity_numpy(xy, v_r, **args)
     xy = np.ascontiguousarray(xy, dtype=float)
     v_r = np.ascontiguousarray(v_r, dtype=float)
     if (score_points == 0 or xy.ndim != 2 or xy.shape[1] != 2 or v_r.shape != xy.shape[:1]
             or not (bearings is None or (_points(bearings) and bearings.shape == xy.shape))):
-        return fit_sensor_velocity_numpy(xy, v_r, *args)
+        return fit_sensor_velocity_numpy(xy, v_r, **args)
     has_prior = prior is not None and bool(np.all(np.isfinite(prior)))
     fixed = tuple(np.asarray(prior, dtype=float).tolist()) if has_prior else None
 
@@ -198,10 +199,20 @@ def fit_sensor_velocity(
     return ego
 
 
-def fit_sensor_velocity_numpy(xy: np.ndarray, v_r: np.ndarray, inlier_threshold: float, n_hypotheses: int,
-                              min_pair_sine: float, refinements: int, score_points: int,
-                              random_state: int | np.random.Generator | None, prior: np.ndarray | None,
-                              prior_gate: float, bearings: np.ndarray | None) -> EgoMotion:
+def fit_sensor_velocity_numpy(
+    xy: np.ndarray,
+    v_r: np.ndarray,
+    *,
+    inlier_threshold: float = 0.15,
+    n_hypotheses: int = 64,
+    min_pair_sine: float = 0.25,
+    refinements: int = 2,
+    score_points: int = 256,
+    random_state: int | np.random.Generator | None = 0,
+    prior: np.ndarray | None = None,
+    prior_gate: float = 0.3,
+    bearings: np.ndarray | None = None,
+) -> EgoMotion:
     """:func:`fit_sensor_velocity` in numpy: the reference the compiled kernel is tested against."""
     xy = np.asarray(xy, dtype=float)
     v_r = np.asarray(v_r, dtype=float)
@@ -276,7 +287,7 @@ def _draws(random_state: int | np.random.Generator | None, n_usable: int, n_hypo
         if len(_DRAWS) >= _DRAWS_KEPT:
             _DRAWS.clear()
         pairs = _generator(random_state).integers(0, n_usable, size=(n_hypotheses, 2))
-        pairs.flags.writeable = False
+        pairs.setflags(write=False)
         _DRAWS[key] = pairs
     return pairs
 

@@ -206,3 +206,37 @@ def test_generated_thinning_is_the_same(use, seed, n, spread, size, odd):
         ref = vx.voxel_downsample_numpy(xy, size)
     got = vx.voxel_downsample(xy, size)
     assert got.tobytes() == ref.tobytes() and got.shape == ref.shape
+
+
+def _spd(rng, scale):
+    """A random symmetric positive definite 2x2 matrix of about ``scale``."""
+    m = rng.normal(0, 1, (2, 2))
+    return (m @ m.T + 0.05 * np.eye(2)) * scale
+
+
+@needs_core
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), mount=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-4, 4)),
+       doppler=st.sampled_from(["fit", "none", "singular", "nan"]), wheels=st.sampled_from(["fine", "singular"]),
+       scale=st.sampled_from([1e-6, 1e-3, 1.0]))
+def test_fused_twist_agrees(use, seed, mount, doppler, wheels, scale):
+    """:func:`fuse_twist` under the compiled switch (floats) against :func:`fuse_twist_numpy`."""
+    from fmcwlog.frontend.twist_fusion import doppler_design, fuse_twist, fuse_twist_numpy
+
+    rng = np.random.default_rng(seed)
+    a = doppler_design(mount)
+    z = rng.normal(0, 1.5, 2)
+    c_d = {"fit": _spd(rng, scale), "none": None, "singular": np.ones((2, 2)), "nan": np.full((2, 2), np.nan)}[doppler]
+    x_w = rng.normal(0, 1.0, 2)
+    c_w = _spd(rng, 1e-3) if wheels == "fine" else np.zeros((2, 2))
+    use("compiled")
+    if wheels == "singular":
+        for fuse in (fuse_twist, fuse_twist_numpy):
+            with pytest.raises(ValueError, match="positive definite"):
+                fuse(z, c_d, a, x_w, c_w)
+        return
+    got, ref = fuse_twist(None if doppler == "none" else z, c_d, a, x_w, c_w), fuse_twist_numpy(
+        None if doppler == "none" else z, c_d, a, x_w, c_w)
+    for g, r in ((got.twist, ref.twist), (got.covariance, ref.covariance), (got.doppler_share, ref.doppler_share)):
+        np.testing.assert_allclose(g, r, rtol=1e-8, atol=1e-12 * max(1.0, float(np.max(np.abs(r)))))
+    np.testing.assert_allclose(got.chi2, ref.chi2, rtol=1e-7, atol=1e-9, equal_nan=True)

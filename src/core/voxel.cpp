@@ -6,11 +6,13 @@
 namespace fmcwlog {
 namespace {
 
-// numpy's floor(v).astype(int64) on x86: a value outside int64's range, or NaN, becomes INT64_MIN
+// numpy's floor(v).astype(int64) on x86: a value outside int64's range, or NaN, becomes INT64_MIN.
+// Truncation, one less for a negative non-integer: floor without a call into libm (the x86-64
+// baseline has no rounding instruction).
 inline int64_t floor_to_int64(double v) {
-    const double f = std::floor(v);
-    if (!(f >= -9223372036854775808.0 && f < 9223372036854775808.0)) return std::numeric_limits<int64_t>::min();
-    return int64_t(f);
+    if (!(v >= -9223372036854775808.0 && v < 9223372036854775808.0)) return std::numeric_limits<int64_t>::min();
+    const int64_t i = int64_t(v);
+    return double(i) > v ? i - 1 : i;
 }
 
 // voxel.voxel_keys of one point: (i << 32) ^ (j & 0xFFFFFFFF), i and j the voxel's int64 indices

@@ -100,12 +100,8 @@ def compensated_velocity(xy: np.ndarray, v_r: np.ndarray, v_sensor: np.ndarray,
 
     ``xy`` (N, 2) lidar frame (m), ``v_r`` (N,) m/s, ``v_sensor`` (2,) the lidar origin's velocity
     in the lidar frame (m/s). ``bearings``: ``unit_bearings(xy)`` if the caller has them already.
-    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (to rounding)."""
+    Numpy either way: two calls (2 µs for 1,000 points), which a compiled call does not beat."""
     u = unit_bearings(xy) if bearings is None else bearings
-    core = compiled.core()
-    if core is not None and _points(u) and type(v_r) is np.ndarray and v_r.dtype == np.float64 and v_r.ndim == 1:
-        vx, vy = np.asarray(v_sensor, dtype=float).tolist()
-        return core.compensated_velocity(u, np.ascontiguousarray(v_r), vx, vy)
     return v_r + u @ np.asarray(v_sensor, dtype=float)
 
 

@@ -1,5 +1,5 @@
-// The sensor's velocity from one sweep's Doppler (fmcwlog/frontend/egomotion.py): unit bearings,
-// the compensated velocity and the robust fit (RANSAC on pairs, then least-squares refits).
+// The sensor's velocity from one sweep's Doppler (fmcwlog/frontend/egomotion.py): unit bearings
+// and the robust fit (RANSAC on pairs, then least-squares refits).
 //
 // Frames and units as there: xy (N, 2) m in the lidar frame, v_r (N,) m/s radial Doppler, v_s (2,)
 // m/s the lidar origin's velocity in the lidar frame; a static point has v_r = -u.v_s.
@@ -54,18 +54,6 @@ PyArray unit_bearings(Points xy) {
         bearings_into(xy.data(), n, u);
     }
     return PyArray(u, {n, 2}, owner);
-}
-
-// egomotion.compensated_velocity: eps = v_r + u.v_s (u the given bearings).
-PyArray compensated_velocity(Points u, Vector v_r, double vx, double vy) {
-    const size_t n = u.shape(0);
-    if (v_r.shape(0) != n) throw nb::value_error("compensated_velocity: bearings and v_r differ in length");
-    nb::capsule owner;
-    double* eps = owned<double>(n, owner);
-    const double* b = u.data();
-    const double* vr = v_r.data();
-    for (size_t i = 0; i < n; ++i) eps[i] = vr[i] + (b[2 * i] * vx + b[2 * i + 1] * vy);
-    return PyArray(eps, {n}, owner);
 }
 
 // A hypothesis' score: how many of the n points have |r + (hx x + hy y)| < threshold (the row sum of
@@ -320,8 +308,6 @@ Answer fit_sensor_velocity(
 
 void bind_egomotion(nb::module_& m) {
     m.def("unit_bearings", &unit_bearings, nb::arg("xy"));
-    m.def("compensated_velocity", &compensated_velocity, nb::arg("bearings"), nb::arg("v_r"), nb::arg("vx"),
-          nb::arg("vy"));
     m.def("fit_sensor_velocity", &fit_sensor_velocity, nb::arg("xy"), nb::arg("v_r"), nb::arg("bearings").none(),
           nb::arg("draws"), nb::arg("inlier_threshold"), nb::arg("min_pair_sine"), nb::arg("refinements"),
           nb::arg("score_points"), nb::arg("prior").none(), nb::arg("prior_gate"));

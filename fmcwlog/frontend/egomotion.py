@@ -19,6 +19,7 @@ threshold on ``ε`` possible.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -178,11 +179,12 @@ def fit_sensor_velocity(
         return fit_sensor_velocity_numpy(xy, v_r, **args)
     xy = np.ascontiguousarray(xy, dtype=float)
     v_r = np.ascontiguousarray(v_r, dtype=float)
+    given = None if prior is None else np.asarray(prior, dtype=float).tolist()
     if (score_points == 0 or xy.ndim != 2 or xy.shape[1] != 2 or v_r.shape != xy.shape[:1]
-            or not (bearings is None or (_points(bearings) and bearings.shape == xy.shape))):
+            or not (bearings is None or (_points(bearings) and bearings.shape == xy.shape))
+            or not (given is None or (isinstance(given, list) and len(given) == 2))):
         return fit_sensor_velocity_numpy(xy, v_r, **args)
-    has_prior = prior is not None and bool(np.all(np.isfinite(prior)))
-    fixed = tuple(np.asarray(prior, dtype=float).tolist()) if has_prior else None
+    fixed = tuple(given) if given is not None and all(map(math.isfinite, given)) else None  # has_prior
 
     def draws(n_usable: int) -> np.ndarray:
         return _draws(random_state, n_usable, n_hypotheses)

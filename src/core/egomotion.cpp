@@ -107,38 +107,43 @@ bool inverse_2x2(double a, double b, double c, double d, double out[4]) {
     return true;
 }
 
-// egomotion._lstsq_2 over the masked points: v of v_r = -u v from the normal equations, and (A'A)^-1.
-bool lstsq_2(const double* u, const double* vr, const std::vector<uint8_t>& mask, double v[2], double inv[4]) {
-    double s00 = 0, s01 = 0, s11 = 0, b0 = 0, b1 = 0;
-    for (size_t i = 0; i < mask.size(); ++i) {  // an outlier adds +0.0 to each sum (no branch to mispredict)
-        const bool in = mask[i] != 0;
-        const double x = in ? u[2 * i] : 0.0, y = in ? u[2 * i + 1] : 0.0, r = in ? vr[i] : 0.0;
-        s00 += x * x;
-        s01 += x * y;
-        s11 += y * y;
-        b0 += x * r;
-        b1 += y * r;
-    }
-    if (!inverse_2x2(s00, s01, s01, s11, inv)) return false;
-    b0 = -b0;
-    b1 = -b1;
-    v[0] = inv[0] * b0 + inv[1] * b1;
-    v[1] = inv[2] * b0 + inv[3] * b1;
-    return true;
-}
-
-// The inliers of v: valid and |v_r + u.v| < threshold; returns their count.
-size_t select_inliers(const double* u, const double* vr, const std::vector<uint8_t>& valid, const double v[2],
-                      double threshold, std::vector<uint8_t>& inliers) {
+// One pass over the points for a velocity v: its inliers (valid and |eps| < threshold, eps =
+// v_r + u.v), their count, the normal equations' sums of egomotion._lstsq_2 over them (A = -u:
+// A'A = u'u, A'b = -u'v_r) and the sum of their eps^2 (for sigma). An outlier adds +0.0 to each
+// sum (no branch to mispredict; a NaN Doppler is not read into one).
+struct Pass {
     size_t count = 0;
+    double s00 = 0, s01 = 0, s11 = 0, b0 = 0, b1 = 0, sq = 0;
+};
+
+Pass select_inliers(const double* u, const double* vr, const std::vector<uint8_t>& valid, const double v[2],
+                    double threshold, std::vector<uint8_t>& inliers) {
+    Pass p;
     inliers.resize(valid.size());
     for (size_t i = 0; i < valid.size(); ++i) {
         const double eps = vr[i] + (u[2 * i] * v[0] + u[2 * i + 1] * v[1]);
         const uint8_t in = valid[i] & uint8_t(std::fabs(eps) < threshold);
         inliers[i] = in;
-        count += in;
+        p.count += in;
+        const double x = in ? u[2 * i] : 0.0, y = in ? u[2 * i + 1] : 0.0, r = in ? vr[i] : 0.0;
+        const double e = in ? eps : 0.0;
+        p.s00 += x * x;
+        p.s01 += x * y;
+        p.s11 += y * y;
+        p.b0 += x * r;
+        p.b1 += y * r;
+        p.sq += e * e;
     }
-    return count;
+    return p;
+}
+
+// egomotion._lstsq_2 from a pass' sums: v of v_r = -u v and (A'A)^-1; false where numpy raises.
+bool lstsq_2(const Pass& p, double v[2], double inv[4]) {
+    if (!inverse_2x2(p.s00, p.s01, p.s01, p.s11, inv)) return false;
+    const double b0 = -p.b0, b1 = -p.b1;
+    v[0] = inv[0] * b0 + inv[1] * b1;
+    v[1] = inv[2] * b0 + inv[3] * b1;
+    return true;
 }
 
 // egomotion._refine: least squares on the inliers of v, re-selected `refinements` times, then the
@@ -149,24 +154,19 @@ Fit refine(const double* u, const double* vr, const std::vector<uint8_t>& valid,
     double v[2] = {start[0], start[1]};
     std::vector<uint8_t> inliers, fitted;
     for (int k = 0; k < std::max(1, refinements); ++k) {
-        if (select_inliers(u, vr, valid, v, threshold, inliers) < 3) return fit;
-        if (!lstsq_2(u, vr, inliers, v, fit.ata_inv)) return fit;
+        const Pass p = select_inliers(u, vr, valid, v, threshold, inliers);
+        if (p.count < 3) return fit;
+        if (!lstsq_2(p, v, fit.ata_inv)) return fit;
         std::swap(fitted, inliers);
     }
-    const size_t count = select_inliers(u, vr, valid, v, threshold, inliers);
-    if (count < 3) return fit;
-    if (inliers != fitted) {
+    const Pass last = select_inliers(u, vr, valid, v, threshold, inliers);
+    if (last.count < 3) return fit;
+    if (inliers != fitted) {  // else (A'A)^-1 of these inliers is the one in hand
         double unused[2];
-        if (!lstsq_2(u, vr, inliers, unused, fit.ata_inv)) return fit;
+        if (!lstsq_2(last, unused, fit.ata_inv)) return fit;
     }
-    double sq = 0;
-    for (size_t i = 0; i < inliers.size(); ++i) {
-        if (!inliers[i]) continue;
-        const double eps = vr[i] + (u[2 * i] * v[0] + u[2 * i + 1] * v[1]);
-        sq += eps * eps;
-    }
-    const double dof = double(std::max<int64_t>(int64_t(count) - 2, 1));
-    fit.sigma = std::sqrt(sq / dof);
+    const double dof = double(std::max<int64_t>(int64_t(last.count) - 2, 1));
+    fit.sigma = std::sqrt(last.sq / dof);
     fit.v[0] = v[0];
     fit.v[1] = v[1];
     fit.inliers = std::move(inliers);

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import Checked, param
+from ..kernels import compiled
 
 
 @dataclass(frozen=True)
@@ -73,16 +74,31 @@ class SegmentationParams(Checked):
 
 
 def cluster_points(
-    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams()
+    xy: np.ndarray, epsilon: np.ndarray, params: SegmentationParams = SegmentationParams(), labeller=None
 ) -> np.ndarray:
     """DBSCAN labels (N,) over ``(x, y, √α·ε)`` (eq. 17, with the compensated ``ε`` in place of
-    ``v_r``); -1 marks noise. ``xy`` (N, 2) m, ``epsilon`` (N,) m/s."""
+    ``v_r``); -1 marks noise. ``xy`` (N, 2) m, ``epsilon`` (N,) m/s. ``labeller``: the DBSCAN,
+    :func:`dbscan` where None (:func:`dbscan_numpy` for the numpy reference)."""
     feats = np.column_stack([xy, np.sqrt(params.alpha) * np.asarray(epsilon, float)])
-    return dbscan(feats, params.eps, params.min_samples)
+    return (labeller or dbscan)(feats, params.eps, params.min_samples)
 
 
 def dbscan(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
-    """DBSCAN labels (N,) of points (N, D), -1 for noise, numbered as sklearn's ``DBSCAN`` numbers them.
+    """DBSCAN labels (N,) of points (N, D), -1 for noise, numbered as sklearn's ``DBSCAN`` numbers them
+    (:func:`dbscan_numpy`): the compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it
+    and every coordinate is finite, the same labels exactly."""
+    core = compiled.core()
+    if core is not None:
+        pts = np.ascontiguousarray(feats, dtype=float)
+        if pts.ndim == 2 and (pts.shape[1] or not len(pts)):
+            labels = np.empty(len(pts), np.int64)
+            if core.dbscan(pts, float(eps), int(min_samples), labels):
+                return labels
+    return dbscan_numpy(feats, eps, min_samples)
+
+
+def dbscan_numpy(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+    """:func:`dbscan` in numpy: the reference the compiled kernel is tested against.
 
     Neighbours are the pairs within ``eps`` (inclusive); a core point has at least
     ``min_samples`` neighbours counting itself. Clusters are the connected components
@@ -157,6 +173,9 @@ def moving_from_labels(
     return moving
 
 
+_EMPTY_SEEDS = np.zeros((0, 2))
+
+
 @dataclass
 class Segmentation:
     """One sweep's clusters and Doppler verdict (:func:`segment_clusters`).
@@ -185,7 +204,33 @@ def segment_clusters(
     around which points are clustered (where a tracked mover is expected, whose
     Doppler may be nil this sweep: :mod:`.tracking`); ``seed_points`` (N,) bool: points
     of ``xy`` that are seeds too (the same as passing ``xy[seed_points]`` in ``seeds``).
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it and every input is
+    finite (one call: the cut, DBSCAN and the verdict), the same arrays exactly as
+    :func:`segment_clusters_numpy`.
     """
+    core = compiled.core()
+    if core is not None:
+        n = len(xy)
+        labels, clustered, moving = np.empty(n, np.int64), np.empty(n, bool), np.empty(n, bool)
+        seeds_in = _EMPTY_SEEDS if seeds is None or len(seeds) == 0 else np.ascontiguousarray(seeds, dtype=float)
+        marks = None if seed_points is None else np.ascontiguousarray(seed_points, dtype=bool)
+        if core.segment_clusters(np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(epsilon, dtype=float),
+                                 seeds_in, marks, params.alpha, params.eps, params.min_samples, params.v_th,
+                                 params.min_moving_fraction, params.keep_strong_points, params.neighbourhood,
+                                 labels, clustered, moving):
+            return Segmentation(labels, clustered, moving)
+    return segment_clusters_numpy(xy, epsilon, params, seeds, seed_points)
+
+
+def segment_clusters_numpy(
+    xy: np.ndarray,
+    epsilon: np.ndarray,
+    params: SegmentationParams = SegmentationParams(),
+    seeds: np.ndarray | None = None,
+    seed_points: np.ndarray | None = None,
+) -> Segmentation:
+    """:func:`segment_clusters` in numpy: the reference the compiled kernel is tested against."""
     epsilon = np.asarray(epsilon, dtype=float)
     n = xy.shape[0]
     labels = np.full(n, -1)
@@ -211,7 +256,7 @@ def segment_clusters(
         near[inside] = np.isfinite(dist)
     moving = np.zeros(n, bool)
     if near.any():
-        labels[near] = cluster_points(xy[near], epsilon[near], params)
+        labels[near] = cluster_points(xy[near], epsilon[near], params, dbscan_numpy)
         moving[near] = moving_from_labels(labels[near], epsilon[near], params)
     return Segmentation(labels, near, moving)
 

@@ -19,7 +19,9 @@ Each track is a constant-velocity Kalman filter over ``(x, y, vx, vy)``, measure
 its cluster's centroid (m) and mean compensated Doppler ``ε̄ = ūᵀV`` (m/s) along the
 centroid's bearing ``ū``: the Doppler gives the radial speed at once, the centroid's
 motion the tangential one. Per sweep, for a few dozen tracks and clusters, all in
-arrays (no loop over points or tracks):
+arrays (no loop over points or tracks; where :func:`fmcwlog.kernels.compiled.core` selects the
+compiled kernel, steps 1-6 are one call of it, with the same labels and track counts and the
+states to rounding, :meth:`MoverTracker._segment_compiled`):
 
 1. DBSCAN (:func:`.segmentation.segment_clusters`) also around where confirmed
    tracks are expected and around points in free space, not only around points
@@ -85,6 +87,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
+from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid, Scan
 from .deskew import deskew
 from .recent_grid import RecentOccupancy, local_max_log_odds
@@ -239,7 +242,8 @@ class MoverTracker:
         self.cov = np.zeros((0, 4, 4))
         self.time = np.zeros(0)  # s, the time the state refers to
         self.last_update = np.zeros(0)  # s
-        self.moving_hits = np.zeros(0, int)
+        self.moving_hits = np.zeros(0, np.int64)
+        self._compiled_config: tuple | None = None  # (SegmentationParams, its and self.params' values as arrays)
 
     def __len__(self) -> int:
         return len(self.x)
@@ -396,6 +400,11 @@ class MoverTracker:
         if p.free_log_odds < 0:
             placed = np.hypot(xy[:, 0], xy[:, 1]) * yaw_error <= p.map_tolerance
             seen_free = self.recent.seen_free(map_xy, placed, p.free_log_odds)
+        core = compiled.core()
+        if core is not None:
+            moving = self._segment_compiled(core, xy, map_xy, t, epsilon, seen_free, lidar, stamp, when, seg_params)
+            if moving is not None:
+                return self._off_structure(moving, grid, map_xy)
         seg = segment_clusters(xy, epsilon, seg_params, seeds=self.seeds(lidar, when), seed_points=seen_free)
         idx = np.flatnonzero(seg.clustered)
         labels = seg.labels[idx]
@@ -418,6 +427,43 @@ class MoverTracker:
             by_cluster[loose] = self.claim_points(map_xy[idx[loose]], bearing, epsilon[idx[loose]])
         new = idx[unlabelled & by_cluster]
         if new.size and grid is not None and p.structure_log_odds > 0:  # never on structure seen repeatedly
+            new = new[local_max_log_odds(grid, map_xy[new]) < p.structure_log_odds]
+        moving[new] = True
+        return moving
+
+    def _segment_compiled(self, core, xy: np.ndarray, map_xy: np.ndarray, t: np.ndarray, epsilon: np.ndarray,
+                          seen_free: np.ndarray, lidar: np.ndarray, stamp: float, when: float,
+                          seg_params: SegmentationParams) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`segment` from the seeds on, in one call of the compiled kernel (the same labels and
+        tracks, these to rounding): the moving mask (N,) and the points the tracks and free space label
+        (for the structure check), or None where an input is not finite (then the numpy code answers).
+        The tracks are updated."""
+        cached = self._compiled_config
+        if cached is None or cached[0] is not seg_params:
+            p, sp = self.params, seg_params
+            seg = np.array([sp.alpha, sp.eps, sp.min_samples, sp.v_th, sp.min_moving_fraction,
+                            float(sp.keep_strong_points), sp.neighbourhood])
+            track = np.array([p.gate_distance, p.gate_chi2, p.position_sigma, p.doppler_sigma, p.accel_sigma,
+                              p.birth_tangential_sigma, p.max_coast, p.min_moving_hits, p.min_speed,
+                              p.max_object_radius, p.claim_radius, p.claim_doppler, p.free_fraction, p.max_tracks])
+            cached = self._compiled_config = (seg_params, seg, track)
+        moving = np.empty(len(xy), bool)
+        out = core.track_sweep(np.ascontiguousarray(xy, dtype=float), map_xy, np.ascontiguousarray(t, dtype=float),
+                               np.ascontiguousarray(epsilon, dtype=float), seen_free, lidar, float(stamp), when,
+                               cached[1], cached[2], self.x, self.cov, self.time, self.last_update, self.moving_hits,
+                               moving)
+        if out is None:
+            return None
+        new, self.x, self.cov, self.time, self.last_update, self.moving_hits = out
+        return moving, new
+
+    def _off_structure(self, found: tuple[np.ndarray, np.ndarray], grid: OccupancyGrid | None,
+                       map_xy: np.ndarray) -> np.ndarray:
+        """The moving mask (N,) with the points the tracks and free space label (``found``: the mask
+        and those points' indices) where they are not on structure the map has seen repeatedly."""
+        moving, new = found
+        p = self.params
+        if new.size and grid is not None and p.structure_log_odds > 0:
             new = new[local_max_log_odds(grid, map_xy[new]) < p.structure_log_odds]
         moving[new] = True
         return moving

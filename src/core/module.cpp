@@ -21,4 +21,6 @@ NB_MODULE(_core, m) {
     bind_egomotion(m);
     bind_deskew(m);
     bind_voxel(m);
+    bind_segmentation(m);
+    bind_tracking(m);
 }

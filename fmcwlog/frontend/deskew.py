@@ -32,6 +32,7 @@ from typing import cast
 import numpy as np
 
 from ..geometry import _is_pose, compose, inverse, rotate_translate, transform_points, wrap_angle
+from ..kernels import compiled
 
 _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 0
 
@@ -185,7 +186,34 @@ def deskew(
     at ``t_ref``) is ``P(t_i) · p_i`` in the reference frame; one exact SE(2)
     exponential per point, fully vectorised. ``t`` of another length than ``xy``
     raises ``ValueError``.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it and the column path
+    applies (one call; the same points to rounding, ~1e-15 m), else :func:`deskew_numpy`.
     """
+    core = compiled.core()
+    if core is not None:
+        xy = np.asarray(xy, dtype=float)
+        mount = np.asarray(mount, dtype=float)
+        t = np.asarray(t, dtype=float)
+        if (len(xy) and xy.ndim == 2 and xy.shape[1] == 2 and t.shape == xy.shape[:1] and _is_pose(mount)
+                and math.isfinite(mount[2]) and _floats(v, omega, v_y, t_ref)):
+            out = np.empty(xy.shape)
+            mx, my, myaw = mount.tolist()
+            core.deskew(np.ascontiguousarray(xy), np.ascontiguousarray(t), t_ref, v, v_y, omega, mx, my, myaw, out)
+            return out
+    return deskew_numpy(xy, t, v, omega, mount, t_ref, v_y)
+
+
+def deskew_numpy(
+    xy: np.ndarray,
+    t: np.ndarray,
+    v: float,
+    omega: float,
+    mount: np.ndarray | tuple = (0.0, 0.0, 0.0),
+    t_ref: float = 0.0,
+    v_y: float = 0.0,
+) -> np.ndarray:
+    """:func:`deskew` in numpy: the reference the compiled kernel is tested against."""
     xy = np.asarray(xy, dtype=float)
     if xy.shape[0] == 0:
         return xy.copy()

@@ -31,11 +31,13 @@ sweep cannot leak into the next; the pose's memory is the ICP's map.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import Checked, param
+from ..kernels import compiled
 
 
 @dataclass(frozen=True)
@@ -123,7 +125,19 @@ def fuse_twist(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
     ``c_d`` (2, 2) is ``z``'s covariance ((m/s)²), positive definite; ``c_w`` that of ``x_w``
     (positive definite). A singular ``c_d`` (a degenerate fit) counts as no Doppler.
     Raises ``ValueError`` when ``c_w`` is singular or not finite.
+
+    Where :func:`fmcwlog.kernels.compiled.core` selects the compiled kernels, the same formulas on
+    Python floats (a 2x2 solve: numpy's calls cost more than its arithmetic), equal to
+    :func:`fuse_twist_numpy` to rounding (numpy's 2x2 products may fuse a multiply-add).
     """
+    if compiled.core() is not None:
+        return _fuse_twist_floats(z, c_d, a, x_w, c_w)
+    return fuse_twist_numpy(z, c_d, a, x_w, c_w)
+
+
+def fuse_twist_numpy(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
+                     x_w: np.ndarray, c_w: np.ndarray) -> FusedTwist:
+    """:func:`fuse_twist` on numpy arrays: the reference."""
     x_w = np.asarray(x_w, dtype=float)
     info_w = _inv2(c_w)
     if info_w is None:
@@ -140,6 +154,52 @@ def fuse_twist(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
     chi2 = float(r_d @ w_d @ r_d + r_w @ info_w @ r_w)
     share = np.clip(np.diag(cov @ info_d), 0.0, 1.0)
     return FusedTwist(x, cov, share, chi2)
+
+
+def _inv2_floats(m: list[list[float]]) -> list[list[float]] | None:
+    """:func:`_inv2` of a 2x2 nested list of floats."""
+    (m00, m01), (m10, m11) = m
+    det = m00 * m11 - m01 * m10
+    if not (math.isfinite(det) and abs(det) > 1e-300):
+        return None
+    return [[m11 / det, -m01 / det], [-m10 / det, m00 / det]]
+
+
+def _mul(p: list[list[float]], q: list[list[float]]) -> list[list[float]]:
+    """The 2x2 product ``p q`` of nested lists."""
+    return [[p[i][0] * q[0][j] + p[i][1] * q[1][j] for j in (0, 1)] for i in (0, 1)]
+
+
+def _apply(p: list[list[float]], v: list[float]) -> list[float]:
+    """``p v`` of a 2x2 nested list and a 2-vector."""
+    return [p[0][0] * v[0] + p[0][1] * v[1], p[1][0] * v[0] + p[1][1] * v[1]]
+
+
+def _fuse_twist_floats(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
+                       x_w: np.ndarray, c_w: np.ndarray) -> FusedTwist:
+    """:func:`fuse_twist_numpy`'s operations on Python floats (same contract and errors)."""
+    xw = np.asarray(x_w, dtype=float)
+    info_w = _inv2_floats(np.asarray(c_w, dtype=float).tolist())
+    if info_w is None:
+        raise ValueError("the wheels' covariance must be positive definite")
+    w_d = None if z is None or c_d is None else _inv2_floats(np.asarray(c_d, dtype=float).tolist())
+    if z is None or w_d is None:
+        return FusedTwist(xw.copy(), np.asarray(c_w, dtype=float).copy(), np.zeros(2), float("nan"))
+    am = np.asarray(a, dtype=float).tolist()
+    at = [[am[0][0], am[1][0]], [am[0][1], am[1][1]]]
+    zl, xl = np.asarray(z, dtype=float).tolist(), xw.tolist()
+    at_w = _mul(at, w_d)
+    info_d = _mul(at_w, am)
+    cov = _inv2_floats([[info_d[i][j] + info_w[i][j] for j in (0, 1)] for i in (0, 1)])
+    assert cov is not None  # info_w is positive definite, info_d positive semi-definite
+    b_d, b_w = _apply(at_w, zl), _apply(info_w, xl)
+    x = _apply(cov, [b_d[0] + b_w[0], b_d[1] + b_w[1]])
+    ax = _apply(am, x)
+    r_d, r_w = [zl[0] - ax[0], zl[1] - ax[1]], [xl[0] - x[0], xl[1] - x[1]]
+    wr_d, wr_w = _apply(w_d, r_d), _apply(info_w, r_w)
+    chi2 = (r_d[0] * wr_d[0] + r_d[1] * wr_d[1]) + (r_w[0] * wr_w[0] + r_w[1] * wr_w[1])
+    share = [min(max(cov[i][0] * info_d[0][i] + cov[i][1] * info_d[1][i], 0.0), 1.0) for i in (0, 1)]  # np.clip
+    return FusedTwist(np.array(x), np.array(cov), np.array(share), chi2)
 
 
 def observability(mount: tuple[float, float, float], min_lever: float) -> str:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import compiled
+
 
 def voxel_keys(xy: np.ndarray, size: float) -> np.ndarray:
     """One int64 key per point naming its square voxel of side ``size`` (m)."""
@@ -18,8 +20,20 @@ def voxel_keys(xy: np.ndarray, size: float) -> np.ndarray:
 def voxel_downsample(xy: np.ndarray, size: float) -> np.ndarray:
     """The first point (in order) of each occupied voxel: (M, 2) with M <= N, in the order given.
 
-    ``size`` <= 0 or an empty input returns ``xy`` itself.
+    ``size`` <= 0 or an empty input returns ``xy`` itself. The compiled kernel where
+    :func:`fmcwlog.kernels.compiled.core` selects it and ``xy`` is float64 (N, 2) (one pass with a
+    hash set: the same points in the same order), else :func:`voxel_downsample_numpy`.
     """
+    if len(xy) == 0 or size <= 0:
+        return xy
+    core = compiled.core()
+    if core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2:
+        return core.voxel_downsample(np.ascontiguousarray(xy), float(size))
+    return voxel_downsample_numpy(xy, size)
+
+
+def voxel_downsample_numpy(xy: np.ndarray, size: float) -> np.ndarray:
+    """:func:`voxel_downsample` in numpy: the reference the compiled kernel is tested against."""
     if len(xy) == 0 or size <= 0:
         return xy
     _, first = np.unique(voxel_keys(xy, size), return_index=True)

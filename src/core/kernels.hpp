@@ -7,6 +7,9 @@
 namespace fmcwlog {
 
 void bind_point_to_point_icp(nanobind::module_& m);
+void bind_egomotion(nanobind::module_& m);
+void bind_deskew(nanobind::module_& m);
+void bind_voxel(nanobind::module_& m);
 void bind_segmentation(nanobind::module_& m);
 void bind_tracking(nanobind::module_& m);
 void bind_occupancy(nanobind::module_& m);

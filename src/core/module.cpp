@@ -18,6 +18,9 @@ NB_MODULE(_core, m) {
             nb::arg("target"), nb::arg("radius"))
         .def_prop_ro("radius", &TargetGrid::radius);
     bind_point_to_point_icp(m);
+    bind_egomotion(m);
+    bind_deskew(m);
+    bind_voxel(m);
     bind_segmentation(m);
     bind_tracking(m);
     bind_occupancy(m);

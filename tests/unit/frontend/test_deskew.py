@@ -6,7 +6,7 @@ from helpers import same_bits
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fmcwlog.frontend.deskew import deskew, lidar_motion, se2_exp
+from fmcwlog.frontend.deskew import deskew, deskew_numpy, lidar_motion, se2_exp
 from fmcwlog.geometry import compose, inverse, transform_points
 
 
@@ -137,8 +137,9 @@ def test_se2_exp_scalar_over_many_twists():
 @given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(-1.0, 1.0),
        st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-4.0, 4.0)), st.integers(0, 2**32 - 1))
 def test_deskew_column_path_is_the_pose_chain(v, omega, v_y, mount, seed):
-    """:func:`deskew` (column by column) against ``transform_points(L⁻¹ ⊕ exp ⊕ L, xy)`` through
-    (N, 3) pose arrays, and :func:`lidar_motion` against the same chain."""
+    """:func:`deskew_numpy` (column by column) against ``transform_points(L⁻¹ ⊕ exp ⊕ L, xy)``
+    through (N, 3) pose arrays, bit for bit, and :func:`lidar_motion` against the same chain; the
+    compiled kernel (if selected) to rounding."""
     rng = np.random.default_rng(seed)
     n = 300
     xy = rng.uniform(-30, 30, (n, 2))
@@ -146,4 +147,5 @@ def test_deskew_column_path_is_the_pose_chain(v, omega, v_y, mount, seed):
     m = np.array(mount)
     chain = compose(compose(inverse(m), _plain(v, v_y, omega, t - 0.03)), m)  # the plain formulas, array by array
     assert lidar_motion(t, v, omega, m, 0.03, v_y).tobytes() == chain.tobytes()
-    assert deskew(xy, t, v, omega, m, 0.03, v_y).tobytes() == transform_points(chain, xy).tobytes()
+    assert deskew_numpy(xy, t, v, omega, m, 0.03, v_y).tobytes() == transform_points(chain, xy).tobytes()
+    np.testing.assert_allclose(deskew(xy, t, v, omega, m, 0.03, v_y), transform_points(chain, xy), rtol=0, atol=1e-12)

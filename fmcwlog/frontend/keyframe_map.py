@@ -7,8 +7,10 @@ the revisit matches went wrong against 2.6 % of first visits, and 5.6 % of all m
 90 % of the heading error). Here the map holds only the keyframes of the last
 ``window_distance`` metres of path (at most ``max_keyframes``), one point per voxel, the newest
 keyframe's point where two fall in one voxel; older places are the back end's business (loop
-closures). Its size is bounded by the window, not the floor, so the KD-tree rebuilt at every
-keyframe stays small.
+closures). Its size is bounded by the window, not the floor, so the search structures rebuilt at
+every keyframe stay small. They are built once per map state and only when asked for
+(:class:`~fmcwlog.kernels.compiled.MapIndex`): the KD-tree where the numpy kernels query it, the
+compiled kernels' grid where they run.
 
 The map also gives, on demand, a likelihood grid of its points for the correlative search
 (:mod:`.correlative`), built once per map state and only when a search is needed.
@@ -20,9 +22,9 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
+from ..kernels.compiled import MapIndex
 from ..kernels.correlative import CorrelativeParams, LikelihoodGrid, grid_for
 from ..kernels.voxel import voxel_keys
 
@@ -53,12 +55,14 @@ class _Keyframe:
 
 @dataclass
 class KeyframeMap:
-    """Points (M, 2) in ``map`` of the recent keyframes, with their KD-tree (see module docstring)."""
+    """Points (M, 2) in ``map`` of the recent keyframes, with their search index (a
+    :class:`~fmcwlog.kernels.compiled.MapIndex`, which answers as their KD-tree; None while the
+    map is empty; see module docstring)."""
 
     voxel_size: float = 0.05
     params: LocalMapParams = field(default_factory=LocalMapParams)
     points: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
-    tree: cKDTree | None = None
+    tree: MapIndex | None = None
     _keys: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     _owner: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     _keyframes: deque = field(default_factory=deque)
@@ -67,7 +71,7 @@ class KeyframeMap:
 
     def add(self, xy: np.ndarray, path_m: float) -> None:
         """A keyframe's points (N, 2) in ``map``, taken after ``path_m`` metres of travel; the
-        keyframes that leave the window go, and the KD-tree is rebuilt."""
+        keyframes that leave the window go, and the search index is renewed."""
         ident = self._next_id
         self._next_id += 1
         self._keyframes.append(_Keyframe(ident, path_m))
@@ -85,7 +89,7 @@ class KeyframeMap:
         self._keys, self.points, self._owner = keys, points[first], owner[first]
         # An unbalanced, uncompacted tree builds about twice as fast and answers the ICP's
         # queries as fast (measured on 20k wall points); it is rebuilt at every keyframe.
-        self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False) if len(self.points) else None
+        self.tree = MapIndex(self.points, balanced_tree=False, compact_nodes=False) if len(self.points) else None
 
     def likelihood_grid(self, p: CorrelativeParams, keyframes_old: int = 0) -> LikelihoodGrid:
         """The likelihood grid of the map's points for a correlative search with ``p``, cached per

@@ -54,13 +54,14 @@ def register_point_to_point(
     Same correspondence search and gate as :func:`register`; no GMMSC, no Huber.
     Each iteration solves the pose exactly for the current pairs (2-D Kabsch).
     The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the
-    same pairs and iterations), else :func:`register_point_to_point_numpy`.
+    same pairs and iterations; ``target_tree`` a :class:`~fmcwlog.kernels.compiled.MapIndex` lends
+    it its grid), else :func:`register_point_to_point_numpy`.
     """
     core = compiled.core()
     if core is None:
         return register_point_to_point_numpy(source_xy, target_tree, target_xy, initial_pose, params)
     source = np.ascontiguousarray(source_xy, dtype=float)
-    grid = core.TargetGrid(np.ascontiguousarray(target_xy, dtype=float), params.max_correspondence_distance)
+    grid = compiled.target_grid(core, target_tree, target_xy, params.max_correspondence_distance)
     x, y, th = np.asarray(initial_pose, dtype=float).tolist()
     pose, iterations, n_kept, converged, rmse, (h00, h02, h11, h12, h22) = core.point_to_point_icp(
         grid, source, x, y, th, params.max_iterations, params.translation_tol, params.rotation_tol,

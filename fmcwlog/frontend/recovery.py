@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import transform_points
-from ..kernels.compiled import CompiledNearest
+from ..kernels.compiled import CompiledNearest, covering_nearest
 from ..kernels.correlative import CorrelativeParams
 from ..kernels.nearest import NearestPairs
 
@@ -45,10 +45,15 @@ def inlier_fraction(source_xy: np.ndarray, pose: np.ndarray, tree: cKDTree, dist
     points under ``pose``. ``search``: the registration's correspondence search over the same
     source and tree (:attr:`~.icp.ICPResult.search`), which answers exactly and asks the tree
     again only about the points that moved since (the ICP's last steps are sub-millimetre);
-    without it (or for a ``distance`` beyond its reach), one KD-tree query."""
+    without it (or for a ``distance`` beyond its reach), the compiled kernels' grid that ``tree``
+    keeps (a :class:`~fmcwlog.kernels.compiled.MapIndex` the registration used), else one KD-tree
+    query. A point counts where its nearest map point is closer than ``distance``."""
     if len(source_xy) == 0:
         return 0.0
-    if search is not None and search.source is source_xy and search.tree is tree and distance <= search.bound:
+    usable = search is not None and search.source is source_xy and search.tree is tree and distance <= search.bound
+    if not usable:
+        search = covering_nearest(tree, source_xy, distance)
+    if search is not None:
         d = search.nearest(pose)[2]
         return float(np.count_nonzero(d < distance) / len(d))
     d, _ = tree.query(transform_points(pose, source_xy), k=1, distance_upper_bound=distance)

@@ -27,10 +27,14 @@ the iterations at unchanged accuracy; ``ICPParams.extrapolate=False`` turns it o
 
 from __future__ import annotations
 
+from functools import lru_cache
+from types import ModuleType
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import wrap_angle
+from ..kernels import compiled
 from ..kernels.nearest import Correspondences, NearestPairs
 from .gmmsc import DistanceMixture, gmmsc_weights
 from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
@@ -125,7 +129,75 @@ def register(
     on the pose added to every GN step (see :func:`gauss_newton_step`); it holds
     directions the scan leaves unconstrained (e.g. along a corridor). The
     returned ``hessian`` then includes ``Λ``.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the same
+    pairs, iterations and EM fits; ``target_tree`` a :class:`~fmcwlog.kernels.compiled.MapIndex`
+    lends it its grid), else :func:`register_numpy`.
     """
+    core = compiled.core()
+    if core is None:
+        return register_numpy(source_xy, target_tree, target_xy, initial_pose, params, mixture, prior_pose,
+                              prior_information)
+    return _register_compiled(core, source_xy, target_tree, target_xy, initial_pose, params, mixture, prior_pose,
+                              prior_information)
+
+
+@lru_cache(maxsize=8)
+def _core_params(core: ModuleType, p: ICPParams) -> object:
+    """``p`` as the compiled module's ``RobustICPParams`` (made once per parameter set)."""
+    out = core.RobustICPParams()
+    for name in ("max_iterations", "translation_tol", "rotation_tol", "min_correspondences", "huber_delta",
+                 "use_huber", "use_gmmsc", "gmm_start_translation", "gmm_start_rotation", "gmm_refit_ratio",
+                 "extrapolate", "max_extrapolation", "extrapolation_min_cos", "extrapolation_lever"):
+        setattr(out, name, getattr(p, name))
+    for name in ("n_components", "w_th", "max_iter", "tol", "min_pairs", "min_spread", "merge_overlap",
+                 "reg_covar", "max_fit_samples"):
+        setattr(out, name, getattr(p.gmmsc, name))
+    return out
+
+
+def _register_compiled(
+    core: ModuleType,
+    source_xy: np.ndarray,
+    target_tree: cKDTree,
+    target_xy: np.ndarray,
+    initial_pose: np.ndarray,
+    params: ICPParams,
+    mixture: DistanceMixture | None,
+    prior_pose: np.ndarray | None,
+    prior_information: np.ndarray | None,
+) -> ICPResult:
+    """:func:`register` by the compiled module's ``robust_icp``: one call; the mixture goes in and
+    comes out as plain numbers (the given object is returned where no fit replaced it)."""
+    source = np.ascontiguousarray(source_xy, dtype=float)
+    gate = params.max_correspondence_distance
+    grid = compiled.target_grid(core, target_tree, target_xy, gate)
+    x, y, th = np.asarray(initial_pose, dtype=float).tolist()
+    given = ((True, mixture.means.tolist(), mixture.sigmas.tolist(), mixture.mix.tolist(), mixture.merge_overlap,
+              mixture.fit_median) if mixture is not None else (False, [], [], [], 0.0, float("nan")))
+    has_prior = prior_pose is not None and prior_information is not None
+    prior = (np.asarray(prior_pose, dtype=float).tolist(), np.asarray(prior_information, dtype=float).ravel().tolist()
+             ) if has_prior else ([0.0] * 3, [0.0] * 9)
+    pose, iterations, n_kept, converged, rmse, h, n_fits, replaced, (has, means, sigmas, mix, overlap, median_m) = (
+        core.robust_icp(grid, source, x, y, th, _core_params(core, params), given, has_prior, *prior))
+    if replaced:
+        mixture = DistanceMixture(np.array(means), np.array(sigmas), np.array(mix), overlap, median_m) if has else None
+    search = compiled.CompiledNearest(core, source, target_tree, grid, gate)
+    return ICPResult(np.array(pose), iterations, n_kept, converged, rmse, np.array(h).reshape(3, 3), n_fits, mixture,
+                     search)
+
+
+def register_numpy(
+    source_xy: np.ndarray,
+    target_tree: cKDTree,
+    target_xy: np.ndarray,
+    initial_pose: np.ndarray,
+    params: ICPParams = ICPParams(),
+    mixture: DistanceMixture | None = None,
+    prior_pose: np.ndarray | None = None,
+    prior_information: np.ndarray | None = None,
+) -> ICPResult:
+    """:func:`register` in numpy: the reference the compiled kernel is tested against."""
     pose = np.asarray(initial_pose, dtype=float).copy()
     gmm_on = False
     n_fits = 0

@@ -129,3 +129,62 @@ class CompiledNearest:
         x, y, th = np.asarray(pose, dtype=float).tolist()
         self._module.nearest(self.grid, self.source, x, y, th, moved, index, dist)
         return moved, index, dist
+
+
+class MapIndex:
+    """A target point set (M, 2) with its search structures, each built on first use and then kept:
+    the ``cKDTree`` (what the numpy kernels query; built with ``tree_options``) and the compiled
+    module's ``TargetGrid`` per radius (m). It stands where a ``cKDTree`` is expected: ``query`` and
+    the tree's attributes (``n``, ``data``, ...) are the tree's. The points must not change
+    afterwards: a changed set is a new index."""
+
+    def __init__(self, points: np.ndarray, **tree_options: object):
+        self.points = points
+        self._options = tree_options
+        self._tree: cKDTree | None = None
+        self._grids: dict[float, object] = {}
+
+    @property
+    def tree(self) -> cKDTree:
+        """The points' ``cKDTree``, built at the first use."""
+        if self._tree is None:
+            self._tree = cKDTree(self.points, **self._options)
+        return self._tree
+
+    def query(self, *args: object, **kwargs: object) -> tuple[np.ndarray, np.ndarray]:
+        """``cKDTree.query`` of :attr:`tree`."""
+        return self.tree.query(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> object:
+        """The tree's other attributes (only called for names the index itself lacks)."""
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.tree, name)
+
+    def grid(self, module: ModuleType, radius: float) -> object:
+        """The module's ``TargetGrid`` over the points for ``radius`` (m), built at the first use."""
+        found = self._grids.get(radius)
+        if found is None:
+            found = self._grids[radius] = module.TargetGrid(np.ascontiguousarray(self.points, dtype=float), radius)
+        return found
+
+
+def target_grid(module: ModuleType, tree: object, points: np.ndarray, radius: float) -> object:
+    """The module's ``TargetGrid`` over ``points`` (M, 2) for ``radius`` (m): the one ``tree`` keeps
+    where it is the :class:`MapIndex` of these points, else a new one."""
+    if isinstance(tree, MapIndex) and tree.points is points:
+        return tree.grid(module, radius)
+    return module.TargetGrid(np.ascontiguousarray(points, dtype=float), radius)
+
+
+def covering_nearest(tree: object, source_xy: np.ndarray, distance: float) -> CompiledNearest | None:
+    """A :class:`CompiledNearest` of ``source_xy`` on a grid that ``tree`` already keeps, one whose
+    radius reaches ``distance`` (m); None where the compiled kernels do not run, ``tree`` is no
+    :class:`MapIndex` or it keeps no such grid (the caller then asks the tree)."""
+    module = core()
+    if module is None or not isinstance(tree, MapIndex):
+        return None
+    for radius, grid in tree._grids.items():
+        if radius >= distance:
+            return CompiledNearest(module, np.ascontiguousarray(source_xy, dtype=float), tree, grid, radius)
+    return None

@@ -24,4 +24,5 @@ NB_MODULE(_core, m) {
     bind_segmentation(m);
     bind_tracking(m);
     bind_occupancy(m);
+    bind_robust_icp(m);
 }

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
+from . import compiled
 
 # the grids carry a frame of zeros coarse_factor^(levels-1) cells wide: 8^3 cells at most
 MAX_LEVELS = 4
@@ -374,6 +375,9 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
     n_fine = int(np.ceil(p.linear_window / res))
     steps = [k**e for e in range(max(p.levels, 1) - 1, -1, -1)]
     s = _Search(grid, grid.flat_cells(placed), thetas, prior, n_fine, steps, p)
+    module = compiled.core()
+    if module is not None and len(src) <= MAX_COMPILED_POINTS:
+        return _compiled_match(module, s, with_second)
     n_top = int(np.ceil((2 * n_fine + 1) / steps[0]))
     top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
     upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
@@ -393,3 +397,35 @@ def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:
     """Whether poses (..., 3) lie on another peak than pose ``b`` (3,)."""
     dyaw = np.abs((a[..., 2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
     return (np.hypot(a[..., 0] - b[0], a[..., 1] - b[1]) > p.peak_separation) | (dyaw > np.radians(p.peak_separation_deg))
+
+
+# numpy sums a set of one offset pairwise in blocks of its buffer (8,192 values): the compiled twin
+# sums it pairwise whole, the same numbers up to that many points
+MAX_COMPILED_POINTS = 8192
+
+
+def _argsort_descending(values: np.ndarray) -> np.ndarray:
+    """``np.argsort(values)[::-1]``: the reference's order, which the compiled search asks for where
+    equal scores make the order numpy's own."""
+    return np.ascontiguousarray(np.argsort(values)[::-1], dtype=np.int64)
+
+
+def _compiled_match(module, s: _Search, with_second: bool) -> CorrelativeResult:
+    """:func:`correlative_match`'s searches in the compiled core (``src/core/correlative.cpp``): the
+    same poses, scores and count as the numpy walk. The yaw samples' cells, the grids and the
+    second-peak masks (:meth:`_Search.exclude`) come from here."""
+    tables = [np.ascontiguousarray(s.table(level), np.float32).ravel() for level in range(len(s.steps))]
+
+    def exclude(r: int, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
+        s.exclude(s.pose(r, np.array([x, y])))
+        return np.ascontiguousarray(s._far).ravel(), np.array(s._turned, bool)
+
+    cells = np.ascontiguousarray(s.cells, np.int64)
+    best, second, evaluated = module.correlative_search(tables, cells, list(s.steps), s.n_fine, s.grid.shape[1],
+                                                        _argsort_descending, exclude if with_second else None)
+    pose = s.pose(best[1], np.array(best[2:]))
+    if not with_second:
+        return CorrelativeResult(pose, best[0], 0.0, None, evaluated)
+    found = second[1] >= 0
+    return CorrelativeResult(pose, best[0], second[0], s.pose(second[1], np.array(second[2:])) if found else None,
+                             evaluated)

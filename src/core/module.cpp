@@ -18,4 +18,5 @@ NB_MODULE(_core, m) {
             nb::arg("target"), nb::arg("radius"))
         .def_prop_ro("radius", &TargetGrid::radius);
     bind_point_to_point_icp(m);
+    bind_correlative(m);
 }

@@ -1,0 +1,146 @@
+"""The back end's compiled kernels (fmcwlog._core) against their numpy reference.
+
+The correlative search must give the same pose, score, second peak and count of poses scored, bit
+for bit: on the searches the closures' verification makes processing a recorded log (both
+methods) and on generated scenes with every window and level layout. Where the module is not built
+the comparisons skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
+"""
+
+import dataclasses
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import SAMPLE_LOGS, record_small_ring
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fmcwlog.backend import verification
+from fmcwlog.backend.params import BackendParams
+from fmcwlog.kernels import compiled
+from fmcwlog.kernels import correlative as corr
+
+CORE, WHY_NOT = compiled._load()
+needs_core = pytest.mark.skipif(
+    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
+
+
+@pytest.fixture
+def use(monkeypatch):
+    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
+    def select(kind):
+        monkeypatch.setenv(compiled.ENV, kind)
+        monkeypatch.setattr(compiled, "_chosen", None)
+        monkeypatch.setattr(compiled, "_core", None)
+        return compiled.core()
+    return select
+
+
+def assert_same_search(fast: corr.CorrelativeResult, ref: corr.CorrelativeResult) -> None:
+    assert fast.score == ref.score and fast.second_score == ref.second_score
+    assert fast.evaluated == ref.evaluated
+    np.testing.assert_array_equal(fast.pose, ref.pose)
+    if ref.second_pose is None:
+        assert fast.second_pose is None
+    else:
+        np.testing.assert_array_equal(fast.second_pose, ref.second_pose)
+
+
+def _both(use, grid, source, prior, p, with_second=True):
+    use("numpy")
+    ref = corr.correlative_match(grid, source, prior, p, with_second)
+    assert use("compiled") is not None
+    return corr.correlative_match(grid, source, prior, p, with_second), ref
+
+
+@pytest.fixture(scope="module")
+def searches():
+    """Every closure search of both methods' back ends processing 50 s of a small ring (a lap and a
+    half), and the front ends' searches on the 30 s crowd log: (grid, source, prior, parameters)."""
+    from fmcwlog.api import ProcessOptions, process
+    from fmcwlog.frontend import methods
+
+    seen, original = [], corr.correlative_match
+
+    def capture(grid, source, prior, p, *args):
+        seen.append((grid, np.array(source, float), np.array(prior, float), p))
+        return original(grid, source, prior, p, *args)
+
+    verification.correlative_match = methods.correlative_match = capture
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            ring = record_small_ring(Path(tmp) / "ring.mcap", 50.0)
+            process(str(ring), tmp + "/out", ProcessOptions(), jobs=1)
+            closures = len(seen)
+            process(str(SAMPLE_LOGS / "crowd_30s.mcap"), tmp + "/crowd", ProcessOptions(), jobs=1)
+    finally:
+        verification.correlative_match = methods.correlative_match = original
+    assert closures > 20
+    return seen
+
+
+@needs_core
+def test_recorded_closure_searches_agree(searches, use):
+    assert len(searches) > 5
+    for grid, source, prior, p in searches:
+        fast, ref = _both(use, grid, source, prior, p)
+        assert_same_search(fast, ref)
+        # a window three times as wide, one level more: the widened searches after a drift
+        wide = dataclasses.replace(p, linear_window=3 * p.linear_window, levels=min(p.levels + 1, corr.MAX_LEVELS))
+        fast, ref = _both(use, corr.grid_for(grid_points(grid), wide), source, prior, wide)
+        assert_same_search(fast, ref)
+
+
+def grid_points(grid: corr.LikelihoodGrid) -> np.ndarray:
+    """The centres of the cells a grid's targets lie in (a target set that gives the same grid)."""
+    iy, ix = np.nonzero(grid.fine == grid.fine.max())
+    return np.c_[grid.origin[0] + (ix + 0.5) * grid.resolution, grid.origin[1] + (iy + 0.5) * grid.resolution]
+
+
+def _scene(seed, n_walls, n_points, n_source, offset):
+    """Random walls as points (target) and a noisy, partly cluttered view of them from ``offset`` (source)."""
+    rng = np.random.default_rng(seed)
+    ends = rng.uniform(-6, 6, (n_walls, 4))
+    t = rng.random(n_points)
+    seg = rng.integers(0, n_walls, n_points)
+    target = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2])
+    pick = rng.choice(n_points, min(n_source, n_points), replace=False)
+    seen = np.concatenate([target[pick] + rng.normal(0, 0.01, (len(pick), 2)), rng.uniform(-7, 7, (n_source // 10 + 1, 2))])
+    x, y, th = offset
+    c, s = np.cos(-th), np.sin(-th)
+    return np.ascontiguousarray((seen - (x, y)) @ np.array([[c, s], [-s, c]])), target
+
+
+@needs_core
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n_walls=st.integers(1, 8), n_points=st.integers(1, 1500),
+       n_source=st.integers(1, 400), dx=st.floats(-1, 1), dy=st.floats(-1, 1), dth=st.floats(-0.3, 0.3),
+       window=st.floats(0.05, 2.5), angle=st.floats(0.5, 30), resolution=st.sampled_from([0.03, 0.05, 0.1]),
+       factor=st.integers(2, 5), levels=st.integers(1, 3), max_points=st.integers(10, 300),
+       with_second=st.booleans())
+def test_generated_searches_agree(use, seed, n_walls, n_points, n_source, dx, dy, dth, window, angle, resolution,
+                                  factor, levels, max_points, with_second):
+    source, target = _scene(seed, n_walls, n_points, n_source, (dx, dy, dth))
+    p = corr.CorrelativeParams(linear_window=window, angular_window_deg=angle, resolution=resolution,
+                               coarse_factor=factor, levels=levels, sigma=1.5 * resolution, max_points=max_points,
+                               max_rotations=61)
+    grid = corr.grid_for(target, p)
+    fast, ref = _both(use, grid, source, np.array([0.1, -0.05, 0.02]), p, with_second)
+    assert_same_search(fast, ref)
+
+
+@needs_core
+def test_equal_scores_are_visited_in_numpys_order(use):
+    """A target of one point and a source of one point: whole plateaus of equal scores, which only
+    numpy's own argsort orders as the reference walks them."""
+    p = corr.CorrelativeParams(linear_window=0.5, resolution=0.1, sigma=0.1, levels=2, max_rotations=31)
+    grid = corr.grid_for(np.array([[0.0, 0.0], [1.0, 0.0]]), p)
+    for source in (np.array([[0.5, 0.0]]), np.array([[0.3, 0.0], [0.3, 0.0]]), np.zeros((3, 2))):
+        fast, ref = _both(use, grid, source, np.array([0.2, 0.0, 0.0]), p)
+        assert_same_search(fast, ref)
+
+
+def test_closure_search_defaults_fit_the_compiled_limit():
+    assert BackendParams().search.max_points <= corr.MAX_COMPILED_POINTS

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
+from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
 
 
@@ -69,6 +70,7 @@ class Submap:
     tree: cKDTree
     paired: np.ndarray = field(init=False, repr=False)
     points_normals: np.ndarray = field(init=False, repr=False)
+    grids: dict = field(init=False, repr=False, default_factory=dict)  # the compiled core's grid per gate (m)
 
     def __post_init__(self) -> None:
         self.paired = np.append(self.has_normal, False)
@@ -153,6 +155,9 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
     ``prior``: a pose (3,) and an information (3, 3) in the units of ``JᵀWJ`` (m⁻² and rad⁻² times
     m²) added to every step, e.g. to hold a direction the scene leaves free where an estimate put
     it; the returned ``hessian`` does not include it."""
+    module = compiled.core()
+    if module is not None:
+        return _compiled(module, source_xy, submap, initial, p, prior)
     pose = np.asarray(initial, float).copy()
     c = p.kernel_scale
     nearest = NearestPairs(source_xy, submap.tree, submap.points, p.max_distance)
@@ -180,3 +185,21 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
     r, j, w = _system(pose, submap, nearest, c)
     h = (j * w[:, None]).T @ j if len(r) else np.zeros((3, 3))
     return LineICPResult(pose, h, r, len(r), it, converged)
+
+
+def _compiled(module, source_xy: np.ndarray, submap: Submap, initial: np.ndarray, p: LineICPParams,
+              prior: tuple[np.ndarray, np.ndarray] | None) -> LineICPResult:
+    """:func:`register_point_to_line` in the compiled core (``src/core/line_icp.cpp``): the same
+    pairs, the same iterations; its sums run in point order, so poses agree to rounding."""
+    grid = submap.grids.get(p.max_distance)
+    if grid is None:
+        grid = submap.grids[p.max_distance] = module.TargetGrid(np.ascontiguousarray(submap.points, float),
+                                                                p.max_distance)
+    x, y, th = np.asarray(initial, float).tolist()
+    held = (None, None) if prior is None else (np.asarray(prior[0], float).tolist(),
+                                               np.asarray(prior[1], float).ravel().tolist())
+    pose, h, residuals, pairs, iterations, converged = module.line_icp(
+        grid, np.ascontiguousarray(submap.normals, float), np.ascontiguousarray(submap.has_normal, bool),
+        np.ascontiguousarray(source_xy, float), x, y, th, p.max_iterations, p.kernel_scale, p.tolerance, *held)
+    hessian = np.array(h).reshape(3, 3) if pairs else np.zeros((3, 3))
+    return LineICPResult(np.array(pose), hessian, np.array(residuals), pairs, iterations, converged)

@@ -8,5 +8,6 @@ namespace fmcwlog {
 
 void bind_point_to_point_icp(nanobind::module_& m);
 void bind_correlative(nanobind::module_& m);
+void bind_line_icp(nanobind::module_& m);
 
 }  // namespace fmcwlog

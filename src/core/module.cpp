@@ -19,4 +19,5 @@ NB_MODULE(_core, m) {
         .def_prop_ro("radius", &TargetGrid::radius);
     bind_point_to_point_icp(m);
     bind_correlative(m);
+    bind_line_icp(m);
 }

@@ -17,7 +17,7 @@ from helpers import SAMPLE_LOGS, record_small_ring
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fmcwlog.backend import verification
+from fmcwlog.backend import local_edges, registration, verification
 from fmcwlog.backend.params import BackendParams
 from fmcwlog.kernels import compiled
 from fmcwlog.kernels import correlative as corr
@@ -63,12 +63,18 @@ def searches():
     from fmcwlog.frontend import methods
 
     seen, original = [], corr.correlative_match
+    matched, register = [], registration.register_point_to_line
 
     def capture(grid, source, prior, p, *args):
         seen.append((grid, np.array(source, float), np.array(prior, float), p))
         return original(grid, source, prior, p, *args)
 
+    def capture_match(source, submap, initial, p, prior=None):
+        matched.append((np.array(source, float), submap, np.array(initial, float), p, prior))
+        return register(source, submap, initial, p, prior)
+
     verification.correlative_match = methods.correlative_match = capture
+    verification.register_point_to_line = local_edges.register_point_to_line = capture_match
     try:
         with tempfile.TemporaryDirectory() as tmp:
             ring = record_small_ring(Path(tmp) / "ring.mcap", 50.0)
@@ -77,8 +83,29 @@ def searches():
             process(str(SAMPLE_LOGS / "crowd_30s.mcap"), tmp + "/crowd", ProcessOptions(), jobs=1)
     finally:
         verification.correlative_match = methods.correlative_match = original
+        verification.register_point_to_line = local_edges.register_point_to_line = register
     assert closures > 20
+    _MATCHES[:] = matched
     return seen
+
+
+_MATCHES: list = []  # the point-to-line matches of the same runs (filled by ``searches``)
+
+
+@needs_core
+def test_recorded_line_matches_agree(searches, use):
+    """Every point-to-line match of those runs (local edges and closures): the same pairs and
+    iterations, the pose and information to rounding."""
+    assert len(_MATCHES) > 100
+    for source, submap, initial, p, prior in _MATCHES[::2]:
+        use("numpy")
+        ref = registration.register_point_to_line(source, submap, initial, p, prior)
+        use("compiled")
+        fast = registration.register_point_to_line(source, submap, initial, p, prior)
+        assert (fast.pairs, fast.iterations, fast.converged) == (ref.pairs, ref.iterations, ref.converged)
+        np.testing.assert_allclose(fast.pose, ref.pose, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(fast.hessian, ref.hessian, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(fast.residuals, ref.residuals, rtol=0, atol=1e-9)
 
 
 @needs_core

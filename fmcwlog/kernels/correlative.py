@@ -193,6 +193,13 @@ def _rotations(prior_yaw: float, source: np.ndarray, p: CorrelativeParams) -> np
     return prior_yaw + step * np.arange(-k, k + 1)
 
 
+def _descending(values: np.ndarray) -> np.ndarray:
+    """Indices of ``values`` (1-D), highest first, equal values in the order of their indices: the
+    order every level of the search visits its candidates in (a stable sort, so the same on every
+    machine; the compiled search sorts by the same rule)."""
+    return np.argsort(-values, kind="stable")
+
+
 def _scores(table: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Mean likelihood per (rotation, offset): ``cells`` (R, N) flat cells of the rotated points,
     ``offsets`` (T,) flat offsets; returns (R, T)."""
@@ -314,7 +321,7 @@ def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray
     decides as numpy would."""
     if highest <= best:  # the loop below would stop at its first score
         return best, best_at
-    order = np.argsort(sc)[::-1]
+    order = _descending(sc)
     finest = level == len(s.steps) - 1
     separate = s.separate(r, offsets) if finest and exclude is not None else None
     for i, score in zip(order.tolist(), sc[order].tolist()):
@@ -335,7 +342,7 @@ PREFETCH = 32  # top candidates whose children are scored in one gather (some ma
 
 def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.ndarray, floor: float,
                      exclude: np.ndarray | None) -> tuple[float, tuple | None]:
-    """``order``: ``upper``'s flat indices, highest first (``argsort`` of the flattened array, reversed)."""
+    """``order``: ``upper``'s flat indices, highest first (:func:`_descending` of the flattened array)."""
     best, best_at = floor, None
     n_top = upper.shape[1]
     flats, bounds = order.tolist(), upper.ravel()[order].tolist()
@@ -382,7 +389,7 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
     top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
     upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
     s.evaluated += upper.size
-    order = np.argsort(upper, axis=None)[::-1]  # the bounds, highest first: shared by both searches
+    order = _descending(upper.ravel())  # the bounds, highest first: shared by both searches
     best, best_at = _search_from_top(s, upper, order, top, -1.0, None)
     assert best_at is not None
     pose = s.pose(*best_at)
@@ -404,12 +411,6 @@ def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:
 MAX_COMPILED_POINTS = 8192
 
 
-def _argsort_descending(values: np.ndarray) -> np.ndarray:
-    """``np.argsort(values)[::-1]``: the reference's order, which the compiled search asks for where
-    equal scores make the order numpy's own."""
-    return np.ascontiguousarray(np.argsort(values)[::-1], dtype=np.int64)
-
-
 def _compiled_match(module, s: _Search, with_second: bool) -> CorrelativeResult:
     """:func:`correlative_match`'s searches in the compiled core (``src/core/correlative.cpp``): the
     same poses, scores and count as the numpy walk. The yaw samples' cells, the grids and the
@@ -422,7 +423,7 @@ def _compiled_match(module, s: _Search, with_second: bool) -> CorrelativeResult:
 
     cells = np.ascontiguousarray(s.cells, np.int64)
     best, second, evaluated = module.correlative_search(tables, cells, list(s.steps), s.n_fine, s.grid.shape[1],
-                                                        _argsort_descending, exclude if with_second else None)
+                                                        exclude if with_second else None)
     pose = s.pose(best[1], np.array(best[2:]))
     if not with_second:
         return CorrelativeResult(pose, best[0], 0.0, None, evaluated)

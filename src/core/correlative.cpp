@@ -6,9 +6,8 @@
 //   sums each offset's points one after another from 0 (numpy's reduction over the middle axis of
 //   (R, N, T)); a set of one offset sums them pairwise as numpy's pairwise_sum_FLOAT does (the
 //   reduction then runs over a contiguous axis); the sum divided by N, rounded to float32;
-// - candidates are visited in the order of np.argsort(scores)[::-1]: a descending sort here, and
-//   where a run of equal scores is reached that could still be visited, the order numpy's own
-//   argsort gives (a Python callable passed in), since its order among equal keys is its own.
+// - candidates are visited in the order of _descending (np.argsort(-scores, kind="stable")):
+//   highest first, equal scores by index, a stable sort here.
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
@@ -56,7 +55,6 @@ struct Search {
     const int64_t* cells = nullptr;     // (R, N) flat cells of the rotated points
     int64_t rows = 0, n = 0, width = 0, n_fine = 0, n_top = 0;  // n_top: top candidates along x (and y)
     std::vector<int64_t> steps;
-    nb::handle argsort;  // Python: scores (float32) -> np.argsort(scores)[::-1]
     int64_t evaluated = 0;
     // second-peak search: whether a fine offset / a yaw sample lies on another peak (_Search.exclude)
     const bool* far = nullptr;
@@ -82,37 +80,17 @@ struct Search {
         for (size_t j = 0; j < k; ++j) out[j] = mean_of(out[j], n);
     }
 
-    // The order of np.argsort(values)[::-1]: values descending; equal values are ordered by numpy
-    // (lazily: only once the walk reaches a run of them above ``best``, see ``exact``).
+    // _descending: the indices of ``v``, highest first, equal values by index (a stable sort).
     struct Order {
         std::vector<int64_t> idx;
-        bool numpy = false;
     };
 
-    Order sorted(const std::vector<float>& v) {
+    static Order sorted(const std::vector<float>& v) {
         Order o;
         o.idx.resize(v.size());
         for (size_t i = 0; i < v.size(); ++i) o.idx[i] = int64_t(i);
-        std::sort(o.idx.begin(), o.idx.end(), [&](int64_t a, int64_t b) { return v[size_t(a)] > v[size_t(b)]; });
+        std::stable_sort(o.idx.begin(), o.idx.end(), [&](int64_t a, int64_t b) { return v[size_t(a)] > v[size_t(b)]; });
         return o;
-    }
-
-    // Before visiting position ``k`` of ``o``: where its value has equals, take numpy's order.
-    void exact(Order& o, const std::vector<float>& v, size_t k) {
-        if (o.numpy) return;
-        const float x = v[size_t(o.idx[k])];
-        const bool tie = (k + 1 < o.idx.size() && v[size_t(o.idx[k + 1])] == x) || (k > 0 && v[size_t(o.idx[k - 1])] == x);
-        if (!tie) return;
-        nb::gil_scoped_acquire gil;
-        float* copy = new float[v.size()];
-        std::copy(v.begin(), v.end(), copy);
-        nb::capsule owner(copy, [](void* p) noexcept { delete[] static_cast<float*>(p); });
-        nb::ndarray<nb::numpy, float, nb::ndim<1>> arr(copy, {v.size()}, owner);
-        nb::object got = argsort(arr);
-        auto order = nb::cast<std::vector<int64_t>>(got);
-        if (order.size() != v.size()) throw std::runtime_error("argsort gave the wrong length");
-        o.idx = std::move(order);
-        o.numpy = true;
     }
 
     // _Search.children: the next level's offsets under ``offset`` of level ``level``, in the window.
@@ -152,7 +130,6 @@ struct Search {
         std::vector<int64_t> flats;
         std::vector<float> child_sc;
         for (size_t k = 0; k < order.idx.size(); ++k) {
-            exact(order, sc, k);
             const size_t i = size_t(order.idx[k]);
             const double score = sc[i];
             if (score <= best.score) break;
@@ -178,7 +155,6 @@ struct Search {
         std::vector<int64_t> flats;
         std::vector<float> child_sc;
         for (size_t k = 0; k < order.idx.size(); ++k) {
-            exact(order, upper, k);
             const int64_t flat = order.idx[k];
             const double bound = upper[size_t(flat)];
             if (bound <= best.score) break;
@@ -208,7 +184,7 @@ using Found = std::tuple<double, int64_t, int64_t, int64_t>;  // score, yaw samp
 // Returns (best, second, evaluated), a pose as (score, yaw sample, offset x, offset y); the second's
 // yaw sample is -1 where none was found (score 0).
 std::tuple<Found, Found, int64_t> correlative_search(std::vector<Table> tables, Cells cells, std::vector<int64_t> steps,
-                                                     int64_t n_fine, int64_t width, nb::handle argsort,
+                                                     int64_t n_fine, int64_t width,
                                                      nb::handle exclude) {
     if (tables.size() != steps.size() || steps.empty()) throw nb::value_error("one table per level");
     for (size_t l = 0; l + 1 < steps.size(); ++l)
@@ -220,7 +196,6 @@ std::tuple<Found, Found, int64_t> correlative_search(std::vector<Table> tables, 
     s.width = width;
     s.n_fine = n_fine;
     s.steps = steps;
-    s.argsort = argsort;
     const int64_t size = int64_t(tables[0].shape(0));
     for (auto& t : tables) {
         if (int64_t(t.shape(0)) != size) throw nb::value_error("tables of different sizes");
@@ -278,7 +253,7 @@ std::tuple<Found, Found, int64_t> correlative_search(std::vector<Table> tables, 
 
 void bind_correlative(nb::module_& m) {
     m.def("correlative_search", &correlative_search, nb::arg("tables"), nb::arg("cells"), nb::arg("steps"),
-          nb::arg("n_fine"), nb::arg("width"), nb::arg("argsort"), nb::arg("exclude").none());
+          nb::arg("n_fine"), nb::arg("width"), nb::arg("exclude").none());
 }
 
 }  // namespace fmcwlog

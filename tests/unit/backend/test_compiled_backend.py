@@ -159,14 +159,21 @@ def test_generated_searches_agree(use, seed, n_walls, n_points, n_source, dx, dy
 
 
 @needs_core
-def test_equal_scores_are_visited_in_numpys_order(use):
-    """A target of one point and a source of one point: whole plateaus of equal scores, which only
-    numpy's own argsort orders as the reference walks them."""
+def test_equal_scores_are_visited_in_the_same_order(use):
+    """A target of one point and a source of one point: whole plateaus of equal scores, visited
+    highest first and equal ones by index by both."""
     p = corr.CorrelativeParams(linear_window=0.5, resolution=0.1, sigma=0.1, levels=2, max_rotations=31)
     grid = corr.grid_for(np.array([[0.0, 0.0], [1.0, 0.0]]), p)
     for source in (np.array([[0.5, 0.0]]), np.array([[0.3, 0.0], [0.3, 0.0]]), np.zeros((3, 2))):
         fast, ref = _both(use, grid, source, np.array([0.2, 0.0, 0.0]), p)
         assert_same_search(fast, ref)
+
+
+def test_the_search_order_is_highest_first_then_by_index():
+    values = np.array([0.5, 0.25, 0.5, 0.0, 0.25, 0.5, 0.0], np.float32)
+    assert corr._descending(values).tolist() == [0, 2, 5, 1, 4, 3, 6]
+    big = np.repeat(np.float32([0.0, 1.0, 0.5]), 700)  # long enough for any sort to leave the small-array path
+    assert corr._descending(big).tolist() == list(range(700, 1400)) + list(range(1400, 2100)) + list(range(700))
 
 
 def test_closure_search_defaults_fit_the_compiled_limit():

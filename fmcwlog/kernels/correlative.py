@@ -83,6 +83,26 @@ class CorrelativeParams(Checked):
     peak_separation_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
 
 
+def _likelihood(dist: np.ndarray, sigma: float) -> np.ndarray:
+    """``exp(-d²/2σ²)`` (float32) of distances ``dist`` (m)."""
+    return np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32)
+
+
+# beyond this many σ² the likelihood's float32 is 0 (exp(-120) ≈ 8e-53; float32 ends near 1.4e-45)
+_ZERO_BEYOND = 240.0
+
+
+def _likelihood_table(resolution: float, sigma: float, shape: tuple[int, int]) -> np.ndarray:
+    """:func:`_likelihood` of the distance of every squared distance in cells ``d2`` (the index)
+    that a grid of ``shape`` cells holds, ``sqrt(d2) · resolution`` (the distance transform's own
+    arithmetic); past its end the likelihood is 0, as it is at its end."""
+    largest = (shape[0] - 1) ** 2 + (shape[1] - 1) ** 2
+    n = min(int(np.ceil(_ZERO_BEYOND * (sigma / resolution) ** 2)) + 2, largest + 1)
+    table = _likelihood(np.sqrt(np.arange(n, dtype=np.float64)) * resolution, sigma)
+    assert n == largest + 1 or table[-1] == 0.0, "the likelihood table ends before the likelihood is 0"
+    return table
+
+
 class LikelihoodGrid:
     """``exp(-d²/2σ²)`` of the distance from each cell centre to the nearest target point, on a
     lattice of ``resolution`` covering the targets plus ``margin`` (m).
@@ -101,24 +121,32 @@ class LikelihoodGrid:
         hi = target_xy.max(axis=0) + margin + frame
         self.origin = np.floor(lo / resolution) * resolution
         shape = (np.ceil((hi - self.origin) / resolution).astype(int) + 1)[::-1]  # rows = y
-        occupied = np.zeros(shape, bool)
         ij = self.cell(target_xy)
-        occupied[ij[:, 1], ij[:, 0]] = True
-        from scipy import ndimage  # here, not at import: 0.3 s that only a recovery search needs
-
         # the frame is zeroed anyway: where every target lies inside it (as the margin makes it),
         # the distance transform of the inside alone gives the inside the same distances (the
         # nearest target is the same cell), at about half the cells
         f = 2 * self.reach + 1
-        inside = (slice(f, int(shape[0]) - f), slice(f, int(shape[1]) - f))
-        if min(shape) > 2 * f and ij.min() >= f and (ij[:, ::-1] < shape - f).all():
+        fits = min(shape) > 2 * f and ij.min() >= f and (ij[:, ::-1] < shape - f).all()
+        module = compiled.core()
+        if fits and module is not None:
+            self.fine = np.zeros(shape, np.float32)
+            table = _likelihood_table(resolution, sigma, (int(shape[0]) - 2 * f, int(shape[1]) - 2 * f))
+            module.likelihood_fill(np.ascontiguousarray(ij, np.int64), self.fine, f, table)
+            self._coarse: dict[int, np.ndarray] = {}
+            return
+        occupied = np.zeros(shape, bool)
+        occupied[ij[:, 1], ij[:, 0]] = True
+        from scipy import ndimage  # here, not at import: 0.3 s that only a recovery search needs
+
+        if fits:
+            inside = (slice(f, int(shape[0]) - f), slice(f, int(shape[1]) - f))
             dist = ndimage.distance_transform_edt(~occupied[inside]) * resolution
             self.fine = np.zeros(shape, np.float32)
-            self.fine[inside] = np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32)
+            self.fine[inside] = _likelihood(dist, sigma)
         else:
             dist = ndimage.distance_transform_edt(~occupied) * resolution
-            self.fine = self._framed(np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32))
-        self._coarse: dict[int, np.ndarray] = {}
+            self.fine = self._framed(_likelihood(dist, sigma))
+        self._coarse = {}
 
     def _framed(self, grid: np.ndarray) -> np.ndarray:
         f = 2 * self.reach + 1
@@ -138,6 +166,12 @@ class LikelihoodGrid:
         """The grid of the maximum fine likelihood over each ``k`` × ``k`` block of translations (the
         branch and bound's bound), framed as the fine one; computed once per ``k``."""
         if k not in self._coarse:
+            module = compiled.core()
+            if module is not None:
+                grid = np.empty_like(self.fine)
+                module.max_filter_framed(self.fine, grid, k, 2 * self.reach + 1)
+                self._coarse[k] = grid
+                return grid
             from scipy import ndimage
 
             grid = ndimage.maximum_filter(self.fine, size=k, origin=-(k // 2), mode="constant")

@@ -20,4 +20,5 @@ NB_MODULE(_core, m) {
     bind_point_to_point_icp(m);
     bind_correlative(m);
     bind_line_icp(m);
+    bind_likelihood_grid(m);
 }

@@ -176,5 +176,39 @@ def test_the_search_order_is_highest_first_then_by_index():
     assert corr._descending(big).tolist() == list(range(700, 1400)) + list(range(1400, 2100)) + list(range(700))
 
 
+def _both_grids(use, target, p):
+    use("numpy")
+    ref = corr.grid_for(target, p)
+    assert use("compiled") is not None
+    return corr.grid_for(target, p), ref
+
+
+def assert_same_grids(fast: corr.LikelihoodGrid, ref: corr.LikelihoodGrid, p: corr.CorrelativeParams) -> None:
+    """The same float32 grids, bit for bit: the fine one and every coarse one the search reads."""
+    assert fast.fine.tobytes() == ref.fine.tobytes() and fast.shape == ref.shape
+    np.testing.assert_array_equal(fast.origin, ref.origin)
+    for e in range(1, p.levels):
+        assert fast.coarse(p.coarse_factor**e).tobytes() == ref.coarse(p.coarse_factor**e).tobytes()
+
+
+@needs_core
+def test_recorded_likelihood_grids_agree(searches, use):
+    for grid, _, _, p in searches[::3]:
+        assert_same_grids(*_both_grids(use, grid_points(grid), p), p)
+
+
+@needs_core
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n_walls=st.integers(1, 8), n_points=st.integers(1, 1500),
+       window=st.floats(0.05, 2.5), resolution=st.sampled_from([0.03, 0.05, 0.1]), sigma=st.floats(0.5, 4),
+       factor=st.integers(2, 5), levels=st.integers(1, 3))
+def test_generated_likelihood_grids_agree(use, seed, n_walls, n_points, window, resolution, sigma, factor, levels):
+    """Walls, clusters and lone points; σ from half a cell to four cells (the likelihood table's end)."""
+    _, target = _scene(seed, n_walls, n_points, 1, (0.0, 0.0, 0.0))
+    p = corr.CorrelativeParams(linear_window=window, resolution=resolution, sigma=sigma * resolution,
+                               coarse_factor=factor, levels=levels)
+    assert_same_grids(*_both_grids(use, target, p), p)
+
+
 def test_closure_search_defaults_fit_the_compiled_limit():
     assert BackendParams().search.max_points <= corr.MAX_COMPILED_POINTS

@@ -58,7 +58,8 @@ class LineICPParams(Checked):
 
 @dataclass
 class Submap:
-    """Target points (M, 2), their unit normals (M, 2), which have one (M,), and the KD-tree.
+    """Target points (M, 2), their unit normals (M, 2), which have one (M,), and the KD-tree (built
+    on first use where the compiled core built the normals without it).
 
     ``paired`` (M + 1,): ``has_normal`` with a last ``False`` for the index ``M`` that the tree
     returns where no point lies within the search's bound, so one lookup says which source points
@@ -67,7 +68,7 @@ class Submap:
     points: np.ndarray
     normals: np.ndarray
     has_normal: np.ndarray
-    tree: cKDTree
+    _tree: cKDTree | None = field(default=None, repr=False)
     paired: np.ndarray = field(init=False, repr=False)
     points_normals: np.ndarray = field(init=False, repr=False)
     grids: dict = field(init=False, repr=False, default_factory=dict)  # the compiled core's grid per gate (m)
@@ -75,6 +76,12 @@ class Submap:
     def __post_init__(self) -> None:
         self.paired = np.append(self.has_normal, False)
         self.points_normals = np.hstack([self.points, self.normals])  # one gather a pass for both
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
 
 
 def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Submap:
@@ -84,7 +91,15 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
     normals and a KD-tree over them.
 
     The neighbourhoods' means and covariances are summed one neighbour at a time, in the order
-    ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost."""
+    ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost.
+    The compiled core (``src/core/submap.cpp``) does the same sums; its normals agree to rounding,
+    up to their sign (which no residual's square, Jacobian product or information sees)."""
+    module = compiled.core()
+    if module is not None and len(points):
+        points = np.ascontiguousarray(points, float)
+        normals, has_normal = np.empty((len(points), 2)), np.empty(len(points), bool)
+        module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal)
+        return Submap(points, normals, has_normal)
     tree = cKDTree(points)
     k = min(p.normal_neighbours, len(points))
     _, idx = tree.query(points, k=k)

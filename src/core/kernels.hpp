@@ -10,5 +10,6 @@ void bind_point_to_point_icp(nanobind::module_& m);
 void bind_correlative(nanobind::module_& m);
 void bind_line_icp(nanobind::module_& m);
 void bind_likelihood_grid(nanobind::module_& m);
+void bind_submap(nanobind::module_& m);
 
 }  // namespace fmcwlog

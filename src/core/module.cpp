@@ -21,4 +21,5 @@ NB_MODULE(_core, m) {
     bind_correlative(m);
     bind_line_icp(m);
     bind_likelihood_grid(m);
+    bind_submap(m);
 }

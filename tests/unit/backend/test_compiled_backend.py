@@ -210,5 +210,39 @@ def test_generated_likelihood_grids_agree(use, seed, n_walls, n_points, window, 
     assert_same_grids(*_both_grids(use, target, p), p)
 
 
+def assert_same_submaps(use, points, p=registration.LineICPParams()):
+    """The same points and planar flags; each normal the same line to rounding (either sign) where
+    the point has one (elsewhere the covariance is near round, its eigenvectors ill-defined, and no
+    pair uses them)."""
+    use("numpy")
+    ref = registration.build_submap(points, p)
+    use("compiled")
+    fast = registration.build_submap(points, p)
+    np.testing.assert_array_equal(fast.points, ref.points)
+    np.testing.assert_array_equal(fast.has_normal, ref.has_normal)
+    used = ref.has_normal
+    np.testing.assert_allclose(np.abs((fast.normals[used] * ref.normals[used]).sum(axis=1)), 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(fast.normals, axis=1), 1.0, rtol=0, atol=1e-12)
+
+
+@needs_core
+def test_recorded_submaps_agree(searches, use):
+    """The submaps of every point-to-line match of the recorded runs (closures and local edges)."""
+    for _, submap, _, p, _ in _MATCHES[::4]:
+        assert_same_submaps(use, submap.points, p)
+
+
+@needs_core
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n_walls=st.integers(1, 8), n_points=st.integers(1, 2000),
+       noise=st.sampled_from([0.0, 0.002, 0.02]), clutter=st.integers(0, 300), neighbours=st.integers(3, 12))
+def test_generated_submaps_agree(use, seed, n_walls, n_points, noise, clutter, neighbours):
+    """Walls (noisy or exact), clutter, and as few points as the neighbourhood or fewer."""
+    rng = np.random.default_rng(seed)
+    _, target = _scene(seed, n_walls, n_points, 1, (0.0, 0.0, 0.0))
+    points = np.concatenate([target + rng.normal(0, noise, target.shape), rng.uniform(-6, 6, (clutter, 2))])
+    assert_same_submaps(use, points, registration.LineICPParams(normal_neighbours=neighbours))
+
+
 def test_closure_search_defaults_fit_the_compiled_limit():
     assert BackendParams().search.max_points <= corr.MAX_COMPILED_POINTS

@@ -111,7 +111,9 @@ class LikelihoodGrid:
     lookup offset the search will add: a point off the grid is clipped ``reach`` cells into the
     frame, where every offset still reads 0, so a lookup is one flat ``take`` with no bounds test.
     ``coarse(k)`` is the grid max-filtered over the ``k × k`` cells ``[i, i+k)``: the bound a
-    coarse candidate needs (module docstring)."""
+    coarse candidate needs (module docstring). The compiled core (``src/core/likelihood_grid.cpp``)
+    builds the same float32 grids, bit for bit: an exact integer distance transform whose squared
+    distances index :func:`_likelihood_table`, and the same maximum filter."""
 
     def __init__(self, target_xy: np.ndarray, resolution: float, sigma: float, margin: float, reach: int = 16):
         self.resolution = resolution

@@ -100,6 +100,15 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Relative pose ``⊖a ⊕ b``: b expressed in a's frame."""
+    found = between_floats(a, b)
+    if found is not None:
+        return np.array(found)
+    return compose(inverse(a), b)
+
+
+def between_floats(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float] | None:
+    """:func:`between` of two poses (float64 arrays of shape (3,), ``a``'s yaw finite) as three
+    Python floats, bit for bit the array's; None for any other input (then call :func:`between`)."""
     if _is_pose(a) and _is_pose(b):
         ax, ay, ath = a.tolist()
         if math.isfinite(ath):  # inverse(a) as floats, then composed with b: the same operations
@@ -107,8 +116,8 @@ def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             ix, iy, ith = -c * ax - s * ay, s * ax - c * ay, _wrap(-ath)
             bx, by, bth = b.tolist()
             c, s = math.cos(ith), math.sin(ith)
-            return np.array([ix + c * bx - s * by, iy + s * bx + c * by, _wrap(ith + bth)])
-    return compose(inverse(a), b)
+            return ix + c * bx - s * by, iy + s * bx + c * by, _wrap(ith + bth)
+    return None
 
 
 def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -14,5 +14,6 @@ void bind_segmentation(nanobind::module_& m);
 void bind_tracking(nanobind::module_& m);
 void bind_occupancy(nanobind::module_& m);
 void bind_robust_icp(nanobind::module_& m);
+void bind_keyframe_map(nanobind::module_& m);
 
 }  // namespace fmcwlog

@@ -25,4 +25,5 @@ NB_MODULE(_core, m) {
     bind_tracking(m);
     bind_occupancy(m);
     bind_robust_icp(m);
+    bind_keyframe_map(m);
 }

@@ -183,6 +183,7 @@ class FrontEnd(ABC):
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
+        self._ranges: tuple[np.ndarray, np.ndarray] | None = None  # (xy, its ranges) of the sweep in step
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -253,12 +254,14 @@ class FrontEnd(ABC):
         p = self.params
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
-        near = np.hypot(xy[:, 0], xy[:, 1]) < p.min_range
+        ranges = np.hypot(xy[:, 0], xy[:, 1])  # (N,) m from the lidar
+        self._ranges = (xy, ranges)  # for this sweep's stages (the tracker's free-space test)
+        near = ranges < p.min_range
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         use = ~near & ~motion.moving
         seen = deskew(xy[use], t[use], v, omega, self.mount) if p.deskew else xy[use]
-        pts = transform_points(self.mount, seen)  # base_link at t_k
+        pts = _transform(self.mount, seen)  # base_link at t_k
         source = voxel_downsample(pts, p.source_voxel)
 
         pose_cov = None
@@ -279,7 +282,7 @@ class FrontEnd(ABC):
         if self.pose is not None:
             self.path_m += _step_length(self.pose, pose)
 
-        static_map = transform_points(pose, pts)
+        static_map = _transform(pose, pts)
         duration = float(t.max(initial=0.0))  # s, the sweep's last capture time
         skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
         lidar = compose(pose, self.mount)
@@ -290,7 +293,7 @@ class FrontEnd(ABC):
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
         moving = motion.moving & ~near
         moving_xy = xy[moving]
-        moving_map = transform_points(lidar, moving_xy) if len(moving_xy) else np.empty((0, 2))
+        moving_map = _transform(lidar, moving_xy) if len(moving_xy) else np.empty((0, 2))
         vel = sweep.velocity
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
@@ -333,6 +336,19 @@ class FrontEnd(ABC):
         return (again, True, True) if fit_again > fit else (res, True, False)
 
 
+def _transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`~fmcwlog.geometry.transform_points` of one pose: through the compiled
+    ``rotate_translate`` where :func:`fmcwlog.kernels.compiled.core` selects it (one call; its
+    expression in numpy's order, each operation rounded, no FMA: the same bits)."""
+    core = compiled.core()
+    if (core is not None and _is_pose(pose) and type(points) is np.ndarray and points.dtype == np.float64
+            and points.ndim == 2 and points.shape[1] == 2 and points.flags.c_contiguous):
+        x, y, yaw = pose.tolist()
+        if math.isfinite(yaw):
+            return core.rotate_translate(points, math.cos(yaw), math.sin(yaw), x, y)
+    return transform_points(pose, points)
+
+
 def _wrapped(pose: np.ndarray) -> np.ndarray:
     """A new pose array ``(x, y, wrap_angle(yaw))``: for a float64 pose from its elements as floats
     (the same values, three numpy indexings fewer)."""
@@ -368,7 +384,7 @@ def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.nd
     cov = [s2 * q for q in inv]
     if not all(map(math.isfinite, cov)):
         return None
-    return np.array(cov).reshape(3, 3)
+    return np.array([cov[0:3], cov[3:6], cov[6:9]])
 
 
 def _inv3_floats(m: list[list[float]]) -> list[float] | None:
@@ -499,8 +515,9 @@ class ImprovedFrontEnd(FrontEnd):
             dt = ts - self.last_stamp
             base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
             yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
+        ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
-                                    p.segmentation, yaw_error)
+                                    p.segmentation, yaw_error, ranges)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

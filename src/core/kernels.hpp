@@ -15,5 +15,6 @@ void bind_tracking(nanobind::module_& m);
 void bind_occupancy(nanobind::module_& m);
 void bind_robust_icp(nanobind::module_& m);
 void bind_keyframe_map(nanobind::module_& m);
+void bind_transform(nanobind::module_& m);
 
 }  // namespace fmcwlog

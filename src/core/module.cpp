@@ -26,4 +26,5 @@ NB_MODULE(_core, m) {
     bind_occupancy(m);
     bind_robust_icp(m);
     bind_keyframe_map(m);
+    bind_transform(m);
 }

@@ -136,3 +136,19 @@ def test_float_shortcuts_are_numpys(v):
     norm = _norm(arr)
     ref = np.linalg.norm(arr)
     assert (math.isnan(norm) and math.isnan(ref)) or norm == ref
+
+
+@needs_core
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(pose=poses, seed=st.integers(0, 2**31), n=st.integers(0, 50), scale=st.sampled_from([1e-3, 1.0, 1e5]))
+def test_compiled_transform_is_numpys_bits(use, pose, seed, n, scale):
+    """The front end's transform through the compiled kernel gives transform_points' bits."""
+    from fmcwlog.geometry import transform_points
+
+    pts = np.random.default_rng(seed).normal(size=(n, 2)) * scale
+    pose = np.array(pose)
+    use("compiled")
+    fast = methods._transform(pose, pts)
+    ref = transform_points(pose, pts)
+    assert fast.shape == ref.shape == (n, 2) and fast.dtype == ref.dtype
+    assert fast.tobytes() == ref.tobytes()

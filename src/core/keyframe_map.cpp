@@ -52,23 +52,23 @@ nb::object keyframe_map_merge(Points xy, double size, Keys old_keys, Points old_
     for (size_t j = 1; j < m; ++j)
         if (!(ok[j - 1] < ok[j])) return nb::none();
     std::vector<std::pair<int64_t, size_t>> fresh(n);  // (key, index), mirrors voxel_keys(xy, size)
-    std::vector<int64_t> keys;
-    std::vector<double> points;
-    std::vector<int64_t> owner;
+    // written straight into the outputs, sized for the most the merge can keep
+    int64_t* out_keys = new int64_t[n + m + 1];
+    double* out_points = new double[2 * (n + m) + 1];
+    int64_t* out_owner = new int64_t[n + m + 1];
+    size_t k = 0;
     {
         nb::gil_scoped_release release;
         for (size_t i = 0; i < n; ++i) fresh[i] = {voxel_key(p[2 * i], p[2 * i + 1], size), i};
         // np.unique's stable sort: equal keys keep their order, the first is the one kept
         std::stable_sort(fresh.begin(), fresh.end(),
                          [](const auto& a, const auto& b) { return a.first < b.first; });
-        keys.reserve(n + m);
-        points.reserve(2 * (n + m));
-        owner.reserve(n + m);
         auto take = [&](int64_t key, double x, double y, int64_t who) {
-            keys.push_back(key);
-            points.push_back(x);
-            points.push_back(y);
-            owner.push_back(who);
+            out_keys[k] = key;
+            out_points[2 * k] = x;
+            out_points[2 * k + 1] = y;
+            out_owner[k] = who;
+            ++k;
         };
         size_t a = 0, b = 0;
         while (a < n || b < m) {
@@ -89,13 +89,6 @@ nb::object keyframe_map_merge(Points xy, double size, Keys old_keys, Points old_
             if (b < m && ok[b] == key) ++b;
         }
     }
-    const size_t k = keys.size();
-    int64_t* out_keys = new int64_t[k + 1];
-    double* out_points = new double[2 * k + 1];
-    int64_t* out_owner = new int64_t[k + 1];
-    std::copy(keys.begin(), keys.end(), out_keys);
-    std::copy(points.begin(), points.end(), out_points);
-    std::copy(owner.begin(), owner.end(), out_owner);
     return nb::make_tuple(owned(out_keys, {k}), owned(out_points, {k, 2}), owned(out_owner, {k}));
 }
 

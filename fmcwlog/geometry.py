@@ -65,12 +65,13 @@ def quaternion_to_yaw(qx, qy, qz, qw) -> np.ndarray:
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose composition ``a ⊕ b`` (b expressed in a's frame); broadcasts over (..., 3)."""
-    if _is_pose(a) and _is_pose(b):
+    if (type(a) is np.ndarray and a.shape == (3,) and a.dtype is _F64  # _is_pose, inline: a hot path
+            and type(b) is np.ndarray and b.shape == (3,) and b.dtype is _F64):
         ax, ay, ath = a.tolist()
         if math.isfinite(ath):  # math.cos raises on ±inf where numpy gives NaN
             bx, by, bth = b.tolist()
             c, s = math.cos(ath), math.sin(ath)
-            return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap(ath + bth)])
+            return np.array([ax + c * bx - s * by, ay + s * bx + c * by, (ath + bth + _PI) % _TWO_PI - _PI])
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -100,15 +101,25 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Relative pose ``⊖a ⊕ b``: b expressed in a's frame."""
-    if _is_pose(a) and _is_pose(b):
+    found = between_floats(a, b)
+    if found is not None:
+        return np.array(found)
+    return compose(inverse(a), b)
+
+
+def between_floats(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float] | None:
+    """:func:`between` of two poses (float64 arrays of shape (3,), ``a``'s yaw finite) as three
+    Python floats, bit for bit the array's; None for any other input (then call :func:`between`)."""
+    if (type(a) is np.ndarray and a.shape == (3,) and a.dtype is _F64  # _is_pose, inline: a hot path
+            and type(b) is np.ndarray and b.shape == (3,) and b.dtype is _F64):
         ax, ay, ath = a.tolist()
-        if math.isfinite(ath):  # inverse(a) as floats, then composed with b: the same operations
+        if math.isfinite(ath):  # inverse(a) as floats, then composed with b: the same operations (_wrap inline)
             c, s = math.cos(ath), math.sin(ath)
-            ix, iy, ith = -c * ax - s * ay, s * ax - c * ay, _wrap(-ath)
+            ix, iy, ith = -c * ax - s * ay, s * ax - c * ay, (-ath + _PI) % _TWO_PI - _PI
             bx, by, bth = b.tolist()
             c, s = math.cos(ith), math.sin(ith)
-            return np.array([ix + c * bx - s * by, iy + s * bx + c * by, _wrap(ith + bth)])
-    return compose(inverse(a), b)
+            return ix + c * bx - s * by, iy + s * bx + c * by, (ith + bth + _PI) % _TWO_PI - _PI
+    return None
 
 
 def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:

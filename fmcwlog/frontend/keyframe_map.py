@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import Checked, param
+from ..kernels import compiled
 from ..kernels.compiled import MapIndex
 from ..kernels.correlative import CorrelativeParams, LikelihoodGrid, grid_for
 from ..kernels.voxel import voxel_keys
@@ -80,16 +81,28 @@ class KeyframeMap:
                 len(self._keyframes) > p.max_keyframes or path_m - self._keyframes[0].path_m > p.window_distance):
             self._keyframes.popleft()
         oldest = self._keyframes[0].ident
+        core = compiled.core()
+        merged = None
+        if core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.shape[1:] == (2,):
+            merged = core.keyframe_map_merge(np.ascontiguousarray(xy), float(self.voxel_size), self._keys,
+                                             self.points, self._owner, oldest, ident)
+        self._keys, self.points, self._owner = merged or self._merge_numpy(xy, oldest, ident)
+        # An unbalanced, uncompacted tree builds about twice as fast and answers the ICP's
+        # queries as fast (measured on 20k wall points); it is rebuilt at every keyframe.
+        self.tree = MapIndex(self.points, balanced_tree=False, compact_nodes=False) if len(self.points) else None
+
+    def _merge_numpy(self, xy: np.ndarray, oldest: int, ident: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The map's keys, points and owners once keyframe ``ident``'s points ``xy`` (N, 2) join it
+        and those of keyframes before ``oldest`` leave: sorted by voxel key, one point per voxel,
+        the newest keyframe's. The reference the compiled kernel (``keyframe_map_merge``, one call,
+        the same arrays) is tested against."""
         keep = self._owner >= oldest
         new_keys = voxel_keys(xy, self.voxel_size) if len(xy) else np.empty(0, np.int64)
         keys = np.concatenate([new_keys, self._keys[keep]])
         points = np.concatenate([xy, self.points[keep]])
         owner = np.concatenate([np.full(len(xy), ident), self._owner[keep]])
         keys, first = np.unique(keys, return_index=True)  # the first occurrence: the newest keyframe's point
-        self._keys, self.points, self._owner = keys, points[first], owner[first]
-        # An unbalanced, uncompacted tree builds about twice as fast and answers the ICP's
-        # queries as fast (measured on 20k wall points); it is rebuilt at every keyframe.
-        self.tree = MapIndex(self.points, balanced_tree=False, compact_nodes=False) if len(self.points) else None
+        return keys, points[first], owner[first]
 
     def likelihood_grid(self, p: CorrelativeParams, keyframes_old: int = 0) -> LikelihoodGrid:
         """The likelihood grid of the map's points for a correlative search with ``p``, cached per

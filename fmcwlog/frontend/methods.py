@@ -51,6 +51,7 @@ share (deskew, map, occupancy grid, keyframes); :data:`METHODS` names them.
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -58,7 +59,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..geometry import between, compose, transform_points, wrap_angle
+from ..geometry import _is_pose, between, between_floats, compose, transform_points, wrap_angle
+from ..kernels import compiled
 from ..kernels.correlative import LikelihoodGrid, correlative_match
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_downsample
@@ -121,7 +123,18 @@ class Doppler:
 
     @property
     def usable(self) -> bool:
-        return bool(np.all(np.isfinite(self.v_sensor)) and np.all(np.isfinite(self.covariance)))
+        return _finite(self.v_sensor) and _finite(self.covariance)
+
+
+def _finite(a: np.ndarray) -> bool:
+    """``np.all(np.isfinite(a))`` of a small array (a twist, a 2x2 or 3x3 matrix): the same answer
+    from its elements as Python numbers, without numpy's reduction machinery."""
+    return all(map(math.isfinite, a.ravel().tolist()))
+
+
+def _finite_pair(twist: tuple[float, float]) -> bool:
+    """``all(np.isfinite(twist))`` of a ``(v, ω)`` pair of numbers."""
+    return math.isfinite(twist[0]) and math.isfinite(twist[1])
 
 
 @dataclass
@@ -170,6 +183,7 @@ class FrontEnd(ABC):
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
+        self._ranges: tuple[np.ndarray, np.ndarray] | None = None  # (xy, its ranges) of the sweep in step
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -206,23 +220,28 @@ class FrontEnd(ABC):
     def _moved(last: np.ndarray | None, pose: np.ndarray, distance: float, angle_deg: float) -> bool:
         if last is None:
             return True
-        d = between(last, pose)
-        return bool(np.hypot(d[0], d[1]) >= distance or abs(d[2]) >= np.radians(angle_deg))
+        d = between_floats(last, pose)  # the same values as ``between``'s array, as floats
+        if d is None:
+            d = between(last, pose)
+        # math.radians is numpy's deg2rad: x * (pi / 180)
+        return bool(np.hypot(d[0], d[1]) >= distance or abs(d[2]) >= math.radians(angle_deg))
 
-    def _update_maps(self, pose: np.ndarray, static_map: np.ndarray, skew_rad: float) -> bool:
+    def _update_maps(self, pose: np.ndarray, static_map: np.ndarray, skew_rad: float,
+                     lidar: np.ndarray | None = None) -> bool:
         """A keyframe's points into the local map, and into the occupancy grid less often.
 
         ``skew_rad``: how much the twist changed across the sweep, as an angle (rad): a sweep
         whose twist changes within it (entering or leaving a turn) is deskewed with the wrong
-        twist, so it waits (:class:`~.keyframe_map.LocalMapParams`)."""
+        twist, so it waits (:class:`~.keyframe_map.LocalMapParams`). ``lidar``: ``pose ⊕ mount``
+        if already composed."""
         p = self.params
         keyframe = self._moved(self.last_key, pose, p.keyframe_distance, p.keyframe_angle_deg) and (
-            skew_rad <= np.radians(p.local_map.max_twist_skew_deg) or self.last_key is None)
+            skew_rad <= math.radians(p.local_map.max_twist_skew_deg) or self.last_key is None)
         if keyframe:
             self.map.add(static_map, self.path_m)
             self.last_key = pose
         if self._moved(self.last_grid, pose, p.grid_distance, p.grid_angle_deg):
-            self._into_grid(Scan(compose(pose, self.mount)[:2], static_map))
+            self._into_grid(Scan((compose(pose, self.mount) if lidar is None else lidar)[:2], static_map))
             self.last_grid = pose
         return keyframe
 
@@ -235,12 +254,14 @@ class FrontEnd(ABC):
         p = self.params
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
-        near = np.hypot(xy[:, 0], xy[:, 1]) < p.min_range
+        ranges = np.hypot(xy[:, 0], xy[:, 1])  # (N,) m from the lidar
+        self._ranges = (xy, ranges)  # for this sweep's stages (the tracker's free-space test)
+        near = ranges < p.min_range
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         use = ~near & ~motion.moving
         seen = deskew(xy[use], t[use], v, omega, self.mount) if p.deskew else xy[use]
-        pts = transform_points(self.mount, seen)  # base_link at t_k
+        pts = _transform(self.mount, seen)  # base_link at t_k
         source = voxel_downsample(pts, p.source_voxel)
 
         pose_cov = None
@@ -257,24 +278,26 @@ class FrontEnd(ABC):
                 res, searched, recovered = self._register_or_recover(source, motion, ts)
             pose, iterations, kept = res.pose, res.iterations, res.n_correspondences_kept
             pose_cov = registration_covariance(res.hessian, p.residual_sigma)
-        pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
+        pose = _wrapped(pose)
         if self.pose is not None:
-            self.path_m += float(np.hypot(*(pose[:2] - self.pose[:2])))
+            self.path_m += _step_length(self.pose, pose)
 
-        static_map = transform_points(pose, pts)
-        skew = abs(omega - self.last_twist[1]) * float(t.max(initial=0.0)) if self.pose is not None else 0.0
-        keyframe = self._update_maps(pose, static_map, skew)
+        static_map = _transform(pose, pts)
+        duration = float(t.max(initial=0.0))  # s, the sweep's last capture time
+        skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
+        lidar = compose(pose, self.mount)
+        keyframe = self._update_maps(pose, static_map, skew, lidar)
         self.after_step(pose, ts, iterations > 0, prior)
         if prior.twist is None:
-            self.hold.update(pose, ts, (v, omega), 0.5 * float(t.max(initial=0.0)))
+            self.hold.update(pose, ts, (v, omega), 0.5 * duration)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
         moving = motion.moving & ~near
         moving_xy = xy[moving]
-        moving_map = transform_points(compose(pose, self.mount), moving_xy) if len(moving_xy) else np.empty((0, 2))
+        moving_map = _transform(lidar, moving_xy) if len(moving_xy) else np.empty((0, 2))
         vel = sweep.velocity
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
-                           iterations, kept, int(motion.moving.sum()), ms, static_map,
+                           iterations, kept, int(np.count_nonzero(motion.moving)), ms, static_map,
                            None if vel is None else vel[use], moving_map, None if vel is None else vel[moving],
                            motion.moving, motion.segmented, keyframe, searched, recovered)
 
@@ -313,10 +336,73 @@ class FrontEnd(ABC):
         return (again, True, True) if fit_again > fit else (res, True, False)
 
 
+def _transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`~fmcwlog.geometry.transform_points` of one pose: through the compiled
+    ``rotate_translate`` where :func:`fmcwlog.kernels.compiled.core` selects it (one call; its
+    expression in numpy's order, each operation rounded, no FMA: the same bits)."""
+    core = compiled.core()
+    if (core is not None and _is_pose(pose) and type(points) is np.ndarray and points.dtype == np.float64
+            and points.ndim == 2 and points.shape[1] == 2 and points.flags.c_contiguous):
+        x, y, yaw = pose.tolist()
+        if math.isfinite(yaw):
+            return core.rotate_translate(points, math.cos(yaw), math.sin(yaw), x, y)
+    return transform_points(pose, points)
+
+
+def _wrapped(pose: np.ndarray) -> np.ndarray:
+    """A new pose array ``(x, y, wrap_angle(yaw))``: for a float64 pose from its elements as floats
+    (the same values, three numpy indexings fewer)."""
+    if _is_pose(pose):
+        x, y, yaw = pose.tolist()
+        return np.array([x, y, wrap_angle(yaw)])
+    return np.array([pose[0], pose[1], wrap_angle(pose[2])])
+
+
+def _step_length(last: np.ndarray, pose: np.ndarray) -> float:
+    """Distance (m) between two poses' positions: ``np.hypot`` of the differences (as floats when
+    both are float64 poses: the same subtractions and the same ``np.hypot``)."""
+    if _is_pose(last) and _is_pose(pose):
+        (x0, y0, _), (x1, y1, _) = last.tolist(), pose.tolist()
+        return float(np.hypot(x1 - x0, y1 - y0))
+    return float(np.hypot(*(pose[:2] - last[:2])))
+
+
 def registration_covariance(hessian: np.ndarray, residual_sigma: float) -> np.ndarray | None:
     """Covariance (3, 3) of a registered pose: ``σ² H⁻¹`` with ``H = JᵀWJ`` (+ the prior's
     information, already in those units), residuals of standard deviation ``σ`` (m).
-    None when ``H`` is singular (a scan that fixes no direction)."""
+    None when ``H`` is singular (a scan that fixes no direction).
+
+    Where :func:`fmcwlog.kernels.compiled.core` selects the compiled kernels, the inverse is the
+    adjugate's on Python floats (:func:`_inv3_floats`; to rounding, ~1e-16 relative on a
+    well-conditioned ``H``), else :func:`registration_covariance_numpy` (the reference)."""
+    if compiled.core() is None or hessian.shape != (3, 3):
+        return registration_covariance_numpy(hessian, residual_sigma)
+    inv = _inv3_floats(hessian.tolist())
+    if inv is None:
+        return None
+    s2 = residual_sigma**2
+    cov = [s2 * q for q in inv]
+    if not all(map(math.isfinite, cov)):
+        return None
+    return np.array([cov[0:3], cov[3:6], cov[6:9]])
+
+
+def _inv3_floats(m: list[list[float]]) -> list[float] | None:
+    """The inverse of a 3x3 nested list of floats by cofactors, row-major (9,); None where the
+    determinant is 0 or not finite (numpy's ``inv`` raises on an exactly singular matrix)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g  # cofactors of the first row
+    det = a * c00 + b * c01 + c * c02
+    if det == 0.0 or not math.isfinite(det):
+        return None
+    r = 1.0 / det
+    return [c00 * r, (c * h - b * i) * r, (b * f - c * e) * r,
+            c01 * r, (a * i - c * g) * r, (c * d - a * f) * r,
+            c02 * r, (b * g - a * h) * r, (a * e - b * d) * r]
+
+
+def registration_covariance_numpy(hessian: np.ndarray, residual_sigma: float) -> np.ndarray | None:
+    """:func:`registration_covariance` with ``np.linalg.inv``: the reference."""
     try:
         cov = residual_sigma**2 * np.linalg.inv(hessian)
     except np.linalg.LinAlgError:
@@ -347,6 +433,7 @@ class ImprovedFrontEnd(FrontEnd):
         self._raw_fit: EgoMotion | None = None  # this sweep's Doppler fit free of the wheels' gate
         self._registered_last = False
         self.tracker = MoverTracker(params.tracking, params.map_resolution)  # movers followed over this log's sweeps
+        self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only
@@ -375,7 +462,7 @@ class ImprovedFrontEnd(FrontEnd):
         eps = compensated_velocity(sweep.xy, sweep.velocity, ego.v_sensor, bearings)  # thresholded, not v_r (docs/physics.md)
         # the twist only places this sweep's points in the map for tracking: the wheels' (their
         # 0.5 % bias moves a point < 1 mm over a sweep), else the last scan-matched one
-        twist = prior_twist if prior_twist is not None and all(np.isfinite(prior_twist)) else self.scan_twist
+        twist = prior_twist if prior_twist is not None and _finite_pair(prior_twist) else self.scan_twist
         moving = self.segment(sweep, eps, twist)
         return Doppler(ego.v_sensor, ego.covariance, moving)
 
@@ -387,7 +474,7 @@ class ImprovedFrontEnd(FrontEnd):
         assert sweep.velocity is not None
         p = self.params
         expected = None
-        if prior_twist is not None and all(np.isfinite(prior_twist)):
+        if prior_twist is not None and _finite_pair(prior_twist):
             expected = self.design @ np.asarray(prior_twist, dtype=float)
         # returns inside the body mask are the robot itself (or a cover on the window): they move with
         # the sensor, Doppler 0 whatever the motion, so they are no evidence of it
@@ -402,7 +489,7 @@ class ImprovedFrontEnd(FrontEnd):
             ego = ego.unconstrained
         elif decision == WHEELS:
             return None
-        return ego if np.all(np.isfinite(ego.v_sensor)) else None
+        return ego if _finite(ego.v_sensor) else None
 
     def fuse(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
         """Doppler's two equations and the wheels' (or the hold's) ``(v, ω)`` by weighted least squares."""
@@ -411,7 +498,7 @@ class ImprovedFrontEnd(FrontEnd):
             x_w, c_w = np.asarray(wheels.twist, dtype=float), wheel_covariance(wheels.twist, p.wheel_noise)
         else:
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
-        c_d = doppler.covariance + np.eye(2) * p.doppler_sigma_min**2
+        c_d = doppler.covariance + self._doppler_floor
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
@@ -421,15 +508,16 @@ class ImprovedFrontEnd(FrontEnd):
         p = self.params
         if not p.tracking.enabled:
             return segment_moving(sweep.xy, eps, p.segmentation)
-        v, omega = twist if twist is not None and all(np.isfinite(twist)) else (0.0, 0.0)
+        v, omega = twist if twist is not None and _finite_pair(twist) else (0.0, 0.0)
         ts = sweep.stamp_ns * 1e-9
         base, yaw_error = np.zeros(3), 0.0
         if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
             dt = ts - self.last_stamp
             base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
             yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
+        ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
-                                    p.segmentation, yaw_error)
+                                    p.segmentation, yaw_error, ranges)
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
@@ -473,14 +561,14 @@ class ImprovedFrontEnd(FrontEnd):
     def _keep_doppler_sample(self, stamp: float, wheels: PriorMotion) -> None:
         """This sweep's Doppler velocity and wheel turns, for the calibration check."""
         fit = self._raw_fit
-        if fit is not None and wheels.turns is not None and wheels.span > 0 and np.all(np.isfinite(fit.covariance)):
+        if fit is not None and wheels.turns is not None and wheels.span > 0 and _finite(fit.covariance):
             self.samples.add_doppler(stamp, fit.v_sensor, fit.covariance, wheels.turns, wheels.span)
 
     def after_step(self, pose: np.ndarray, stamp: float, registered: bool, prior: PriorMotion) -> None:
         if self.pose is None:
             return
         dt = stamp - self.last_stamp
-        d = between(self.pose, pose)
+        d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
         if registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels:
@@ -524,7 +612,27 @@ def doppler_prior_information(yaw: float, v_var: float, omega_var: float, dt: fl
     ``√v_var·dt`` (m); across it the rear axle does not slide; in yaw ``√ω_var·dt`` (rad);
     each floored by ``prior_sigma_*``. Rotated into ``map`` by the predicted ``yaw`` and
     scaled by ``residual_sigma²`` to weigh against the point residuals.
+
+    Where :func:`fmcwlog.kernels.compiled.core` selects the compiled kernels, on Python floats with
+    the inverse in closed form, ``R diag(1/σ_along², 1/σ_across²) Rᵀ`` (the same to rounding),
+    else :func:`doppler_prior_information_numpy` (the reference).
     """
+    if compiled.core() is None or not (v_var >= 0.0 and omega_var >= 0.0 and math.isfinite(yaw)):
+        return doppler_prior_information_numpy(yaw, v_var, omega_var, dt, p)  # (math's raise where numpy's give NaN)
+    s_along = max(math.sqrt(v_var) * dt, p.prior_sigma_along)
+    s_yaw = max(math.sqrt(omega_var) * dt, p.prior_sigma_yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
+    i_along, i_across = 1.0 / s_along**2, 1.0 / p.prior_sigma_across**2
+    i_xy = c * s * (i_along - i_across)
+    w = p.residual_sigma**2
+    return np.array([[(c * c * i_along + s * s * i_across) * w, i_xy * w, 0.0],
+                     [i_xy * w, (s * s * i_along + c * c * i_across) * w, 0.0],
+                     [0.0, 0.0, w / s_yaw**2]])
+
+
+def doppler_prior_information_numpy(yaw: float, v_var: float, omega_var: float, dt: float,
+                                    p: FrontEndParams) -> np.ndarray:
+    """:func:`doppler_prior_information` in numpy: the reference."""
     s_along = max(np.sqrt(v_var) * dt, p.prior_sigma_along)
     s_yaw = max(np.sqrt(omega_var) * dt, p.prior_sigma_yaw)
     c, s = np.cos(yaw), np.sin(yaw)

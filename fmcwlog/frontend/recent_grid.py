@@ -69,10 +69,14 @@ class RecentOccupancy:
         core = compiled.core()
         if core is None or len(map_xy) == 0:
             return self.seen_free_numpy(map_xy, candidates, threshold)
-        grids = [(grid.log_odds, grid.ix0, grid.iy0) for grid in self.grids]  # each read flushes the grid's queue
+        log_odds, ix0, iy0 = [], [], []
+        for grid in self.grids:
+            log_odds.append(grid.log_odds)  # read first: it flushes the grid's queue
+            ix0.append(grid.ix0)
+            iy0.append(grid.iy0)
         out = np.zeros(len(map_xy), bool)
         core.occupancy_seen_free(
-            [g[0] for g in grids], [g[1] for g in grids], [g[2] for g in grids], np.ascontiguousarray(map_xy, dtype=float),
+            log_odds, ix0, iy0, np.ascontiguousarray(map_xy, dtype=float),
             np.ascontiguousarray(candidates, dtype=bool), float(threshold), self.resolution, out)
         return out
 

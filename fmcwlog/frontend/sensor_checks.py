@@ -30,6 +30,7 @@ previous sweep and two queries, and at most ``max_checks`` per log.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,20 +116,21 @@ class SensorChecks:
         prev, self._prev, self._prev_tree = self._prev, (stamp, xy), None
         if self._t0 is None:
             self._t0 = stamp
-        if wheel_twist is None or not np.all(np.isfinite(ego.v_sensor)):
+        if wheel_twist is None or not _finite(ego.v_sensor):
             return KEEP
         x_w = np.asarray(wheel_twist, dtype=float)
         z_pred = self.design @ x_w
         free = ego.unconstrained
         seen = ego.v_sensor if free is None else free.v_sensor
-        if max(abs(x_w[0]), np.linalg.norm(z_pred), np.linalg.norm(seen)) < self.params.min_speed:
+        n_pred = _norm(z_pred)
+        if max(abs(x_w[0]), n_pred, _norm(seen)) < self.params.min_speed:
             return KEEP
         c = self.counts
         c.moving += 1
-        if free is None or not np.all(np.isfinite(free.v_sensor)):
+        if free is None or not _finite(free.v_sensor):
             return KEEP
         c.disputed += 1
-        opposed = bool(free.v_sensor @ z_pred < -0.5 * np.linalg.norm(free.v_sensor) * np.linalg.norm(z_pred))
+        opposed = bool(free.v_sensor @ z_pred < -0.5 * _norm(free.v_sensor) * n_pred)
         c.opposed += opposed
         if prev is None or c.won_doppler + c.won_wheels + c.undecided >= self.params.max_checks:
             return KEEP if ego.n_inliers >= 0.5 * free.n_inliers else WHEELS
@@ -243,3 +245,13 @@ def _gross(loser: np.ndarray, winner: np.ndarray) -> bool:
     opposite = (va * vb < 0 and min(abs(va), abs(vb)) > 0.1) or (wa * wb < 0 and min(abs(wa), abs(wb)) > 0.1)
     off = abs(va - vb) > 0.5 * max(abs(va), abs(vb), 0.2) or abs(wa - wb) > 0.5 * max(abs(wa), abs(wb), 0.3)
     return bool(opposite or off)
+
+
+def _finite(v: np.ndarray) -> bool:
+    """``np.all(np.isfinite(v))`` of a small array, from its elements as Python numbers."""
+    return all(map(math.isfinite, v.ravel().tolist()))
+
+
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a float64 vector: its operations (``sqrt(v · v)``) without its dispatch."""
+    return math.sqrt(v.dot(v))

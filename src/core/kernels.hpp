@@ -18,5 +18,7 @@ void bind_correlative(nanobind::module_& m);
 void bind_line_icp(nanobind::module_& m);
 void bind_likelihood_grid(nanobind::module_& m);
 void bind_submap(nanobind::module_& m);
+void bind_keyframe_map(nanobind::module_& m);
+void bind_transform(nanobind::module_& m);
 
 }  // namespace fmcwlog

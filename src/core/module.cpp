@@ -29,4 +29,6 @@ NB_MODULE(_core, m) {
     bind_line_icp(m);
     bind_likelihood_grid(m);
     bind_submap(m);
+    bind_keyframe_map(m);
+    bind_transform(m);
 }

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
+from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
 
 
@@ -57,7 +58,8 @@ class LineICPParams(Checked):
 
 @dataclass
 class Submap:
-    """Target points (M, 2), their unit normals (M, 2), which have one (M,), and the KD-tree.
+    """Target points (M, 2), their unit normals (M, 2), which have one (M,), and the KD-tree (built
+    on first use where the compiled core built the normals without it).
 
     ``paired`` (M + 1,): ``has_normal`` with a last ``False`` for the index ``M`` that the tree
     returns where no point lies within the search's bound, so one lookup says which source points
@@ -66,13 +68,20 @@ class Submap:
     points: np.ndarray
     normals: np.ndarray
     has_normal: np.ndarray
-    tree: cKDTree
+    _tree: cKDTree | None = field(default=None, repr=False)
     paired: np.ndarray = field(init=False, repr=False)
     points_normals: np.ndarray = field(init=False, repr=False)
+    grids: dict = field(init=False, repr=False, default_factory=dict)  # the compiled core's grid per gate (m)
 
     def __post_init__(self) -> None:
         self.paired = np.append(self.has_normal, False)
         self.points_normals = np.hstack([self.points, self.normals])  # one gather a pass for both
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
 
 
 def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Submap:
@@ -82,7 +91,15 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
     normals and a KD-tree over them.
 
     The neighbourhoods' means and covariances are summed one neighbour at a time, in the order
-    ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost."""
+    ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost.
+    The compiled core (``src/core/submap.cpp``) does the same sums; its normals agree to rounding,
+    up to their sign (which no residual's square, Jacobian product or information sees)."""
+    module = compiled.core()
+    if module is not None and len(points):
+        points = np.ascontiguousarray(points, float)
+        normals, has_normal = np.empty((len(points), 2)), np.empty(len(points), bool)
+        module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal)
+        return Submap(points, normals, has_normal)
     tree = cKDTree(points)
     k = min(p.normal_neighbours, len(points))
     _, idx = tree.query(points, k=k)
@@ -153,6 +170,9 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
     ``prior``: a pose (3,) and an information (3, 3) in the units of ``JᵀWJ`` (m⁻² and rad⁻² times
     m²) added to every step, e.g. to hold a direction the scene leaves free where an estimate put
     it; the returned ``hessian`` does not include it."""
+    module = compiled.core()
+    if module is not None:
+        return _compiled(module, source_xy, submap, initial, p, prior)
     pose = np.asarray(initial, float).copy()
     c = p.kernel_scale
     nearest = NearestPairs(source_xy, submap.tree, submap.points, p.max_distance)
@@ -180,3 +200,21 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
     r, j, w = _system(pose, submap, nearest, c)
     h = (j * w[:, None]).T @ j if len(r) else np.zeros((3, 3))
     return LineICPResult(pose, h, r, len(r), it, converged)
+
+
+def _compiled(module, source_xy: np.ndarray, submap: Submap, initial: np.ndarray, p: LineICPParams,
+              prior: tuple[np.ndarray, np.ndarray] | None) -> LineICPResult:
+    """:func:`register_point_to_line` in the compiled core (``src/core/line_icp.cpp``): the same
+    pairs, the same iterations; its sums run in point order, so poses agree to rounding."""
+    grid = submap.grids.get(p.max_distance)
+    if grid is None:
+        grid = submap.grids[p.max_distance] = module.TargetGrid(np.ascontiguousarray(submap.points, float),
+                                                                p.max_distance)
+    x, y, th = np.asarray(initial, float).tolist()
+    held = (None, None) if prior is None else (np.asarray(prior[0], float).tolist(),
+                                               np.asarray(prior[1], float).ravel().tolist())
+    pose, h, residuals, pairs, iterations, converged = module.line_icp(
+        grid, np.ascontiguousarray(submap.normals, float), np.ascontiguousarray(submap.has_normal, bool),
+        np.ascontiguousarray(source_xy, float), x, y, th, p.max_iterations, p.kernel_scale, p.tolerance, *held)
+    hessian = np.array(h).reshape(3, 3) if pairs else np.zeros((3, 3))
+    return LineICPResult(np.array(pose), hessian, np.array(residuals), pairs, iterations, converged)

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
+from . import compiled
 
 # the grids carry a frame of zeros coarse_factor^(levels-1) cells wide: 8^3 cells at most
 MAX_LEVELS = 4
@@ -82,6 +83,26 @@ class CorrelativeParams(Checked):
     peak_separation_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
 
 
+def _likelihood(dist: np.ndarray, sigma: float) -> np.ndarray:
+    """``exp(-d²/2σ²)`` (float32) of distances ``dist`` (m)."""
+    return np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32)
+
+
+# beyond this many σ² the likelihood's float32 is 0 (exp(-120) ≈ 8e-53; float32 ends near 1.4e-45)
+_ZERO_BEYOND = 240.0
+
+
+def _likelihood_table(resolution: float, sigma: float, shape: tuple[int, int]) -> np.ndarray:
+    """:func:`_likelihood` of the distance of every squared distance in cells ``d2`` (the index)
+    that a grid of ``shape`` cells holds, ``sqrt(d2) · resolution`` (the distance transform's own
+    arithmetic); past its end the likelihood is 0, as it is at its end."""
+    largest = (shape[0] - 1) ** 2 + (shape[1] - 1) ** 2
+    n = min(int(np.ceil(_ZERO_BEYOND * (sigma / resolution) ** 2)) + 2, largest + 1)
+    table = _likelihood(np.sqrt(np.arange(n, dtype=np.float64)) * resolution, sigma)
+    assert n == largest + 1 or table[-1] == 0.0, "the likelihood table ends before the likelihood is 0"
+    return table
+
+
 class LikelihoodGrid:
     """``exp(-d²/2σ²)`` of the distance from each cell centre to the nearest target point, on a
     lattice of ``resolution`` covering the targets plus ``margin`` (m).
@@ -90,7 +111,9 @@ class LikelihoodGrid:
     lookup offset the search will add: a point off the grid is clipped ``reach`` cells into the
     frame, where every offset still reads 0, so a lookup is one flat ``take`` with no bounds test.
     ``coarse(k)`` is the grid max-filtered over the ``k × k`` cells ``[i, i+k)``: the bound a
-    coarse candidate needs (module docstring)."""
+    coarse candidate needs (module docstring). The compiled core (``src/core/likelihood_grid.cpp``)
+    builds the same float32 grids, bit for bit: an exact integer distance transform whose squared
+    distances index :func:`_likelihood_table`, and the same maximum filter."""
 
     def __init__(self, target_xy: np.ndarray, resolution: float, sigma: float, margin: float, reach: int = 16):
         self.resolution = resolution
@@ -100,24 +123,32 @@ class LikelihoodGrid:
         hi = target_xy.max(axis=0) + margin + frame
         self.origin = np.floor(lo / resolution) * resolution
         shape = (np.ceil((hi - self.origin) / resolution).astype(int) + 1)[::-1]  # rows = y
-        occupied = np.zeros(shape, bool)
         ij = self.cell(target_xy)
-        occupied[ij[:, 1], ij[:, 0]] = True
-        from scipy import ndimage  # here, not at import: 0.3 s that only a recovery search needs
-
         # the frame is zeroed anyway: where every target lies inside it (as the margin makes it),
         # the distance transform of the inside alone gives the inside the same distances (the
         # nearest target is the same cell), at about half the cells
         f = 2 * self.reach + 1
-        inside = (slice(f, int(shape[0]) - f), slice(f, int(shape[1]) - f))
-        if min(shape) > 2 * f and ij.min() >= f and (ij[:, ::-1] < shape - f).all():
+        fits = min(shape) > 2 * f and ij.min() >= f and (ij[:, ::-1] < shape - f).all()
+        module = compiled.core()
+        if fits and module is not None:
+            self.fine = np.zeros(shape, np.float32)
+            table = _likelihood_table(resolution, sigma, (int(shape[0]) - 2 * f, int(shape[1]) - 2 * f))
+            module.likelihood_fill(np.ascontiguousarray(ij, np.int64), self.fine, f, table)
+            self._coarse: dict[int, np.ndarray] = {}
+            return
+        occupied = np.zeros(shape, bool)
+        occupied[ij[:, 1], ij[:, 0]] = True
+        from scipy import ndimage  # here, not at import: 0.3 s that only a recovery search needs
+
+        if fits:
+            inside = (slice(f, int(shape[0]) - f), slice(f, int(shape[1]) - f))
             dist = ndimage.distance_transform_edt(~occupied[inside]) * resolution
             self.fine = np.zeros(shape, np.float32)
-            self.fine[inside] = np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32)
+            self.fine[inside] = _likelihood(dist, sigma)
         else:
             dist = ndimage.distance_transform_edt(~occupied) * resolution
-            self.fine = self._framed(np.exp(-0.5 * (dist / sigma) ** 2).astype(np.float32))
-        self._coarse: dict[int, np.ndarray] = {}
+            self.fine = self._framed(_likelihood(dist, sigma))
+        self._coarse = {}
 
     def _framed(self, grid: np.ndarray) -> np.ndarray:
         f = 2 * self.reach + 1
@@ -137,6 +168,12 @@ class LikelihoodGrid:
         """The grid of the maximum fine likelihood over each ``k`` × ``k`` block of translations (the
         branch and bound's bound), framed as the fine one; computed once per ``k``."""
         if k not in self._coarse:
+            module = compiled.core()
+            if module is not None:
+                grid = np.empty_like(self.fine)
+                module.max_filter_framed(self.fine, grid, k, 2 * self.reach + 1)
+                self._coarse[k] = grid
+                return grid
             from scipy import ndimage
 
             grid = ndimage.maximum_filter(self.fine, size=k, origin=-(k // 2), mode="constant")
@@ -190,6 +227,13 @@ def _rotations(prior_yaw: float, source: np.ndarray, p: CorrelativeParams) -> np
     step = max(p.resolution / reach, 2 * window / (p.max_rotations - 1))
     k = int(np.ceil(window / step))
     return prior_yaw + step * np.arange(-k, k + 1)
+
+
+def _descending(values: np.ndarray) -> np.ndarray:
+    """Indices of ``values`` (1-D), highest first, equal values in the order of their indices: the
+    order every level of the search visits its candidates in (a stable sort, so the same on every
+    machine; the compiled search sorts by the same rule)."""
+    return np.argsort(-values, kind="stable")
 
 
 def _scores(table: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -313,7 +357,7 @@ def _descend(s: _Search, level: int, r: int, offsets: np.ndarray, sc: np.ndarray
     decides as numpy would."""
     if highest <= best:  # the loop below would stop at its first score
         return best, best_at
-    order = np.argsort(sc)[::-1]
+    order = _descending(sc)
     finest = level == len(s.steps) - 1
     separate = s.separate(r, offsets) if finest and exclude is not None else None
     for i, score in zip(order.tolist(), sc[order].tolist()):
@@ -334,7 +378,7 @@ PREFETCH = 32  # top candidates whose children are scored in one gather (some ma
 
 def _search_from_top(s: _Search, upper: np.ndarray, order: np.ndarray, top: np.ndarray, floor: float,
                      exclude: np.ndarray | None) -> tuple[float, tuple | None]:
-    """``order``: ``upper``'s flat indices, highest first (``argsort`` of the flattened array, reversed)."""
+    """``order``: ``upper``'s flat indices, highest first (:func:`_descending` of the flattened array)."""
     best, best_at = floor, None
     n_top = upper.shape[1]
     flats, bounds = order.tolist(), upper.ravel()[order].tolist()
@@ -374,11 +418,14 @@ def correlative_match(grid: LikelihoodGrid, source_xy: np.ndarray, prior: np.nda
     n_fine = int(np.ceil(p.linear_window / res))
     steps = [k**e for e in range(max(p.levels, 1) - 1, -1, -1)]
     s = _Search(grid, grid.flat_cells(placed), thetas, prior, n_fine, steps, p)
+    module = compiled.core()
+    if module is not None and len(src) <= MAX_COMPILED_POINTS:
+        return _compiled_match(module, s, with_second)
     n_top = int(np.ceil((2 * n_fine + 1) / steps[0]))
     top = np.array([(i, j) for j in range(n_top) for i in range(n_top)]) * steps[0] - n_fine
     upper = _scores(s.table(0), s.cells, grid.flat_offsets(top))  # (R, T): bounds (scores if one level)
     s.evaluated += upper.size
-    order = np.argsort(upper, axis=None)[::-1]  # the bounds, highest first: shared by both searches
+    order = _descending(upper.ravel())  # the bounds, highest first: shared by both searches
     best, best_at = _search_from_top(s, upper, order, top, -1.0, None)
     assert best_at is not None
     pose = s.pose(*best_at)
@@ -393,3 +440,29 @@ def _separate(a: np.ndarray, b: np.ndarray, p: CorrelativeParams) -> np.ndarray:
     """Whether poses (..., 3) lie on another peak than pose ``b`` (3,)."""
     dyaw = np.abs((a[..., 2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
     return (np.hypot(a[..., 0] - b[0], a[..., 1] - b[1]) > p.peak_separation) | (dyaw > np.radians(p.peak_separation_deg))
+
+
+# numpy sums a set of one offset pairwise in blocks of its buffer (8,192 values): the compiled twin
+# sums it pairwise whole, the same numbers up to that many points
+MAX_COMPILED_POINTS = 8192
+
+
+def _compiled_match(module, s: _Search, with_second: bool) -> CorrelativeResult:
+    """:func:`correlative_match`'s searches in the compiled core (``src/core/correlative.cpp``): the
+    same poses, scores and count as the numpy walk. The yaw samples' cells, the grids and the
+    second-peak masks (:meth:`_Search.exclude`) come from here."""
+    tables = [np.ascontiguousarray(s.table(level), np.float32).ravel() for level in range(len(s.steps))]
+
+    def exclude(r: int, x: int, y: int) -> tuple[np.ndarray, np.ndarray]:
+        s.exclude(s.pose(r, np.array([x, y])))
+        return np.ascontiguousarray(s._far).ravel(), np.array(s._turned, bool)
+
+    cells = np.ascontiguousarray(s.cells, np.int64)
+    best, second, evaluated = module.correlative_search(tables, cells, list(s.steps), s.n_fine, s.grid.shape[1],
+                                                        exclude if with_second else None)
+    pose = s.pose(best[1], np.array(best[2:]))
+    if not with_second:
+        return CorrelativeResult(pose, best[0], 0.0, None, evaluated)
+    found = second[1] >= 0
+    return CorrelativeResult(pose, best[0], second[0], s.pose(second[1], np.array(second[2:])) if found else None,
+                             evaluated)

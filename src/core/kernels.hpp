@@ -14,5 +14,9 @@ void bind_segmentation(nanobind::module_& m);
 void bind_tracking(nanobind::module_& m);
 void bind_occupancy(nanobind::module_& m);
 void bind_robust_icp(nanobind::module_& m);
+void bind_correlative(nanobind::module_& m);
+void bind_line_icp(nanobind::module_& m);
+void bind_likelihood_grid(nanobind::module_& m);
+void bind_submap(nanobind::module_& m);
 
 }  // namespace fmcwlog

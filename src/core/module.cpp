@@ -25,4 +25,8 @@ NB_MODULE(_core, m) {
     bind_tracking(m);
     bind_occupancy(m);
     bind_robust_icp(m);
+    bind_correlative(m);
+    bind_line_icp(m);
+    bind_likelihood_grid(m);
+    bind_submap(m);
 }

@@ -1,0 +1,157 @@
+// The back end's point-to-line ICP (fmcwlog/backend/registration.py: register_point_to_line and
+// _system): Gauss-Newton with Cauchy weights, each source point paired with its nearest submap
+// point within the gate (the TargetGrid's answer, the KD-tree's pair), where that point has a normal.
+// The sums of J^T W J and J^T W r run in point order (numpy's BLAS may order them otherwise: the
+// poses agree to rounding, ~1e-12).
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
+
+#include <array>
+#include <optional>
+
+#include "common.hpp"
+#include "kernels.hpp"
+
+namespace fmcwlog {
+namespace {
+
+using Flags = nb::ndarray<const bool, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Vec3 = std::array<double, 3>;
+using Mat3 = std::array<double, 9>;
+
+struct System {
+    std::vector<double> r, j0, j1, j2, w;
+    void clear() {
+        r.clear();
+        j0.clear();
+        j1.clear();
+        j2.clear();
+        w.clear();
+    }
+};
+
+// _system: the residuals, Jacobian rows and Cauchy weights of the pairs at ``pose``.
+void build_system(const TargetGrid& grid, const double* s, size_t n, const double* normals, const bool* has_normal,
+                  const Vec3& pose, double c, System& out) {
+    out.clear();
+    const double cs = std::cos(pose[2]), sn = std::sin(pose[2]);
+    for (size_t i = 0; i < n; ++i) {
+        const double x = s[2 * i], y = s[2 * i + 1];
+        // NearestPairs._moved: c x + (-s) y + t_x, c y + s x + t_y
+        const double mx = (x * cs + y * (-sn)) + pose[0];
+        const double my = (y * cs + x * sn) + pose[1];
+        double d;
+        const int64_t k = grid.nearest(mx, my, d);
+        if (k < 0 || !has_normal[k]) continue;
+        const double nx = normals[2 * k], ny = normals[2 * k + 1];
+        const double dx = mx - grid.x(k), dy = my - grid.y(k);
+        const double r = nx * dx + ny * dy;
+        const double rpx = mx - pose[0], rpy = my - pose[1];
+        out.r.push_back(r);
+        out.j0.push_back(nx);
+        out.j1.push_back(ny);
+        out.j2.push_back(nx * -rpy + ny * rpx);
+        const double q = r / c;
+        out.w.push_back(1.0 / (1.0 + q * q));
+    }
+}
+
+// J^T W J (row major) and J^T W r.
+void normal_equations(const System& sys, Mat3& h, Vec3& g) {
+    h.fill(0.0);
+    g.fill(0.0);
+    for (size_t k = 0; k < sys.r.size(); ++k) {
+        const double j[3] = {sys.j0[k], sys.j1[k], sys.j2[k]};
+        for (int a = 0; a < 3; ++a) {
+            const double jw = j[a] * sys.w[k];
+            for (int b = 0; b < 3; ++b) h[size_t(3 * a + b)] += jw * j[b];
+            g[size_t(a)] += jw * sys.r[k];
+        }
+    }
+}
+
+// LAPACK's dgesv on 3 x 3: LU with partial pivoting (the first largest |pivot|); false where a pivot is 0.
+bool solve3(Mat3 a, Vec3 b, Vec3& x) {
+    for (int col = 0; col < 3; ++col) {
+        int piv = col;
+        for (int row = col + 1; row < 3; ++row)
+            if (std::abs(a[size_t(3 * row + col)]) > std::abs(a[size_t(3 * piv + col)])) piv = row;
+        if (a[size_t(3 * piv + col)] == 0.0) return false;
+        if (piv != col) {
+            for (int k = 0; k < 3; ++k) std::swap(a[size_t(3 * col + k)], a[size_t(3 * piv + k)]);
+            std::swap(b[size_t(col)], b[size_t(piv)]);
+        }
+        for (int row = col + 1; row < 3; ++row) {
+            const double f = a[size_t(3 * row + col)] / a[size_t(3 * col + col)];
+            for (int k = col; k < 3; ++k) a[size_t(3 * row + k)] -= f * a[size_t(3 * col + k)];
+            b[size_t(row)] -= f * b[size_t(col)];
+        }
+    }
+    for (int row = 2; row >= 0; --row) {
+        double v = b[size_t(row)];
+        for (int k = row + 1; k < 3; ++k) v -= a[size_t(3 * row + k)] * x[size_t(k)];
+        x[size_t(row)] = v / a[size_t(3 * row + row)];
+    }
+    return true;
+}
+
+using Result = std::tuple<Vec3, Mat3, std::vector<double>, int64_t, int, bool>;
+
+// register_point_to_line, whole: (pose, hessian at it (row major), residuals, pairs, iterations, converged).
+Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points source, double x, double y,
+                double theta, int max_iterations, double kernel_scale, double tolerance, std::optional<Vec3> prior_pose,
+                std::optional<Mat3> prior_info) {
+    if (normals.shape(0) != has_normal.shape(0)) throw nb::value_error("one normal flag per normal");
+    const double* s = source.data();
+    const size_t n = source.shape(0);
+    Vec3 pose{x, y, theta};
+    bool converged = false;
+    int it = 0;
+    System sys;
+    Mat3 h;
+    Vec3 g;
+    {
+        nb::gil_scoped_release release;
+        for (it = 1; it <= max_iterations; ++it) {
+            build_system(grid, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
+            if (sys.r.size() < 3) break;
+            normal_equations(sys, h, g);
+            if (prior_pose && prior_info) {
+                Vec3 dp{pose[0] - (*prior_pose)[0], pose[1] - (*prior_pose)[1], pose[2] - (*prior_pose)[2]};
+                dp[2] = wrap_angle(dp[2]);
+                for (int a = 0; a < 3; ++a) {
+                    double add = 0.0;
+                    for (int b = 0; b < 3; ++b) add += (*prior_info)[size_t(3 * a + b)] * dp[size_t(b)];
+                    g[size_t(a)] += add;
+                }
+                for (size_t k = 0; k < 9; ++k) h[k] += (*prior_info)[k];
+            }
+            Mat3 damped = h;
+            for (int a = 0; a < 3; ++a) damped[size_t(4 * a)] += 1e-9;  // registration._DAMPING
+            Vec3 step;
+            if (!solve3(damped, g, step)) break;
+            const Vec3 delta{-step[0], -step[1], -step[2]};
+            pose = {pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])};
+            if (std::hypot(delta[0], delta[1]) < tolerance && std::abs(delta[2]) < tolerance) {
+                converged = true;
+                break;
+            }
+        }
+        if (it > max_iterations) it = max_iterations;
+        build_system(grid, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
+        normal_equations(sys, h, g);
+    }
+    return {pose, h, sys.r, int64_t(sys.r.size()), it, converged};
+}
+
+}  // namespace
+
+void bind_line_icp(nb::module_& m) {
+    m.def("line_icp", &line_icp, nb::arg("grid"), nb::arg("normals"), nb::arg("has_normal"), nb::arg("source"),
+          nb::arg("x"), nb::arg("y"), nb::arg("theta"), nb::arg("max_iterations"), nb::arg("kernel_scale"),
+          nb::arg("tolerance"), nb::arg("prior_pose").none(), nb::arg("prior_info").none());
+}
+
+}  // namespace fmcwlog

@@ -1,8 +1,9 @@
 """Benchmark: the compiled ``TargetGrid``'s nearest-point query, alone and inside the registrations
 that use it, replayed from a log, for one build of ``fmcwlog._core`` or two compared.
 
-1. ``capture LOG... -o CASES``: every registration the improved method (robust ICP) and the baseline
-   (point-to-point ICP) make processing the logs (numpy kernels), written to one pickle.
+1. ``capture LOG... -o CASES``: every registration the improved method (robust ICP), the baseline
+   (point-to-point ICP) and the back end (point-to-line ICP: local edges, closures) make processing
+   the logs (numpy kernels), written to one pickle.
 2. ``replay CASES --core SO``: in this process, with the module at ``SO``: per registration the
    grid's build (once per distinct map), the registration through its Python entry point and the
    query alone (``nearest`` of the source under the start and the final pose), each the best of
@@ -36,6 +37,7 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np
 
 from fmcwlog.api import ProcessOptions, process
+from fmcwlog.backend import local_edges, registration, verification
 from fmcwlog.frontend import methods, robust_icp
 from fmcwlog.frontend import point_to_point_icp as p2p
 from fmcwlog.kernels import compiled
@@ -58,15 +60,28 @@ def capture(logs: list[str]) -> list[dict]:
         seen.append(dict(kind="p2p", log=log_name, args=(source.copy(), target.copy(), np.array(start, float), params)))
         return p2p.register_point_to_point_numpy(source, tree, target, start, params)
 
+    def line_rec(source, submap, initial, p=registration.LineICPParams(), prior=None):
+        seen.append(dict(kind="line", log=log_name, args=(source.copy(), submap, np.array(initial, float), p, prior)))
+        return registration.register_point_to_line(source, submap, initial, p, prior)
+
     methods.register, methods.register_point_to_point = robust_rec, baseline_rec
+    local_edges.register_point_to_line = verification.register_point_to_line = line_rec
     try:
         for log in logs:
             log_name = Path(log).stem
             with tempfile.TemporaryDirectory() as tmp:
-                process(log, tmp + "/out", ProcessOptions(methods=("improved", "baseline"), backend="none"), jobs=1)
+                process(log, tmp + "/out", ProcessOptions(methods=("improved", "baseline")), jobs=1)
     finally:
         methods.register, methods.register_point_to_point = robust, baseline
+        local_edges.register_point_to_line = verification.register_point_to_line = registration.register_point_to_line
     return seen
+
+
+def _map_and_gate(case: dict) -> tuple[np.ndarray, float]:
+    """The case's target points (M, 2) and search radius (m)."""
+    if case["kind"] == "line":
+        return case["args"][1].points, case["args"][3].max_distance
+    return case["args"][1], case["args"][3].max_correspondence_distance
 
 
 def _best(fn, repeat: int) -> float:
@@ -78,9 +93,12 @@ def _best(fn, repeat: int) -> float:
     return best / 1e3
 
 
-def _registration(case: dict, index: compiled.MapIndex):
-    """The case's registration as a call of no arguments, on ``index``."""
+def _registration(case: dict, index: compiled.MapIndex, grid: object):
+    """The case's registration as a call of no arguments, on ``index`` (point-to-line: ``grid``)."""
     source, target, start, params = case["args"][:4]
+    if case["kind"] == "line":
+        target.grids = {params.max_distance: grid}
+        return partial(registration.register_point_to_line, source, target, start, params, case["args"][4])
     if case["kind"] == "robust":
         return partial(robust_icp.register, source, index, target, start, params, *case["args"][4:])
     return partial(p2p.register_point_to_point, source, index, target, start, params)
@@ -88,17 +106,18 @@ def _registration(case: dict, index: compiled.MapIndex):
 
 def _replay_one(module: ModuleType, case: dict, new_map: bool, repeat: int, out: dict[str, list]) -> None:
     """One case's times (build where ``new_map``, registration, queries) and result into ``out``."""
-    source, target, start, params = case["args"][:4]
-    gate = params.max_correspondence_distance
+    source, start = case["args"][0], case["args"][2]
+    target, gate = _map_and_gate(case)
     points = np.ascontiguousarray(target, dtype=float)
     out["build"].append(_best(partial(module.TargetGrid, points, gate), repeat) if new_map else 0.0)
     out["new_map"].append(new_map)
     index = compiled.MapIndex(target)
     grid = index.grid(module, gate)
-    run = _registration(case, index)
+    run = _registration(case, index, grid)
     out["register"].append(_best(run, repeat))
     result = run()
-    out["pose"].append(np.asarray(result.pose).tolist() + [result.iterations, result.n_correspondences_kept])
+    kept = result.pairs if case["kind"] == "line" else result.n_correspondences_kept
+    out["pose"].append(np.asarray(result.pose).tolist() + [result.iterations, kept])
     src = np.ascontiguousarray(source, dtype=float)
     n = len(src)
     moved, idx, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
@@ -115,7 +134,7 @@ def replay(cases: list[dict], so: str, repeat: int) -> dict:
     out: dict[str, list] = {k: [] for k in ("build", "register", "query_start", "query_final", "n", "pose", "new_map")}
     last_target: dict[tuple, np.ndarray] = {}  # per log and kind: the map of its last registration
     for case in cases:
-        target = case["args"][1]
+        target = _map_and_gate(case)[0]
         before = last_target.get((case["log"], case["kind"]))
         new_map = before is None or before.shape != target.shape or not np.array_equal(before, target)
         last_target[(case["log"], case["kind"])] = target

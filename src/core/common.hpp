@@ -48,14 +48,25 @@ class TargetGrid {
     TargetGrid(const double* xy, size_t m, double radius) : radius_(radius) {
         if (m >= size_t(std::numeric_limits<int32_t>::max())) throw std::length_error("TargetGrid: too many points");
         xy_.assign(xy, xy + 2 * m);
-        double x0 = kInf, y0 = kInf, x1 = -kInf, y1 = -kInf;
-        for (size_t i = 0; i < m; ++i) {
+        double x0 = kInf, y0 = kInf, x1 = -kInf, y1 = -kInf;  // the finite points' box
+        for (size_t i = 0; i < m; ++i) {  // NaN left out
             x0 = std::min(x0, xy[2 * i]);
             y0 = std::min(y0, xy[2 * i + 1]);
             x1 = std::max(x1, xy[2 * i]);
             y1 = std::max(y1, xy[2 * i + 1]);
         }
-        if (m == 0) x0 = y0 = x1 = y1 = 0.0;
+        if (!std::isfinite(x0) || !std::isfinite(y0) || !std::isfinite(x1) || !std::isfinite(y1)) {
+            x0 = y0 = kInf;  // an infinite coordinate: again without such points (never an answer)
+            x1 = y1 = -kInf;
+            for (size_t i = 0; i < m; ++i) {
+                if (!std::isfinite(xy[2 * i]) || !std::isfinite(xy[2 * i + 1])) continue;
+                x0 = std::min(x0, xy[2 * i]);
+                y0 = std::min(y0, xy[2 * i + 1]);
+                x1 = std::max(x1, xy[2 * i]);
+                y1 = std::max(y1, xy[2 * i + 1]);
+            }
+            if (!(x0 <= x1)) x0 = y0 = x1 = y1 = 0.0;  // no finite point (or none at all)
+        }
         cell_ = radius / 2.0;
         while ((std::floor((x1 - x0) / cell_) + 1.0) * (std::floor((y1 - y0) / cell_) + 1.0) > double(kMaxCells))
             cell_ *= 2.0;  // a wide map: fewer, wider cells (the rings still cover the radius)
@@ -73,8 +84,12 @@ class TargetGrid {
         start_.assign(cells + 1, 0);
         std::vector<int32_t> where(m);
         for (size_t i = 0; i < m; ++i) {
-            const int64_t cx = std::clamp(int64_t(std::floor((xy[2 * i] - x0_) * inv_cell_)), int64_t(0), nx_ - 1);
-            const int64_t cy = std::clamp(int64_t(std::floor((xy[2 * i + 1] - y0_) * inv_cell_)), int64_t(0), ny_ - 1);
+            const double px = xy[2 * i], py = xy[2 * i + 1];
+            int64_t cx = 0, cy = 0;  // a point not finite: any cell (it is never an answer)
+            if (std::isfinite(px) && std::isfinite(py)) {
+                cx = std::clamp(int64_t(std::floor((px - x0_) * inv_cell_)), int64_t(0), nx_ - 1);
+                cy = std::clamp(int64_t(std::floor((py - y0_) * inv_cell_)), int64_t(0), ny_ - 1);
+            }
             where[i] = int32_t(cy * nx_ + cx);
             ++start_[size_t(where[i])];
         }

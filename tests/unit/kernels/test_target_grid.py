@@ -43,8 +43,9 @@ def brute_nearest(points: np.ndarray, queries: np.ndarray, radius: float) -> tup
         if not (np.isfinite(qx) and np.isfinite(qy)) or len(points) == 0:
             continue
         dx, dy = points[:, 0] - qx, points[:, 1] - qy
-        with np.errstate(over="ignore"):
+        with np.errstate(over="ignore", invalid="ignore"):
             d2 = dx * dx + dy * dy
+        d2[np.isnan(d2)] = np.inf  # a point not finite is never the nearest
         j = int(np.argmin(d2))  # the first of the least
         d = np.sqrt(d2[j])
         if d < radius:
@@ -60,7 +61,7 @@ def assert_exact(points: np.ndarray, queries: np.ndarray, radius: float) -> None
     ref_index, ref_dist = brute_nearest(points, queries, radius)
     np.testing.assert_array_equal(index, ref_index)
     assert dist.tobytes() == ref_dist.tobytes()
-    if len(points) == 0:
+    if len(points) == 0 or not np.isfinite(points).all():  # cKDTree takes finite points only
         return
     finite = np.isfinite(queries).all(axis=1)
     kd_dist, kd_index = cKDTree(points).query(queries[finite], distance_upper_bound=radius)
@@ -147,6 +148,20 @@ def test_queries_not_finite_and_far():
     np.testing.assert_array_equal(index, [-1, -1, -1, -1, -1, -1, 0])
     assert (dist[:6] == np.inf).all()
     assert_exact(points, queries[4:], 0.5)
+
+
+@needs_core
+def test_points_not_finite():
+    """Points with a NaN or infinite coordinate are never an answer, and leave the others' cells alone."""
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-3.0, 3.0, (200, 2))
+    points[::7, 0] = np.nan
+    points[3::11, 1] = np.inf
+    points[5::13] = -np.inf
+    queries = _queries(rng, points[np.isfinite(points).all(axis=1)], 300, 0.5)
+    assert_exact(points, queries, 0.5)
+    index, _ = grid_nearest(np.full((4, 2), np.nan), queries[:20], 0.5)
+    assert (index == -1).all()
 
 
 @needs_core

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
 #include <vector>
 
 namespace nb = nanobind;
@@ -35,107 +36,158 @@ inline double wrap_angle(double a) {
     return r - kPi;
 }
 
-// The target points bucketed by a uniform grid of cells half the search radius wide.
-// A query scans its own cell, then rings of cells about it, each cell only where the cell's box
-// may hold a point nearer than the best so far, until no farther ring can; the first best is
-// the radius itself. Within a cell the points keep their order (ties go to the lowest index).
+// The target points bucketed by a uniform grid of cells half the search radius wide, each cell's
+// points stored together (interleaved x, y) in index order. A query scans its own cell, then rings
+// of cells about it: each side of a ring, and each cell, only where its box may hold a point as
+// near as the best so far, until no farther ring can; the first best is the radius itself. The
+// answer is that of cKDTree.query(q, distance_upper_bound=radius) on the points, with ties (equal
+// squared distances) to the lowest index: the boxes are widened by more than any rounding, so
+// every point as near as the answer is scanned, whatever cell rounding gave it or the query.
 class TargetGrid {
   public:
     TargetGrid(const double* xy, size_t m, double radius) : radius_(radius) {
-        x_.resize(m);
-        y_.resize(m);
-        double x0 = kInf, y0 = kInf, x1 = -kInf, y1 = -kInf;
-        for (size_t i = 0; i < m; ++i) {
-            x_[i] = xy[2 * i];
-            y_[i] = xy[2 * i + 1];
-            x0 = std::min(x0, x_[i]);
-            y0 = std::min(y0, y_[i]);
-            x1 = std::max(x1, x_[i]);
-            y1 = std::max(y1, y_[i]);
+        if (m >= size_t(std::numeric_limits<int32_t>::max())) throw std::length_error("TargetGrid: too many points");
+        xy_.assign(xy, xy + 2 * m);
+        double x0 = kInf, y0 = kInf, x1 = -kInf, y1 = -kInf;  // the finite points' box
+        for (size_t i = 0; i < m; ++i) {  // NaN left out
+            x0 = std::min(x0, xy[2 * i]);
+            y0 = std::min(y0, xy[2 * i + 1]);
+            x1 = std::max(x1, xy[2 * i]);
+            y1 = std::max(y1, xy[2 * i + 1]);
         }
-        if (m == 0) x0 = y0 = x1 = y1 = 0.0;
+        if (!std::isfinite(x0) || !std::isfinite(y0) || !std::isfinite(x1) || !std::isfinite(y1)) {
+            x0 = y0 = kInf;  // an infinite coordinate: again without such points (never an answer)
+            x1 = y1 = -kInf;
+            for (size_t i = 0; i < m; ++i) {
+                if (!std::isfinite(xy[2 * i]) || !std::isfinite(xy[2 * i + 1])) continue;
+                x0 = std::min(x0, xy[2 * i]);
+                y0 = std::min(y0, xy[2 * i + 1]);
+                x1 = std::max(x1, xy[2 * i]);
+                y1 = std::max(y1, xy[2 * i + 1]);
+            }
+            if (!(x0 <= x1)) x0 = y0 = x1 = y1 = 0.0;  // no finite point (or none at all)
+        }
         cell_ = radius / 2.0;
         while ((std::floor((x1 - x0) / cell_) + 1.0) * (std::floor((y1 - y0) / cell_) + 1.0) > double(kMaxCells))
             cell_ *= 2.0;  // a wide map: fewer, wider cells (the rings still cover the radius)
         rings_ = int64_t(std::ceil(radius / cell_)) + 1;
-        margin_ = 1e-9 * cell_;  // a cell's box, widened by more than the rounding of a point's cell
+        inv_cell_ = 1.0 / cell_;
+        // a cell's box, widened by more than the rounding of a point's cell and of the box's edges
+        const double scale = std::max({std::fabs(x0), std::fabs(y0), std::fabs(x1), std::fabs(y1)});
+        margin_ = 1e-9 * cell_ + 1e-14 * scale;
         x0_ = x0;
         y0_ = y0;
         nx_ = int64_t(std::floor((x1 - x0) / cell_)) + 1;
         ny_ = int64_t(std::floor((y1 - y0) / cell_)) + 1;
-        start_.assign(size_t(nx_ * ny_ + 1), 0);
-        std::vector<int64_t> where(m);
+        // a counting sort by cell, stable: each cell's points in index order
+        const size_t cells = size_t(nx_ * ny_);
+        start_.assign(cells + 1, 0);
+        std::vector<int32_t> where(m);
         for (size_t i = 0; i < m; ++i) {
-            int64_t cx = std::clamp(int64_t(std::floor((x_[i] - x0_) / cell_)), int64_t(0), nx_ - 1);
-            int64_t cy = std::clamp(int64_t(std::floor((y_[i] - y0_) / cell_)), int64_t(0), ny_ - 1);
-            where[i] = cy * nx_ + cx;
-            ++start_[size_t(where[i] + 1)];
+            const double px = xy[2 * i], py = xy[2 * i + 1];
+            int64_t cx = 0, cy = 0;  // a point not finite: any cell (it is never an answer)
+            if (std::isfinite(px) && std::isfinite(py)) {
+                cx = std::clamp(int64_t(std::floor((px - x0_) * inv_cell_)), int64_t(0), nx_ - 1);
+                cy = std::clamp(int64_t(std::floor((py - y0_) * inv_cell_)), int64_t(0), ny_ - 1);
+            }
+            where[i] = int32_t(cy * nx_ + cx);
+            ++start_[size_t(where[i])];
         }
-        for (size_t c = 1; c < start_.size(); ++c) start_[c] += start_[c - 1];
+        for (size_t c = 1; c < cells; ++c) start_[c] += start_[c - 1];  // each cell's end
+        start_[cells] = int32_t(m);
         order_.resize(m);
-        std::vector<int64_t> fill(start_.begin(), start_.end() - 1);
-        for (size_t i = 0; i < m; ++i) order_[size_t(fill[size_t(where[i])]++)] = int64_t(i);
-        ox_.resize(m);
-        oy_.resize(m);
-        for (size_t k = 0; k < m; ++k) {
-            ox_[k] = x_[size_t(order_[k])];
-            oy_[k] = y_[size_t(order_[k])];
+        oxy_.resize(2 * m);
+        for (size_t i = m; i-- > 0;) {  // from the last point back: each cell's start at the end
+            const size_t k = size_t(--start_[size_t(where[i])]);
+            order_[k] = int32_t(i);
+            oxy_[2 * k] = xy[2 * i];
+            oxy_[2 * k + 1] = xy[2 * i + 1];
         }
     }
 
     double radius() const { return radius_; }
-    double x(int64_t i) const { return x_[size_t(i)]; }
-    double y(int64_t i) const { return y_[size_t(i)]; }
+    double x(int64_t i) const { return xy_[2 * size_t(i)]; }
+    double y(int64_t i) const { return xy_[2 * size_t(i) + 1]; }
 
     // The nearest target point to (qx, qy) closer than the radius: its index and distance, or -1 and inf.
     int64_t nearest(double qx, double qy, double& dist) const {
         dist = kInf;
         if (!std::isfinite(qx) || !std::isfinite(qy)) return -1;
-        const double fx = std::floor((qx - x0_) / cell_), fy = std::floor((qy - y0_) / cell_);
+        const double fx = std::floor((qx - x0_) * inv_cell_), fy = std::floor((qy - y0_) * inv_cell_);  // any cell near q
         const double reach = double(rings_) + 1.0;
         if (fx < -reach || fy < -reach || fx > double(nx_) + reach || fy > double(ny_) + reach) return -1;
         const int64_t cx = int64_t(fx), cy = int64_t(fy);
-        double best = radius_ * radius_ * (1.0 + 1e-9);  // a bound: the root decides below
-        int64_t found = -1;
-        for (int64_t r = 0; r <= rings_; ++r) {
-            const double gap = double(r - 1) * cell_ - margin_;  // every cell of ring r is at least this far
-            if (r > 1 && gap * gap > best) break;
-            for (int64_t y = cy - r; y <= cy + r; ++y) {
-                if (y < 0 || y >= ny_) continue;
-                const bool edge = (y == cy - r || y == cy + r);
-                for (int64_t x = cx - r; x <= cx + r; x += (edge || r == 0) ? 1 : 2 * r) {
-                    if (x < 0 || x >= nx_) continue;
-                    const double lx = x0_ + double(x) * cell_ - margin_, hx = x0_ + double(x + 1) * cell_ + margin_;
-                    const double ly = y0_ + double(y) * cell_ - margin_, hy = y0_ + double(y + 1) * cell_ + margin_;
-                    const double bx = std::max({0.0, lx - qx, qx - hx}), by = std::max({0.0, ly - qy, qy - hy});
-                    if (bx * bx + by * by > best) continue;
-                    const int64_t c = y * nx_ + x;
-                    for (int64_t k = start_[size_t(c)]; k < start_[size_t(c + 1)]; ++k) {
-                        const double dx = ox_[size_t(k)] - qx;
-                        const double dy = oy_[size_t(k)] - qy;
-                        const double d2 = dx * dx + dy * dy;
-                        if (d2 < best || (d2 == best && order_[size_t(k)] < found)) {
-                            best = d2;
-                            found = order_[size_t(k)];
-                        }
-                    }
-                }
-            }
+        Best b{radius_ * radius_ * (1.0 + 1e-9), -1};  // a bound: the root decides below
+        if (cx >= 0 && cx < nx_ && cy >= 0 && cy < ny_) scan(cy * nx_ + cx, qx, qy, b);
+        for (int64_t r = 1; r <= rings_; ++r) {
+            const int64_t xl = cx - r, xh = cx + r, yl = cy - r, yh = cy + r;
+            if (xl < 0 && xh >= nx_ && yl < 0 && yh >= ny_) break;
+            const double bl = sq(gap_x(xl, qx)), bh = sq(gap_x(xh, qx));
+            const double cl = sq(gap_y(yl, qy)), ch = sq(gap_y(yh, qy));
+            if (std::min(std::min(bl, bh), std::min(cl, ch)) > b.d2) break;  // this ring and all beyond
+            const int64_t xa = std::max(xl, int64_t(0)), xb = std::min(xh, nx_ - 1);
+            const int64_t ya = std::max(yl + 1, int64_t(0)), yb = std::min(yh - 1, ny_ - 1);
+            if (yl >= 0 && yl < ny_ && cl <= b.d2) row(yl, cl, xa, xb, cx, qx, qy, b);
+            if (yh >= 0 && yh < ny_ && ch <= b.d2) row(yh, ch, xa, xb, cx, qx, qy, b);
+            if (xl >= 0 && xl < nx_ && bl <= b.d2) column(xl, bl, ya, yb, cy, qx, qy, b);
+            if (xh >= 0 && xh < nx_ && bh <= b.d2) column(xh, bh, ya, yb, cy, qx, qy, b);
         }
-        if (found < 0) return -1;
-        dist = std::sqrt(best);
+        if (b.index < 0) return -1;
+        dist = std::sqrt(b.d2);
         if (!(dist < radius_)) {
             dist = kInf;
             return -1;
         }
-        return found;
+        return b.index;
     }
 
   private:
-    double radius_, cell_ = 1.0, margin_ = 0.0, x0_ = 0.0, y0_ = 0.0;
+    struct Best {
+        double d2;
+        int64_t index;
+    };
+    static double sq(double v) { return v * v; }
+    // How far (qx) is left of column x's box, or right of it; 0 for its own column (m).
+    double gap_x(int64_t x, double qx) const {
+        const double lx = x0_ + double(x) * cell_ - margin_, hx = x0_ + double(x + 1) * cell_ + margin_;
+        return std::max({0.0, lx - qx, qx - hx});
+    }
+    double gap_y(int64_t y, double qy) const {
+        const double ly = y0_ + double(y) * cell_ - margin_, hy = y0_ + double(y + 1) * cell_ + margin_;
+        return std::max({0.0, ly - qy, qy - hy});
+    }
+    // Cells (xa..xb, y) of a ring's row whose squared gap by2 in y is known.
+    void row(int64_t y, double by2, int64_t xa, int64_t xb, int64_t cx, double qx, double qy, Best& b) const {
+        for (int64_t x = xa; x <= xb; ++x)
+            if (x == cx || by2 + sq(gap_x(x, qx)) <= b.d2) scan(y * nx_ + x, qx, qy, b);
+    }
+    void column(int64_t x, double bx2, int64_t ya, int64_t yb, int64_t cy, double qx, double qy, Best& b) const {
+        for (int64_t y = ya; y <= yb; ++y)
+            if (y == cy || bx2 + sq(gap_y(y, qy)) <= b.d2) scan(y * nx_ + x, qx, qy, b);
+    }
+    // The points of cell c against the best so far: nearer, or as near with a lower index. A cell
+    // keeps its points in index order, so its first nearest is its lowest index at that distance.
+    void scan(int64_t c, double qx, double qy, Best& b) const {
+        const int64_t k0 = start_[size_t(c)], k1 = start_[size_t(c + 1)];
+        double m = kInf;
+        int64_t km = -1;
+        for (int64_t k = k0; k < k1; ++k) {
+            const double dx = oxy_[2 * size_t(k)] - qx;
+            const double dy = oxy_[2 * size_t(k) + 1] - qy;
+            const double d2 = dx * dx + dy * dy;
+            const bool nearer = d2 < m;
+            m = nearer ? d2 : m;
+            km = nearer ? k : km;
+        }
+        if (km < 0 || m > b.d2) return;
+        const int64_t i = order_[size_t(km)];
+        if (m < b.d2 || i < b.index) b = Best{m, i};
+    }
+
+    double radius_, cell_ = 1.0, inv_cell_ = 1.0, margin_ = 0.0, x0_ = 0.0, y0_ = 0.0;
     int64_t nx_ = 1, ny_ = 1, rings_ = 5;
-    std::vector<double> x_, y_, ox_, oy_;
-    std::vector<int64_t> start_, order_;
+    std::vector<double> xy_, oxy_;
+    std::vector<int32_t> start_, order_;  // per cell + 1: its first point; per point: its index
 };
 
 }  // namespace fmcwlog

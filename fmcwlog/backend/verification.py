@@ -159,21 +159,25 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
 
 def inlier_fraction(query_xy: np.ndarray, sub: Submap, pose: np.ndarray, bound: float) -> float:
     """The fraction of ``query_xy`` (N, 2, m, the query's frame) that, placed at ``pose`` (3,) in the
-    submap's frame, has a submap point closer than ``bound`` (m). The compiled core's grid over the
-    submap (kept in ``sub.grids`` per bound) answers where it is selected, without building the
-    submap's KD-tree; the tree otherwise (the same nearest distances, the same strict bound)."""
+    submap's frame, has a submap point closer than ``bound`` (m). Where the compiled core is selected,
+    a grid over the submap answers, without building the submap's KD-tree: the ICP's grid (kept in
+    ``sub.grids`` per gate) where its gate is at least ``bound`` (a point's nearest distance does not
+    depend on the gate it was found under), else one built for ``bound``; the tree otherwise (the
+    same nearest distances, the same strict bound)."""
     module = compiled.core()
     if module is None:
         d, _ = sub.tree.query(transform_points(pose, query_xy), k=1, distance_upper_bound=bound)
         return float(np.isfinite(d).mean())
-    grid = sub.grids.get(bound)
-    if grid is None:
+    wide = [gate for gate in sub.grids if gate >= bound]
+    if wide:
+        grid = sub.grids[min(wide)]
+    else:
         grid = sub.grids[bound] = module.TargetGrid(np.ascontiguousarray(sub.points, float), bound)
     n = len(query_xy)
     moved, index, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
     x, y, th = np.asarray(pose, float).tolist()
     module.nearest(grid, np.ascontiguousarray(query_xy, float), x, y, th, moved, index, dist)
-    return float(np.isfinite(dist).mean())
+    return float((dist < bound).mean())
 
 
 def _hold(free: np.ndarray, h: np.ndarray) -> np.ndarray:

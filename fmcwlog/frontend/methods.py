@@ -65,7 +65,7 @@ from ..kernels.correlative import LikelihoodGrid, correlative_match
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
-from .deskew import deskew, se2_exp
+from .deskew import deskew_placed, se2_exp
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
@@ -260,8 +260,10 @@ class FrontEnd(ABC):
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         use = ~near & ~motion.moving
-        seen = deskew(xy[use], t[use], v, omega, self.mount) if p.deskew else xy[use]
-        pts = _transform(self.mount, seen)  # base_link at t_k
+        if p.deskew:  # base_link at t_k
+            pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
+        else:
+            pts = _transform(self.mount, xy[use])
         source = voxel_downsample(pts, p.source_voxel)
 
         pose_cov = None

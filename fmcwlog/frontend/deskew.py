@@ -31,7 +31,7 @@ from typing import cast
 
 import numpy as np
 
-from ..geometry import _is_pose, compose, inverse, rotate_translate, transform_points, wrap_angle
+from ..geometry import _is_pose, _wrap, compose, inverse, rotate_translate, transform_points, wrap_angle
 from ..kernels import compiled
 
 _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 0
@@ -99,6 +99,24 @@ def _se2_exp_scalar(vx: float, vy: float, omega: float, dt: float) -> tuple[floa
     a = sinc_of_float(th / np.pi)
     b = 0.5 * th * sinc_of_float(th / (2.0 * np.pi)) ** 2
     return (a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th
+
+
+def advance(pose: np.ndarray, v: float, omega: float, dt: float) -> np.ndarray:
+    """``compose(pose, se2_exp(v, 0.0, omega, np.array(dt)))``: the pose (3,; m, m, rad) reached from
+    ``pose`` after ``dt`` (s) under the base_link twist ``(v, ω)`` (m/s, rad/s), a constant-velocity
+    prediction. For one float64 pose with a finite yaw and a float twist and ``dt``, those calls'
+    operations on Python floats in one call (the same bits); else those calls themselves."""
+    if (type(pose) is np.ndarray and pose.shape == (3,) and pose.dtype == np.float64
+            and type(v) in _FLOAT and type(omega) in _FLOAT and type(dt) in _FLOAT):
+        x, y, yaw = pose.tolist()
+        if math.isfinite(yaw):  # compose's float path: math.cos raises on ±inf where numpy gives NaN
+            bx, by, bth = _se2_exp_scalar(float(v), 0.0, float(omega), float(dt))
+            c, s = math.cos(yaw), math.sin(yaw)
+            return np.array([x + c * bx - s * by, y + s * bx + c * by, _wrap(yaw + bth)])
+    return compose(pose, se2_exp(v, 0.0, omega, np.array(dt)))
+
+
+_FLOAT = (float, np.float64)
 
 
 def _se2_exp_columns(vx: float, vy: float, omega: float, dt: np.ndarray

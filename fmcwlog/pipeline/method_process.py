@@ -1,24 +1,29 @@
-"""Two methods at once: ``process`` runs every method after the first in a child process.
+"""Two methods at once: ``process`` runs the costliest method in a child process.
 
 The methods are independent: each has its front end, its map and its back end, and they
 share only the log they read. With two or more methods asked and two or more CPUs usable
-(``os.sched_getaffinity``), :func:`fmcwlog.pipeline.process.process` keeps the first method (``improved``)
-and the outputs in its own process and starts one child (:class:`MethodProcess`) that reads
-the same log and runs the others (``baseline``): front end and pose-graph back end. The
-outputs stay byte for byte those of one process, because the parent still writes every one
-of them, in the same order:
+(``os.sched_getaffinity``), :func:`fmcwlog.pipeline.process.process` starts one child
+(:class:`MethodProcess`) that reads the same log and runs the costliest method asked
+(``improved``, :data:`COSTLIEST_FIRST`): front end and pose-graph back end. The parent runs
+the others (``baseline``) and writes every output, so the two processes' shares are close:
+a process's wall time is bounded by its CPU, and the parent's share adds the outputs and the
+reading of the log to the cheaper method's. The outputs stay byte for byte those of one
+process, because the parent still writes every one of them, in the same order:
 
-- per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s,
-  which the parent puts after its own (the order of ``methods``) before the outputs take the
-  sweep; a back end's error on that sweep comes with them and is raised where the parent
-  would have added the result to that back end (:class:`ChildBackend`);
+- per sweep the parent waits for the child's message first, then runs its own methods (so
+  an error the child raised on a sweep wins over the parent's on the same sweep, as the
+  costlier method's would in one process, where it runs first); the child's
+  :class:`~fmcwlog.types.SweepResult`\\ s join the parent's in the order of ``methods``
+  before the outputs take the sweep; a back end's error on that sweep comes with them and
+  is raised where the parent would have added the result to that back end (:class:`ChildBackend`);
 - paths and maps are published at the sweeps :class:`~fmcwlog.io.outputs.ProcessOutputs`
   chooses, which depend on every map's size: the parent tells the child each next time, and
   at that sweep the child sends its front ends' maps as they stand (:class:`GridSnapshot`).
   The child never needs a time before a publishing period has passed since the last one, so
   it runs up to one ``publish_period`` of log ahead of the parent, no further;
 - at the end it sends its back ends' results (optimised poses, closures, rebuilt maps) and
-  its runner's diagnostics; the parent merges them in the order of ``methods``.
+  its runner's diagnostics; the parent merges them in the order of ``methods``. Its own
+  back ends finish first (the child's finishes meanwhile).
 
 The child's errors reach the user as they would from one process (the same exception, raised
 at the same point of the run, so the same one line and exit status 2); the log's own warnings
@@ -71,7 +76,7 @@ from ..io.inputs import LogInputs
 from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
 from ..kernels.occupancy import OccupancyGrid
-from ..types import Calibration, InputTopics, SweepResult
+from ..types import BASELINE, IMPROVED, Calibration, InputTopics, SweepResult
 from .children import die_with_parent
 from .params import ProcessParams
 from .runner import LogRunner, SweepStep
@@ -90,12 +95,18 @@ def usable_cpus() -> int:
     return os.cpu_count() or 1
 
 
+# the methods by their CPU a sweep, costliest first (corridor_30s, compiled kernels, front end + back end:
+# improved 1.4 s, baseline 0.7 s); the child runs the costliest, the parent the rest and the outputs
+COSTLIEST_FIRST = (IMPROVED, BASELINE)
+
+
 def child_methods(methods: tuple[str, ...], jobs: int | None) -> tuple[str, ...]:
-    """The methods to run in a child process: all but the first, when there are several and
-    ``jobs`` allows two processes (None: when two or more CPUs are usable); else none."""
+    """The methods to run in a child process: the costliest (:data:`COSTLIEST_FIRST`), when there
+    are several and ``jobs`` allows two processes (None: when two or more CPUs are usable); else none."""
     if len(methods) < 2 or jobs == 1 or (jobs is None and usable_cpus() < 2):
         return ()
-    return methods[1:]
+    rank = {m: i for i, m in enumerate(COSTLIEST_FIRST)}
+    return (min(methods, key=lambda m: rank.get(m, len(rank))),)
 
 
 @dataclass(frozen=True)
@@ -112,6 +123,11 @@ class ChildTask:
     backend: bool
     publish_period_ns: int
     reading: CloudReading = CloudReading()
+    order: tuple[str, ...] = ()  # every method of the run, as the outputs take them (default: ``methods``)
+
+    def rank(self, method: str) -> int:
+        """``method``'s place in :attr:`order`."""
+        return (self.order or self.methods).index(method)
 
 
 @dataclass(frozen=True)
@@ -186,6 +202,7 @@ class MethodProcess:
         self.methods = task.methods
         self.sweeps = 0
         self._end: _End | None = None
+        self._last: _End | None = None  # the last message, taken by steps() at the end of the log
         if START_METHOD == "fork":  # the back end (gtsam) imported once, before the fork, not in each process
             importlib.import_module("fmcwlog.backend.pipeline")
         ctx = get_context(START_METHOD)
@@ -227,11 +244,20 @@ class MethodProcess:
         self._reader.join()
 
     def steps(self, local: Iterable[SweepStep], maps: dict, outputs: ProcessOutputs) -> Iterator[SweepStep]:
-        """``local``'s steps with the child's results of each sweep after their own. ``maps`` (the
-        grids ``outputs`` publish) gets the child's maps at the sweeps they publish; after each
-        sweep that published, the child is told the outputs' next publishing time."""
-        for step in local:
+        """``local``'s steps with the child's results of each sweep joined in the order of
+        ``task.order``. The child's message for a sweep is taken before ``local`` runs it (its error
+        first, as in one process). ``maps`` (the grids ``outputs`` publish) gets the child's maps at
+        the sweeps they publish; after each sweep that published, the child is told the outputs'
+        next publishing time."""
+        local = iter(local)
+        while True:
             msg = self._receive()
+            step = next(local, None)
+            if step is None:
+                if not isinstance(msg, _End):
+                    raise self._out_of_step("the end of the log")
+                self._last = msg  # its warnings said by end(), after the parent's own
+                return
             if not isinstance(msg, _Sweep) or msg.stamp_ns != step.sweep.stamp_ns:
                 raise self._out_of_step(f"sweep {step.sweep.stamp_ns} ns")
             self.sweeps += 1
@@ -242,7 +268,7 @@ class MethodProcess:
                 method, error = msg.backend_error
                 self.backends[method].error = error
             publishes = outputs.publishes
-            yield _merged(step, msg.results)
+            yield self._merged(step, msg.results)
             published = outputs.publishes > publishes
             if published != (msg.maps is not None):  # published without the child's maps, or the reverse
                 raise self._out_of_step(f"the maps at {step.sweep.stamp_ns} ns")
@@ -255,13 +281,18 @@ class MethodProcess:
     def end(self) -> _End:
         """The child's back ends, grids and diagnostics (waiting for them)."""
         if self._end is None:
-            msg = self._receive()
+            msg = self._last or self._receive()
             if not isinstance(msg, _End):
                 raise self._out_of_step("the end of the log")
             self._end = msg
             for text, category in msg.warnings:
                 warnings.warn(text, category, stacklevel=1)
         return self._end
+
+    def _merged(self, step: SweepStep, results: list[SweepResult]) -> SweepStep:
+        """``step`` with ``results`` (the child's) among its own, in the order of ``task.order``."""
+        joined = sorted([*step.results, *results], key=lambda r: self.task.rank(r.method))
+        return SweepStep(step.sweep, joined, step.wheel_pose, step.wheel_twist)
 
     def _receive(self) -> _Sweep | _End:
         msg = self._inbox.get()
@@ -285,10 +316,6 @@ class MethodProcess:
     def _out_of_step(self, what: str) -> MethodProcessError:
         return MethodProcessError(f"{self.task.log}: {self._who()} is out of step with this one at {what} "
                                   "(a bug in fmcwlog; --jobs 1 runs every method in one process)")
-
-
-def _merged(step: SweepStep, results: list[SweepResult]) -> SweepStep:
-    return SweepStep(step.sweep, [*step.results, *results], step.wheel_pose, step.wheel_twist)
 
 
 def _exit_reason(code: int | None) -> str:

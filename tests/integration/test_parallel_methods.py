@@ -3,8 +3,9 @@ errors, nothing left behind.
 
 The reference is the same run in one process (``jobs=1``), compared file by file: bytes, except
 the timings (the parquet's ``ms`` column, run.json's seconds), read with plain pyarrow and json.
-Failures are injected by patching the baseline front end or back end in this process: the child
-is forked, so it runs the patched code (the tests that need that skip where fork is not used).
+Failures are injected by patching a front end or back end in this process: the child (the improved
+method) is forked, so it runs the patched code (the tests that need that skip where fork is not used);
+the baseline runs in the parent.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from helpers import assert_one_line_error, run_cli_here
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.backend import PoseGraphBackend
 from fmcwlog.errors import LogError, MapSizeError, MethodProcessError, OutputError
-from fmcwlog.frontend.methods import BaselineFrontEnd
+from fmcwlog.frontend.methods import BaselineFrontEnd, ImprovedFrontEnd
 from fmcwlog.pipeline import method_process
 
 TIMINGS = {"wall_seconds", "seconds", "ms_per_sweep_median"}
@@ -82,7 +83,7 @@ def test_two_processes_write_the_bytes_of_one(crowd_log, tmp_path, monkeypatch, 
     one = process(crowd_log, tmp_path / "one", opts, jobs=1)
     assert started == []
     two = process(crowd_log, tmp_path / "two", opts, jobs=2)
-    assert started == [("baseline",)]
+    assert started == [("improved",)]
     assert_same_outputs(tmp_path / "one", tmp_path / "two")
     assert (one.sweeps, one.warnings, one.backend.keys()) == (two.sweeps, two.warnings, two.backend.keys())
     _no_children_left()
@@ -101,9 +102,10 @@ def test_one_process_where_one_method_or_one_cpu_or_asked(monkeypatch):
     both = ("improved", "baseline")
     monkeypatch.setattr(method_process, "usable_cpus", lambda: 1)
     assert method_process.child_methods(both, None) == ()
-    assert method_process.child_methods(both, 2) == ("baseline",)  # asked for
+    assert method_process.child_methods(both, 2) == ("improved",)  # asked for
     monkeypatch.setattr(method_process, "usable_cpus", lambda: 2)
-    assert method_process.child_methods(both, None) == ("baseline",)
+    assert method_process.child_methods(both, None) == ("improved",)  # the costliest, whatever the order
+    assert method_process.child_methods(both[::-1], None) == ("improved",)
     assert method_process.child_methods(both, 1) == ()
     assert method_process.child_methods(("baseline",), None) == ()
     assert method_process.child_methods(("improved",), 4) == ()
@@ -115,10 +117,14 @@ def test_fleet_workers_run_their_methods_in_one_process():
     assert "process(task.log, task.out_dir, task.options, force=task.force, on_sweep=on_sweep, jobs=1)" in source
 
 
-def _fail_at(monkeypatch, sweep: int, error: BaseException) -> None:
-    """Make the baseline front end raise ``error`` on its ``sweep``-th sweep (counted in the process
+FRONT_ENDS = {"improved": ImprovedFrontEnd, "baseline": BaselineFrontEnd}
+
+
+def _fail_at(monkeypatch, sweep: int, error: BaseException, method: str = "improved") -> None:
+    """Make ``method``'s front end raise ``error`` on its ``sweep``-th sweep (counted in the process
     that runs it: the child inherits the count, 0, when it is forked)."""
-    original = BaselineFrontEnd.step
+    front = FRONT_ENDS[method]
+    original = front.step
     calls = [0]
 
     def failing(self, *args):
@@ -127,7 +133,7 @@ def _fail_at(monkeypatch, sweep: int, error: BaseException) -> None:
             raise error
         return original(self, *args)
 
-    monkeypatch.setattr(BaselineFrontEnd, "step", failing)
+    monkeypatch.setattr(front, "step", failing)
 
 
 def _error_of(log: Path, out: Path, jobs: int) -> BaseException:
@@ -141,12 +147,13 @@ def _error_of(log: Path, out: Path, jobs: int) -> BaseException:
 @needs_fork
 @pytest.mark.parametrize("error", [LogError("a damaged sweep"), MapSizeError("the map is too large"),
                                    ValueError("a bug")])
-def test_child_front_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, error):
+@pytest.mark.parametrize("method", ["improved", "baseline"])  # in the child, in the parent
+def test_front_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, error, method):
     with monkeypatch.context() as patch:
-        _fail_at(patch, 7, error)
+        _fail_at(patch, 7, error, method)
         one = _error_of(crowd_log, tmp_path / "one", 1)
     with monkeypatch.context() as patch:
-        _fail_at(patch, 7, error)
+        _fail_at(patch, 7, error, method)
         two = _error_of(crowd_log, tmp_path / "two", 2)
     assert (type(two), str(two)) == (type(one), str(one))
     if isinstance(error, MapSizeError):  # as in one process: about this log
@@ -156,14 +163,31 @@ def test_child_front_end_error_is_the_one_process_error(crowd_log, tmp_path, mon
 
 @pytest.mark.slow
 @needs_fork
-def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch):
+@pytest.mark.parametrize("sweeps", [(7, 7), (8, 7)])  # (improved's, baseline's) failing sweep
+def test_of_two_errors_the_first_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, sweeps):
+    """Both methods fail: the one that fails first in one process (the earlier sweep; on the same sweep
+    the improved, which runs first there), not the one whose process got there first."""
+    got = []
+    for jobs in (1, 2):
+        with monkeypatch.context() as patch:
+            _fail_at(patch, sweeps[0], LogError("improved failed"), "improved")
+            _fail_at(patch, sweeps[1], LogError("baseline failed"), "baseline")
+            got.append(str(_error_of(crowd_log, tmp_path / f"out{jobs}", jobs)))
+    assert got[0] == got[1] == ("improved failed" if sweeps[0] <= sweeps[1] else "baseline failed")
+    _no_children_left()
+
+
+@pytest.mark.slow
+@needs_fork
+@pytest.mark.parametrize("method", ["improved", "baseline"])
+def test_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, method):
     error = OutputError("/tmp: cannot keep fmcwlog's temporary point store: no space left on device")
     original = PoseGraphBackend.add
     for jobs in (1, 2):
         calls = [0]
 
         def failing(self, r, calls=calls):
-            if r.method == "baseline":
+            if r.method == method:
                 calls[0] += 1
                 if calls[0] == 9:
                     raise error
@@ -180,18 +204,18 @@ def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monk
 @needs_fork
 def test_a_child_that_dies_is_one_line_and_exit_status_2(crowd_log, tmp_path, monkeypatch):
     parent = os.getpid()
-    original = BaselineFrontEnd.step
+    original = ImprovedFrontEnd.step
 
     def dying(self, *args):
         if os.getpid() != parent:
             os.kill(os.getpid(), signal.SIGKILL)
         return original(self, *args)
 
-    monkeypatch.setattr(BaselineFrontEnd, "step", dying)
+    monkeypatch.setattr(ImprovedFrontEnd, "step", dying)
     out = tmp_path / "out"
     code, _, err = run_cli_here("process", str(crowd_log), "-o", str(out))
     line = assert_one_line_error(code, err, str(crowd_log), "killed by SIGKILL", "--jobs 1")
-    assert "baseline" in line
+    assert "improved" in line
     assert not out.exists() and list(tmp_path.iterdir()) == []
     _no_children_left()
     code, _, err = run_cli_here("process", str(crowd_log), "-o", str(out), "--jobs", "1")  # one process: no child

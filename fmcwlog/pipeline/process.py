@@ -117,7 +117,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
             grids: dict[str, Any] = {m: own_grids.get(m) for m in opts.methods}  # the child's: its maps, as published
             backends = _backends(opts, cal, elsewhere)
-            steps = runner.run(inputs)
+            steps = runner.run(inputs if elsewhere is None else elsewhere.feed(inputs))
             if elsewhere is not None:
                 steps = elsewhere.steps(steps, grids, outputs)
             try:
@@ -245,15 +245,14 @@ def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess |
 @contextmanager
 def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics: InputTopics,
                        jobs: int | None) -> Iterator[MethodProcess | None]:
-    """The child process that runs the methods after the first (:mod:`fmcwlog.pipeline.method_process`),
+    """The child process that runs the costliest method (:mod:`fmcwlog.pipeline.method_process`),
     ended on the way out; None where they all run here."""
     methods = child_methods(tuple(opts.methods), jobs)
     if not methods:
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9), opts.cloud_reading(),  # as ProcessOutputs has it
-                     tuple(opts.methods))
+                     int(opts.publish_period * 1e9), tuple(opts.methods))  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 

@@ -100,8 +100,8 @@ def usable_cpus() -> int:
     return os.cpu_count() or 1
 
 
-# the methods by their CPU a sweep, costliest first (corridor_30s, compiled kernels, front end + back end:
-# improved 1.4 s, baseline 0.7 s); the child runs the costliest, the parent the rest and the outputs
+# the methods by their CPU a sweep, costliest first (a 120 s corridor, compiled kernels, front end + back
+# end: improved 2.0 s, baseline 1.4 s); the child runs the costliest, the parent the rest and the outputs
 COSTLIEST_FIRST = (IMPROVED, BASELINE)
 
 

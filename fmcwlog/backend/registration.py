@@ -231,4 +231,4 @@ def _compiled(module, source_xy: np.ndarray, submap: Submap, initial: np.ndarray
         np.ascontiguousarray(source_xy, float), x, y, th, p.max_iterations, p.kernel_scale, p.tolerance, *held,
         submap.near, submap.reach)
     hessian = np.array(h).reshape(3, 3) if pairs else np.zeros((3, 3))
-    return LineICPResult(np.array(pose), hessian, np.array(residuals), pairs, iterations, converged)
+    return LineICPResult(np.array(pose), hessian, residuals, pairs, iterations, converged)

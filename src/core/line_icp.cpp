@@ -160,9 +160,19 @@ bool solve3(Mat3 a, Vec3 b, Vec3& x) {
     return true;
 }
 
-using Result = std::tuple<Vec3, Mat3, std::vector<double>, int64_t, int, bool>;
+using Residuals = nb::ndarray<nb::numpy, double, nb::ndim<1>>;
+using Result = std::tuple<Vec3, Mat3, Residuals, int64_t, int, bool>;
 
-// register_point_to_line, whole: (pose, hessian at it (row major), residuals, pairs, iterations, converged).
+// The residuals handed to numpy as they are (no list of floats between).
+Residuals to_numpy(std::vector<double>&& r) {
+    if (r.empty()) r.reserve(1);
+    auto* kept = new std::vector<double>(std::move(r));
+    nb::capsule owner(kept, [](void* v) noexcept { delete static_cast<std::vector<double>*>(v); });
+    return Residuals(kept->data(), {kept->size()}, owner);
+}
+
+// register_point_to_line, whole: (pose, hessian at it (row major), residuals (an array), pairs, iterations,
+// converged).
 Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points source, double x, double y,
                 double theta, int max_iterations, double kernel_scale, double tolerance, std::optional<Vec3> prior_pose,
                 std::optional<Mat3> prior_info, std::optional<Near> near, std::optional<Reach> reach) {
@@ -217,7 +227,8 @@ Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points
         build_system(grid, pairing, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
         normal_equations(sys, h, g);
     }
-    return {pose, h, sys.r, int64_t(sys.r.size()), it, converged};
+    const int64_t pairs = int64_t(sys.r.size());
+    return {pose, h, to_numpy(std::move(sys.r)), pairs, it, converged};
 }
 
 }  // namespace

@@ -64,7 +64,7 @@ def fleet(tmp_path_factory):
     copy_log(with_gt, logs / "nogt.mcap", drop_topics=GROUND_TRUTH_TOPICS)
     (logs / "junk.mcap").write_bytes(b"these bytes are no MCAP log\n" * 10)
     (logs / "notes.txt").write_text("not a log: the search must pass it by\n")
-    _record(logs / "long.mcap", "corridor", 30.0, 3)
+    _record(logs / "long.mcap", "corridor", 90.0, 3)  # long enough to outlast a 2 s --timeout at any speed here
     names = {"a": "logs-a", "sub-a": "sub-a", "nogt": "nogt"}
     good = {names["a"]: logs / "a.mcap", names["sub-a"]: logs / "sub" / "a.mcap", names["nogt"]: logs / "nogt.mcap"}
     ref = root / "reference"
@@ -108,7 +108,7 @@ def _assert_bad_ones_reported(out: Path, reasons: dict[str, str], killed_pid: in
     assert "not an MCAP file" in reasons["junk"]
     assert "killed by SIGKILL" in reasons["long"]
     done, total = map(int, re.search(r"at sweep (\d+) of (\d+)", reasons["long"]).groups())
-    assert total == 300 and 0 <= done < total
+    assert total == 900 and 0 <= done < total  # the long log: 90 s at 10 sweeps a second
     left = {p.name for p in out.iterdir()}
     assert "junk" not in left and "long" not in left
     assert not [n for n in left if n.startswith(".")], f"leftovers of failed logs: {left}"

@@ -23,7 +23,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import transform_points
 from ..kernels.voxel import voxel_downsample
@@ -81,6 +80,7 @@ def revisit_distances(points: Sequence[np.ndarray], path_m: np.ndarray, frontend
             if tree is None or n >= in_tree + REBUILD_NODES:  # the earlier map grown by a few metres
                 added = [transform_points(poses[i], thin(i)) for i in range(in_tree, n)]
                 earlier = voxel_downsample(np.concatenate([earlier, *added]), MAP_VOXEL)
+                from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
                 tree, in_tree = cKDTree(earlier, balanced_tree=False, compact_nodes=False), n
             mine = transform_points(poses[q], voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL))
             d, _ = tree.query(mine, k=1, distance_upper_bound=CAP_M)

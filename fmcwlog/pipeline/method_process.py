@@ -186,7 +186,7 @@ class MethodProcess:
         self.methods = task.methods
         self.sweeps = 0
         self._end: _End | None = None
-        if START_METHOD == "fork":  # the back end (gtsam) imported once, before the fork, not in each process
+        if START_METHOD == "fork":  # the back end imported once, before the fork (gtsam: at its first solve)
             importlib.import_module("fmcwlog.backend.pipeline")
         ctx = get_context(START_METHOD)
         results_in, results_out = ctx.Pipe(duplex=False)

@@ -70,6 +70,7 @@ from ..io.clouds import CloudReading
 from ..io.inputs import LogInputs
 from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
+from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid
 from ..types import Calibration, InputTopics, SweepResult
 from .children import die_with_parent
@@ -186,8 +187,10 @@ class MethodProcess:
         self.methods = task.methods
         self.sweeps = 0
         self._end: _End | None = None
-        if START_METHOD == "fork":  # the back end imported once, before the fork (gtsam: at its first solve)
+        if START_METHOD == "fork":  # what both processes load, loaded once, before the fork (gtsam: at a first solve)
             importlib.import_module("fmcwlog.backend.pipeline")
+            if compiled.core() is None:  # the numpy kernels' KD-trees (scipy.spatial: 0.25 s of imports)
+                importlib.import_module("scipy.spatial")
         ctx = get_context(START_METHOD)
         results_in, results_out = ctx.Pipe(duplex=False)
         schedule_in, schedule_out = ctx.Pipe(duplex=False)

@@ -88,18 +88,18 @@ class PoseGraph:
         """Import gtsam, make the graph and add what :attr:`_pending` lists, in its order."""
         if self._pending is None:
             return
-        gtsam = _gtsam()
-        self.graph = gtsam.NonlinearFactorGraph()
-        self.values = gtsam.Values()
+        gt = _gtsam()  # the module; the annotations name it as gtsam
+        self.graph = gt.NonlinearFactorGraph()
+        self.values = gt.Values()
         self._closure_factors: list[gtsam.BetweenFactorPose2] = []
         self._isam: gtsam.ISAM2 | None = None  # None: LM on the whole graph (batch, or after the final solve)
-        self._new_values = gtsam.Values()  # ISAM2: the nodes and factors it has not seen yet
-        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gt.Values()  # ISAM2: the nodes and factors it has not seen yet
+        self._new_factors = gt.NonlinearFactorGraph()
         if self._solver == "isam2":
-            params = gtsam.ISAM2Params()
+            params = gt.ISAM2Params()
             params.setRelinearizeThreshold(self._relinearize_threshold)
             params.relinearizeSkip = 1
-            self._isam = gtsam.ISAM2(params)
+            self._isam = gt.ISAM2(params)
         pending, self._pending, self.n, self.closures = self._pending, None, 0, []
         for kind, item in pending:
             if kind == "node":

@@ -1,4 +1,5 @@
-"""Benchmark: how many Python and C function calls each method makes a sweep, and what a numpy call costs.
+"""Benchmark: how many Python and C function calls each method makes a sweep (and, with the compiled
+kernels, calls into ``fmcwlog._core``), and what a numpy call costs.
 
 The front end is stages of numpy calls on sweep-sized arrays, so its floor is the number of calls
 times what one costs, whatever the arithmetic. The counts come from ``cProfile`` enabled only
@@ -34,6 +35,7 @@ def count_calls(log: str, method: str) -> dict:
     from fmcwlog.frontend.methods import FrontEnd
 
     prof, sweeps, step = cProfile.Profile(), [0], FrontEnd.step
+    core_calls = _count_core_calls()
 
     def profiled_step(self, sweep, prior):
         sweeps[0] += 1
@@ -47,13 +49,44 @@ def count_calls(log: str, method: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         process(log, str(Path(tmp) / "out"), ProcessOptions(methods=(method,)), jobs=1)
     python_calls = c_calls = 0
-    for (filename, _, _), (_, ncalls, _, _, _) in pstats.Stats(prof).stats.items():  # type: ignore[attr-defined]
+    for (filename, _, name), (_, ncalls, _, _, _) in pstats.Stats(prof).stats.items():  # type: ignore[attr-defined]
         if filename == "~":  # cProfile's mark of a built-in (C) function
             c_calls += ncalls
-        else:
+        elif name != _COUNTING_WRAPPER:  # the counter's own frames (core calls are counted apart)
             python_calls += ncalls
+    in_step = sum(n for n in core_calls.values())
     return {"method": method, "sweeps": sweeps[0], "python_calls_per_sweep": python_calls / sweeps[0],
-            "c_calls_per_sweep": c_calls / sweeps[0]}
+            "c_calls_per_sweep": c_calls / sweeps[0], "core_calls_per_sweep": in_step / sweeps[0],
+            "kernels": "compiled" if core_calls is not _NO_CORE else "numpy"}
+
+
+_COUNTING_WRAPPER = "counted_core_call"
+_NO_CORE: dict[str, int] = {}
+
+
+def _count_core_calls() -> dict[str, int]:
+    """Calls into the compiled module (``fmcwlog._core``) inside the step, by function: cProfile
+    does not see them (nanobind's functions are not built-in functions), so each is wrapped in a
+    counter that counts only while the step's profiler runs (``_COUNTING_WRAPPER`` frames are left
+    out of the Python count). ``_NO_CORE`` where the numpy kernels run."""
+    from fmcwlog.kernels import compiled
+
+    module = compiled.core()
+    if module is None:
+        return _NO_CORE
+    counts: dict[str, int] = {}
+    for name in dir(module):
+        fn = getattr(module, name)
+        if name.startswith("_") or not callable(fn) or isinstance(fn, type):
+            continue
+
+        def counted_core_call(*args, _fn=fn, _name=name, **kwargs):
+            if sys.getprofile() is not None:  # inside the step
+                counts[_name] = counts.get(_name, 0) + 1
+            return _fn(*args, **kwargs)
+
+        setattr(module, name, counted_core_call)
+    return counts
 
 
 def numpy_call_costs() -> dict[str, float]:
@@ -93,15 +126,15 @@ def main() -> None:
             logs = [str(Path(tmp) / "crowd20.mcap"), str(Path(tmp) / "corridor120.mcap")]
             _record("crowd", 20, Path(logs[0]))
             _record("corridor", 120, Path(logs[1]))
-        print("| log | method | sweeps | Python calls a sweep | C calls a sweep |")
-        print("|---|---|---|---|---|")
+        print("| log | method | kernels | sweeps | Python calls a sweep | C calls a sweep | compiled-core calls a sweep |")
+        print("|---|---|---|---|---|---|---|")
         for log in logs:
             for method in ("improved", "baseline"):
                 res = subprocess.run([sys.executable, __file__, "--child", log, method], check=True, cwd=ROOT,
                                      capture_output=True, text=True, env={**os.environ, **ONE_THREAD})
                 r = json.loads(res.stdout.strip().splitlines()[-1])
-                print(f"| {Path(log).name} | {method} | {r['sweeps']} | {r['python_calls_per_sweep']:.0f} | "
-                      f"{r['c_calls_per_sweep']:.0f} |")
+                print(f"| {Path(log).name} | {method} | {r['kernels']} | {r['sweeps']} | {r['python_calls_per_sweep']:.0f} | "
+                      f"{r['c_calls_per_sweep']:.0f} | {r['core_calls_per_sweep']:.1f} |")
     print()
     for name, us in numpy_call_costs().items():
         print(f"{name:18s} {us:.2f} us a call (1,000 points)")

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import transform_points
+from ..kernels import compiled
 from ..kernels.voxel import voxel_downsample
 
 GAP_M = 15.0  # m of path: the earlier map holds nodes at least this far back (as closures' candidates are)
@@ -70,21 +71,19 @@ def revisit_distances(points: Sequence[np.ndarray], path_m: np.ndarray, frontend
             thinned[i] = voxel_downsample(np.asarray(points[i], float), MAP_VOXEL)
         return thinned[i]
 
+    mine_thinned = {int(q): voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL) for q in queries}
     per_trajectory = []
     for poses in (frontend, optimised):
         distances = []
         earlier = np.empty((0, 2))
-        tree, in_tree = None, 0
+        nearest, in_tree = None, 0
         for q in queries:
             n = int(prefix[q])
-            if tree is None or n >= in_tree + REBUILD_NODES:  # the earlier map grown by a few metres
+            if nearest is None or n >= in_tree + REBUILD_NODES:  # the earlier map grown by a few metres
                 added = [transform_points(poses[i], thin(i)) for i in range(in_tree, n)]
                 earlier = voxel_downsample(np.concatenate([earlier, *added]), MAP_VOXEL)
-                from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
-                tree, in_tree = cKDTree(earlier, balanced_tree=False, compact_nodes=False), n
-            mine = transform_points(poses[q], voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL))
-            d, _ = tree.query(mine, k=1, distance_upper_bound=CAP_M)
-            distances.append(np.minimum(d, CAP_M))
+                nearest, in_tree = _Nearest(earlier), n
+            distances.append(np.minimum(nearest.distances(poses[q], mine_thinned[int(q)]), CAP_M))
         per_trajectory.append(np.concatenate(distances) if distances else np.empty(0))
     d_front, d_opt = per_trajectory
     revisit = (d_front < CAP_M) | (d_opt < CAP_M)
@@ -92,6 +91,32 @@ def revisit_distances(points: Sequence[np.ndarray], path_m: np.ndarray, frontend
         return None
     return RevisitDistances(float(d_front[revisit].mean()), float(d_opt[revisit].mean()), int(revisit.sum()),
                             int(len(queries)))
+
+
+class _Nearest:
+    """Each point's distance (m) to the nearest point of a map (M, 2), inf where none is closer than
+    ``CAP_M``: the compiled core's grid over the map where it is selected, else a KD-tree (the same
+    distances: the root of the same sum of squares, the same strict bound)."""
+
+    def __init__(self, map_xy: np.ndarray):
+        self._module = compiled.core()
+        if self._module is not None:
+            self._grid = self._module.TargetGrid(np.ascontiguousarray(map_xy, float), CAP_M)
+        else:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
+
+            self._tree = cKDTree(map_xy, balanced_tree=False, compact_nodes=False)
+
+    def distances(self, pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """(N,) for the points ``xy`` (N, 2) of a frame at ``pose`` (3,) in the map's frame."""
+        if self._module is None:
+            d, _ = self._tree.query(transform_points(pose, xy), k=1, distance_upper_bound=CAP_M)
+            return d
+        n = len(xy)
+        moved, index, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
+        x, y, th = np.asarray(pose, float).tolist()
+        self._module.nearest(self._grid, np.ascontiguousarray(xy, float), x, y, th, moved, index, dist)
+        return dist
 
 
 def worse(r: RevisitDistances) -> bool:

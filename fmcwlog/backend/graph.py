@@ -177,8 +177,9 @@ class PoseGraph:
         return _array(self.values.atPose2(i))
 
     def estimates(self) -> np.ndarray:
-        """(n, 3) the current estimate of every node."""
-        return np.array([self.estimate(i) for i in range(self.n)]).reshape(-1, 3)
+        """(n, 3) the current estimate of every node, in index order (one call into gtsam: its values
+        are the nodes' ``Pose2`` alone, under the keys ``0 … n-1``, which it keeps sorted)."""
+        return np.asarray(gtsam.utilities.extractPose2(self.values), float).reshape(-1, 3)
 
     def closure_errors(self) -> np.ndarray:
         """Whitened error (standard deviations, Mahalanobis) of each closure at the estimate."""

@@ -158,6 +158,7 @@ class PoseGraphBackend:
         self._dirty = False
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
         self._store: PointStore | None = None  # the points of nodes older than the local links'
+        self._node_path = GrowingArray(np.float64)  # every node's path_m (m), for the candidates
 
     # --- sweep by sweep -------------------------------------------------------------------
     def add(self, r: SweepResult) -> None:
@@ -189,6 +190,7 @@ class PoseGraphBackend:
             self.graph.add_odometry(Edge(prev.index, node.index, rel, odometry_covariance(prev, node, self.p)))
             self._estimates = np.vstack([self._estimates, estimate])
         self.nodes.append(node)
+        self._node_path.append(node.path_m)
         if len(self.nodes) > 1 and self.p.local_links:
             for edge in self.local.edges(self.nodes):
                 self.graph.add_odometry(edge)
@@ -227,7 +229,7 @@ class PoseGraphBackend:
         return p.closure_radius + window - p.search.linear_window, search
 
     def _close_loops(self, query: int) -> None:
-        path = np.array([n.path_m for n in self.nodes])
+        path = self._node_path.values
         window = self._search_window(query)
         if window is None:
             return

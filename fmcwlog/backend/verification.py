@@ -49,10 +49,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import transform_points, wrap_angle
+from ..kernels import compiled
 from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for
 from .keyframes import match_covariance
 from .params import BackendParams
-from .registration import build_submap, register_point_to_line
+from .registration import Submap, build_submap, register_point_to_line
 
 LEVER = 5.0  # m: a yaw error of 1 rad is weighed as 5 m of translation when finding free directions
 DEGENERACY_RATIO = 0.02
@@ -132,8 +133,7 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
     icp = register_point_to_line(query_xy, sub, found.pose, p.icp)
     if icp.pairs < p.min_pairs:
         return _reject(base, "pairs", f"{icp.pairs} point-to-line pairs < {p.min_pairs}")
-    d, _ = sub.tree.query(transform_points(icp.pose, query_xy), k=1, distance_upper_bound=p.inlier_distance)
-    base.inlier_fraction = float(np.isfinite(d).mean())
+    base.inlier_fraction = inlier_fraction(query_xy, sub, icp.pose, p.inlier_distance)
     if base.inlier_fraction < p.min_inlier_fraction:
         return _reject(base, "inliers", f"inlier fraction {base.inlier_fraction:.2f} < {p.min_inlier_fraction}")
     _, free = split_information(icp.hessian)
@@ -155,6 +155,29 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
                                        p.closure_sigma_yaw_floor)
     base.free_directions = int(free.shape[1])
     return base
+
+
+def inlier_fraction(query_xy: np.ndarray, sub: Submap, pose: np.ndarray, bound: float) -> float:
+    """The fraction of ``query_xy`` (N, 2, m, the query's frame) that, placed at ``pose`` (3,) in the
+    submap's frame, has a submap point closer than ``bound`` (m). Where the compiled core is selected,
+    a grid over the submap answers, without building the submap's KD-tree: the ICP's grid (kept in
+    ``sub.grids`` per gate) where its gate is at least ``bound`` (a point's nearest distance does not
+    depend on the gate it was found under), else one built for ``bound``; the tree otherwise (the
+    same nearest distances, the same strict bound)."""
+    module = compiled.core()
+    if module is None:
+        d, _ = sub.tree.query(transform_points(pose, query_xy), k=1, distance_upper_bound=bound)
+        return float(np.isfinite(d).mean())
+    wide = [gate for gate in sub.grids if gate >= bound]
+    if wide:
+        grid = sub.grids[min(wide)]
+    else:
+        grid = sub.grids[bound] = module.TargetGrid(np.ascontiguousarray(sub.points, float), bound)
+    n = len(query_xy)
+    moved, index, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
+    x, y, th = np.asarray(pose, float).tolist()
+    module.nearest(grid, np.ascontiguousarray(query_xy, float), x, y, th, moved, index, dist)
+    return float((dist < bound).mean())
 
 
 def _hold(free: np.ndarray, h: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ from typing import cast
 
 import numpy as np
 
-from ..geometry import _is_pose, compose, inverse, rotate_translate, transform_points, wrap_angle
+from ..geometry import _is_pose, _wrap, compose, inverse, rotate_translate, transform_points, wrap_angle
 from ..kernels import compiled
 
 _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 0
@@ -99,6 +99,24 @@ def _se2_exp_scalar(vx: float, vy: float, omega: float, dt: float) -> tuple[floa
     a = sinc_of_float(th / np.pi)
     b = 0.5 * th * sinc_of_float(th / (2.0 * np.pi)) ** 2
     return (a * vx - b * vy) * dt, (b * vx + a * vy) * dt, th
+
+
+def advance(pose: np.ndarray, v: float, omega: float, dt: float) -> np.ndarray:
+    """``compose(pose, se2_exp(v, 0.0, omega, np.array(dt)))``: the pose (3,; m, m, rad) reached from
+    ``pose`` after ``dt`` (s) under the base_link twist ``(v, ω)`` (m/s, rad/s), a constant-velocity
+    prediction. For one float64 pose with a finite yaw and a float twist and ``dt``, those calls'
+    operations on Python floats in one call (the same bits); else those calls themselves."""
+    if (type(pose) is np.ndarray and pose.shape == (3,) and pose.dtype == np.float64
+            and type(v) in _FLOAT and type(omega) in _FLOAT and type(dt) in _FLOAT):
+        x, y, yaw = pose.tolist()
+        if math.isfinite(yaw):  # compose's float path: math.cos raises on ±inf where numpy gives NaN
+            bx, by, bth = _se2_exp_scalar(float(v), 0.0, float(omega), float(dt))
+            c, s = math.cos(yaw), math.sin(yaw)
+            return np.array([x + c * bx - s * by, y + s * bx + c * by, _wrap(yaw + bth)])
+    return compose(pose, se2_exp(v, 0.0, omega, np.array(dt)))
+
+
+_FLOAT = (float, np.float64)
 
 
 def _se2_exp_columns(vx: float, vy: float, omega: float, dt: np.ndarray
@@ -202,6 +220,52 @@ def deskew(
             core.deskew(np.ascontiguousarray(xy), np.ascontiguousarray(t), t_ref, v, v_y, omega, mx, my, myaw, out)
             return out
     return deskew_numpy(xy, t, v, omega, mount, t_ref, v_y)
+
+
+def deskew_placed(
+    xy: np.ndarray,
+    t: np.ndarray,
+    v: float,
+    omega: float,
+    mount: np.ndarray,
+    pose: np.ndarray,
+    keep: np.ndarray | None = None,
+) -> np.ndarray:
+    """The points (K, 2) where ``keep`` (N,, bool; None: all N) is set, de-skewed (:func:`deskew`,
+    ``t_ref`` 0, ``v_y`` 0) and placed by ``pose`` (3,; m, m, rad): the lidar frame at the sweep's
+    stamp (as :func:`deskew` gives it) into the frame ``pose`` is given in (base_link for the mount,
+    ``map`` for the lidar's pose in it). ``xy`` (N, 2) m, ``t`` (N,) s as for :func:`deskew`.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call: the
+    compiled :func:`deskew` and the transform's ``R p + t`` in numpy's order, the same bits as the
+    two calls), else :func:`deskew_placed_numpy`."""
+    core = compiled.core()
+    if (core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2
+            and xy.shape[1] == 2 and xy.flags.c_contiguous and type(t) is np.ndarray and t.dtype == np.float64
+            and t.shape == xy.shape[:1] and t.flags.c_contiguous and _floats(v, omega) and _is_pose(mount)
+            and _is_pose(pose) and (keep is None or (type(keep) is np.ndarray and keep.dtype == np.bool_
+                                                     and keep.shape == t.shape and keep.flags.c_contiguous))):
+        mx, my, myaw = mount.tolist()
+        x, y, yaw = pose.tolist()
+        if math.isfinite(myaw) and math.isfinite(yaw):
+            return core.deskew_placed(xy, t, keep, 0.0, v, 0.0, omega, mx, my, myaw, math.cos(yaw), math.sin(yaw),
+                                      x, y)
+    return deskew_placed_numpy(xy, t, v, omega, mount, pose, keep)
+
+
+def deskew_placed_numpy(
+    xy: np.ndarray,
+    t: np.ndarray,
+    v: float,
+    omega: float,
+    mount: np.ndarray,
+    pose: np.ndarray,
+    keep: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`deskew_placed` as its two steps: the reference the compiled kernel is tested against."""
+    if keep is not None:
+        xy, t = xy[keep], t[keep]
+    return transform_points(pose, deskew(xy, t, v, omega, mount))
 
 
 def deskew_numpy(

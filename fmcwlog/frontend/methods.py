@@ -65,7 +65,7 @@ from ..kernels.correlative import LikelihoodGrid, correlative_match
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
-from .deskew import deskew, se2_exp
+from .deskew import advance, deskew_placed
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
@@ -214,7 +214,7 @@ class FrontEnd(ABC):
             return np.zeros(3)
         if prior.since_last is not None:
             return compose(self.pose, prior.since_last)
-        return compose(self.pose, se2_exp(twist[0], 0.0, twist[1], np.array(stamp - self.last_stamp)))
+        return advance(self.pose, twist[0], twist[1], stamp - self.last_stamp)
 
     @staticmethod
     def _moved(last: np.ndarray | None, pose: np.ndarray, distance: float, angle_deg: float) -> bool:
@@ -260,8 +260,10 @@ class FrontEnd(ABC):
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         use = ~near & ~motion.moving
-        seen = deskew(xy[use], t[use], v, omega, self.mount) if p.deskew else xy[use]
-        pts = _transform(self.mount, seen)  # base_link at t_k
+        if p.deskew:  # base_link at t_k
+            pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
+        else:
+            pts = _transform(self.mount, xy[use])
         source = voxel_downsample(pts, p.source_voxel)
 
         pose_cov = None
@@ -513,7 +515,7 @@ class ImprovedFrontEnd(FrontEnd):
         base, yaw_error = np.zeros(3), 0.0
         if self.pose is not None:  # the last sweep's twist spans most of the time since it (yaw error 3x smaller)
             dt = ts - self.last_stamp
-            base = compose(self.pose, se2_exp(self.last_twist[0], 0.0, self.last_twist[1], np.array(dt)))
+            base = advance(self.pose, self.last_twist[0], self.last_twist[1], dt)
             yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
         ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
@@ -539,7 +541,7 @@ class ImprovedFrontEnd(FrontEnd):
             predicted = np.zeros(3)
         else:  # the twist at the middle of the interval since the last sweep
             v_mid, w_mid = 0.5 * (twist[0] + self.last_twist[0]), 0.5 * (twist[1] + self.last_twist[1])
-            predicted = compose(self.pose, se2_exp(v_mid, 0.0, w_mid, np.array(ts - self.last_stamp)))
+            predicted = advance(self.pose, v_mid, w_mid, ts - self.last_stamp)
         return MotionEstimate(twist, predicted, moving, doppler, segmented, fused.covariance, fused)
 
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,

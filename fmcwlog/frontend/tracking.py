@@ -89,7 +89,7 @@ from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
 from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid, Scan
-from .deskew import deskew
+from .deskew import deskew_placed
 from .recent_grid import RecentOccupancy, local_max_log_odds
 from .segmentation import SegmentationParams, segment_clusters
 
@@ -396,7 +396,7 @@ class MoverTracker:
         p = self.params
         lidar = compose(base_pose, mount)
         when = stamp + middle_time(t)
-        map_xy = transform_points(lidar, deskew(xy, t, twist[0], twist[1], mount))
+        map_xy = deskew_placed(xy, t, twist[0], twist[1], mount, lidar)
         seen_free = np.zeros(len(xy), bool)
         if p.free_log_odds < 0:
             if ranges is None:

@@ -5,7 +5,7 @@
 - ``runner``          the loop over a log's inputs, the methods side by side, with the motion prior
 - ``process``         the recipe: log -> runner -> outputs and back ends -> ``run.json``
 - ``run_record``      ``run.json`` as a typed record
-- ``method_process``  the methods after the first in a child process
+- ``method_process``  the costliest method in a child process
 - ``children``        child processes that end with their parent
 - ``calibrate``       the mount and the wheels estimated from the log itself
 """

@@ -1,34 +1,43 @@
-"""Two methods at once: ``process`` runs every method after the first in a child process.
+"""Two methods at once: ``process`` runs the costliest method in a child process.
 
 The methods are independent: each has its front end, its map and its back end, and they
 share only the log they read. With two or more methods asked and two or more CPUs usable
-(``os.sched_getaffinity``), :func:`fmcwlog.pipeline.process.process` keeps the first method (``improved``)
-and the outputs in its own process and starts one child (:class:`MethodProcess`) that reads
-the same log and runs the others (``baseline``): front end and pose-graph back end. The
-outputs stay byte for byte those of one process, because the parent still writes every one
-of them, in the same order:
+(``os.sched_getaffinity``), :func:`fmcwlog.pipeline.process.process` starts one child
+(:class:`MethodProcess`) that runs the costliest method asked (``improved``,
+:data:`COSTLIEST_FIRST`): front end and pose-graph back end. The parent runs the others
+(``baseline``), reads the log and writes every output, so the two processes' shares are
+close: the run's wall time is bounded by the larger, and the parent's adds the reading and
+the outputs to the cheaper method's. The outputs stay byte for byte those of one process,
+because the parent still writes every one of them, in the same order:
 
-- per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s,
-  which the parent puts after its own (the order of ``methods``) before the outputs take the
-  sweep; a back end's error on that sweep comes with them and is raised where the parent
-  would have added the result to that back end (:class:`ChildBackend`);
+- the parent reads the log once (:class:`~fmcwlog.io.inputs.LogInputs`) and hands the child
+  the same inputs, in the same order, a sweep at a time, up to :data:`READ_AHEAD_SWEEPS` ahead
+  of its own methods (so the child need not wait for them); an error reading the log is raised
+  by each process where its methods reach it, the parent's own (:class:`_InputFeed`), and the
+  warnings of the reading are said where one process says them;
+- per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s, which join
+  the parent's in the order of ``methods`` before the outputs take the sweep; a back end's
+  error on that sweep comes with them and is raised where the parent would have added the
+  result to that back end (:class:`ChildBackend`); where both processes fail on the same
+  sweep, the error raised is that of the method that comes first, which one process runs first;
 - paths and maps are published at the sweeps :class:`~fmcwlog.io.outputs.ProcessOutputs`
   chooses, which depend on every map's size: the parent tells the child each next time, and
   at that sweep the child sends its front ends' maps as they stand (:class:`GridSnapshot`).
   The child never needs a time before a publishing period has passed since the last one, so
   it runs up to one ``publish_period`` of log ahead of the parent, no further;
 - at the end it sends its back ends' results (optimised poses, closures, rebuilt maps) and
-  its runner's diagnostics; the parent merges them in the order of ``methods``.
+  its runner's diagnostics; the parent merges them in the order of ``methods``. Its own
+  back ends finish first (the child's finishes meanwhile).
 
 The child's errors reach the user as they would from one process (the same exception, raised
 at the same point of the run, so the same one line and exit status 2); the log's own warnings
-are the parent's (it reads the same log), the estimation's warnings are forwarded with their
-sweep. A child that dies without its results (killed, out of memory, crashed) is one line,
+are the parent's (it reads the log), the estimation's warnings are forwarded with their sweep.
+A child that dies without its results (killed, out of memory, crashed) is one line,
 :class:`~fmcwlog.errors.MethodProcessError`. The parent ends the child on every way out
 (done, an error, Ctrl-C: the child ignores SIGINT and is killed by the parent), and a child
-whose parent dies is ended by the system (Linux) or by its next write to the closed pipe. The
-child writes no file but the back end's unnamed temporary point store (:mod:`fmcwlog.backend.point_store`):
-the output folder's atomicity is the parent's.
+whose parent dies is ended by the system (Linux) or by its next read or write of a closed pipe.
+The child reads no file and writes none but the back end's unnamed temporary point store
+(:mod:`fmcwlog.backend.point_store`): the output folder's atomicity is the parent's.
 
 One process instead (``jobs=1``, ``fmcwlog process --jobs 1``): one CPU usable, one method
 asked, and inside the fleet's workers (:mod:`fmcwlog.fleet.worker`: they run logs side by side
@@ -55,6 +64,7 @@ import sys
 import threading
 import traceback
 import warnings
+from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -66,13 +76,10 @@ import numpy as np
 from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
-from ..io.clouds import CloudReading
-from ..io.inputs import LogInputs
-from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs
 from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid
-from ..types import Calibration, InputTopics, SweepResult
+from ..types import BASELINE, IMPROVED, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
 from .children import die_with_parent
 from .params import ProcessParams
 from .runner import LogRunner, SweepStep
@@ -82,6 +89,9 @@ if TYPE_CHECKING:
 
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"  # numbers in the module docstring
 _JOIN_S = 5.0  # s to wait for a child that was told to end, or has ended, before it is killed
+# sweeps the parent reads, and hands the child, ahead of its own methods: the child runs ahead by
+# up to this many sweeps (and one publishing period), which evens out their sweeps' costs
+READ_AHEAD_SWEEPS = 20
 
 
 def usable_cpus() -> int:
@@ -91,19 +101,25 @@ def usable_cpus() -> int:
     return os.cpu_count() or 1
 
 
+# the methods by their CPU a sweep, costliest first (a 120 s corridor, compiled kernels, front end + back
+# end: improved 2.0 s, baseline 1.4 s); the child runs the costliest, the parent the rest and the outputs
+COSTLIEST_FIRST = (IMPROVED, BASELINE)
+
+
 def child_methods(methods: tuple[str, ...], jobs: int | None) -> tuple[str, ...]:
-    """The methods to run in a child process: all but the first, when there are several and
-    ``jobs`` allows two processes (None: when two or more CPUs are usable); else none."""
+    """The methods to run in a child process: the costliest (:data:`COSTLIEST_FIRST`), when there
+    are several and ``jobs`` allows two processes (None: when two or more CPUs are usable); else none."""
     if len(methods) < 2 or jobs == 1 or (jobs is None and usable_cpus() < 2):
         return ()
-    return methods[1:]
+    rank = {m: i for i, m in enumerate(COSTLIEST_FIRST)}
+    return (min(methods, key=lambda m: rank.get(m, len(rank))),)
 
 
 @dataclass(frozen=True)
 class ChildTask:
-    """What the child runs: ``methods`` over ``log`` (read on ``topics``, with ``cal`` and
-    ``params``, its clouds as ``reading`` says), each with a pose-graph back end if ``backend``; paths
-    and maps are published no more often than every ``publish_period_ns`` of log."""
+    """What the child runs: ``methods`` over the inputs of ``log`` (named in its errors) read on
+    ``topics`` (by the parent), with ``cal`` and ``params``, each with a pose-graph back end if
+    ``backend``; paths and maps are published no more often than every ``publish_period_ns`` of log."""
 
     log: Path
     methods: tuple[str, ...]
@@ -112,7 +128,11 @@ class ChildTask:
     topics: InputTopics
     backend: bool
     publish_period_ns: int
-    reading: CloudReading = CloudReading()
+    order: tuple[str, ...] = ()  # every method of the run, as the outputs take them (default: ``methods``)
+
+    def rank(self, method: str) -> int:
+        """``method``'s place in :attr:`order`."""
+        return (self.order or self.methods).index(method)
 
 
 @dataclass(frozen=True)
@@ -187,6 +207,7 @@ class MethodProcess:
         self.methods = task.methods
         self.sweeps = 0
         self._end: _End | None = None
+        self._last: _End | None = None  # the last message, taken by steps() at the end of the log
         if START_METHOD == "fork":  # what both processes load, loaded once, before the fork (gtsam: at a first solve)
             importlib.import_module("fmcwlog.backend.pipeline")
             if compiled.core() is None:  # the numpy kernels' KD-trees (scipy.spatial: 0.25 s of imports)
@@ -194,9 +215,10 @@ class MethodProcess:
         ctx = get_context(START_METHOD)
         results_in, results_out = ctx.Pipe(duplex=False)
         schedule_in, schedule_out = ctx.Pipe(duplex=False)
-        own_ends = (results_in, schedule_out) if START_METHOD == "fork" else ()
+        inputs_in, inputs_out = ctx.Pipe(duplex=False)
+        own_ends = (results_in, schedule_out, inputs_out) if START_METHOD == "fork" else ()
         self._proc = ctx.Process(target=  # type: ignore[attr-defined]  # typeshed's BaseContext lacks it
-                                 _child_main, args=(task, results_out, schedule_in, own_ends),
+                                 _child_main, args=(task, results_out, schedule_in, inputs_in, own_ends),
                                  name=f"fmcwlog {'+'.join(task.methods)}", daemon=True)
         # SIGINT blocked while it starts (the child inherits the mask, then ignores SIGINT): Ctrl-C
         # is the parent's to handle, and it ends the child
@@ -207,7 +229,10 @@ class MethodProcess:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         results_out.close()
         schedule_in.close()
+        inputs_in.close()
         self._schedule = schedule_out
+        self._sender = _Sender(inputs_out)
+        self._feed: _InputFeed | None = None
         self._inbox: queue.Queue = queue.Queue()
         # read as the child sends, so that it never waits for the parent to make room in the pipe
         self._reader = threading.Thread(target=_read_all, args=(results_in, self._inbox), daemon=True)
@@ -227,14 +252,32 @@ class MethodProcess:
         if self._proc.exitcode is None:
             self._proc.kill()
             self._proc.join()
+        self._sender.stop()  # the child has ended: a send waiting on it fails
         self._reader.join()
 
+    def feed(self, inputs: Iterable[SweepInput | TicksInput | OdomInput]) -> Iterator[SweepInput | TicksInput | OdomInput]:
+        """``inputs`` (the log's, in order) for this process's methods, each handed to the child too."""
+        self._feed = _InputFeed(inputs, self._sender.put)
+        return iter(self._feed)
+
     def steps(self, local: Iterable[SweepStep], maps: dict, outputs: ProcessOutputs) -> Iterator[SweepStep]:
-        """``local``'s steps with the child's results of each sweep after their own. ``maps`` (the
-        grids ``outputs`` publish) gets the child's maps at the sweeps they publish; after each
-        sweep that published, the child is told the outputs' next publishing time."""
-        for step in local:
+        """``local``'s steps with the child's results of each sweep joined in the order of
+        ``task.order``. ``maps`` (the grids ``outputs`` publish) gets the child's maps at the sweeps
+        they publish; after each sweep that published, the child is told the outputs' next
+        publishing time."""
+        local = iter(local)
+        while True:
+            try:
+                step = next(local, None)
+            except Exception:
+                self._raise_if_first()
+                raise
             msg = self._receive()
+            if step is None:
+                if not isinstance(msg, _End):
+                    raise self._out_of_step("the end of the log")
+                self._last = msg  # its warnings said by end(), after the parent's own
+                return
             if not isinstance(msg, _Sweep) or msg.stamp_ns != step.sweep.stamp_ns:
                 raise self._out_of_step(f"sweep {step.sweep.stamp_ns} ns")
             self.sweeps += 1
@@ -245,7 +288,7 @@ class MethodProcess:
                 method, error = msg.backend_error
                 self.backends[method].error = error
             publishes = outputs.publishes
-            yield _merged(step, msg.results)
+            yield self._merged(step, msg.results)
             published = outputs.publishes > publishes
             if published != (msg.maps is not None):  # published without the child's maps, or the reverse
                 raise self._out_of_step(f"the maps at {step.sweep.stamp_ns} ns")
@@ -255,10 +298,16 @@ class MethodProcess:
                 except OSError:  # the child has ended: the next message says how
                     pass
 
+    def _raise_if_first(self) -> None:
+        """Where this process failed on a sweep: the child's error on the same sweep, if its method
+        comes first (in one process it runs first, so its error is the one raised)."""
+        if self.task.rank(self.methods[0]) == 0:
+            self._receive()  # its next message: that sweep's results, or its error (raised)
+
     def end(self) -> _End:
         """The child's back ends, grids and diagnostics (waiting for them)."""
         if self._end is None:
-            msg = self._receive()
+            msg = self._last or self._receive()
             if not isinstance(msg, _End):
                 raise self._out_of_step("the end of the log")
             self._end = msg
@@ -266,8 +315,16 @@ class MethodProcess:
                 warnings.warn(text, category, stacklevel=1)
         return self._end
 
+    def _merged(self, step: SweepStep, results: list[SweepResult]) -> SweepStep:
+        """``step`` with ``results`` (the child's) among its own, in the order of ``task.order``."""
+        joined = sorted([*step.results, *results], key=lambda r: self.task.rank(r.method))
+        return SweepStep(step.sweep, joined, step.wheel_pose, step.wheel_twist)
+
     def _receive(self) -> _Sweep | _End:
         msg = self._inbox.get()
+        if isinstance(msg, _Error) and isinstance(msg.error, _InputsFailed) and self._feed is not None \
+                and self._feed.error is not None:  # the child reached where reading the log failed
+            raise self._feed.error
         if isinstance(msg, _Error):  # raised as one process would have: an FmcwlogError is one line
             if not isinstance(msg.error, FmcwlogError):  # a bug: where it was, in the child
                 msg.error.add_note(f"raised in {self._who()}:\n{msg.trace}")
@@ -290,8 +347,99 @@ class MethodProcess:
                                   "(a bug in fmcwlog; --jobs 1 runs every method in one process)")
 
 
-def _merged(step: SweepStep, results: list[SweepResult]) -> SweepStep:
-    return SweepStep(step.sweep, [*step.results, *results], step.wheel_pose, step.wheel_twist)
+class _InputsFailed(Exception):
+    """Raised in the child where its inputs end in the parent's error reading the log."""
+
+
+class _InputFeed:
+    """The log's inputs for the parent's methods and the child's: each is read once, here, up to
+    :data:`READ_AHEAD_SWEEPS` sweeps ahead of the parent's methods, and sent to the child as it is
+    read (``send``: a list of inputs ending with a sweep, or at the end of the log, with how it
+    ended). The parent's methods get each input where they ask for it, after the warnings its
+    reading raised; an error reading the log (:attr:`error`) is raised where they reach it, and the
+    child raises :class:`_InputsFailed` where it does."""
+
+    def __init__(self, inputs: Iterable[SweepInput | TicksInput | OdomInput], send: Any):
+        self._items = iter(inputs)
+        self._send = send
+        self._ahead: deque[tuple[Any, list[warnings.WarningMessage]]] = deque()  # (input or None: the end, warnings)
+        self._sweeps_ahead = 0
+        self._batch: list = []
+        self._done = False
+        self.error: Exception | None = None
+
+    def __iter__(self) -> Iterator[SweepInput | TicksInput | OdomInput]:
+        while True:
+            self._read_ahead()
+            item, said = self._ahead.popleft()
+            for w in said:  # where one process raises them: while reading this input
+                warnings.warn(w.message, w.category, stacklevel=1)
+            if item is None:
+                if self.error is not None:
+                    raise self.error
+                return
+            if isinstance(item, SweepInput):
+                self._sweeps_ahead -= 1
+            yield item
+
+    def _read_ahead(self) -> None:
+        while not self._done and (self._sweeps_ahead < READ_AHEAD_SWEEPS or not self._ahead):
+            item = self._read()
+            self._ahead.append(item)
+            if item[0] is None:
+                self._send((self._batch, "error" if self.error is not None else "end"))
+                return
+            self._batch.append(item[0])
+            if isinstance(item[0], SweepInput):
+                self._sweeps_ahead += 1
+                self._send((self._batch, None))
+                self._batch = []
+
+    def _read(self) -> tuple[Any, list[warnings.WarningMessage]]:
+        """The next input (None at the end of the log or where reading it fails) and the warnings raised."""
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            try:
+                return next(self._items), said
+            except StopIteration:
+                pass
+            except Exception as exc:  # noqa: BLE001 (raised where the methods reach it)
+                self.error = exc
+        self._done = True
+        return None, said
+
+
+_STOP = object()
+
+
+class _Sender:
+    """Sends to the child from a thread of its own, in order, so that the parent never waits for
+    the child to make room in the pipe; once the child has ended, what is left is dropped."""
+
+    def __init__(self, conn: Connection):
+        self.conn = conn
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def put(self, msg: Any) -> None:
+        self._queue.put(msg)
+
+    def stop(self) -> None:
+        self._queue.put(_STOP)
+        self._thread.join(_JOIN_S)
+        self.conn.close()
+
+    def _run(self) -> None:
+        broken = False
+        while (msg := self._queue.get()) is not _STOP:
+            if broken:
+                continue
+            try:
+                self.conn.send(msg)
+            except Exception:  # noqa: BLE001 (the child has ended, or this cannot be sent: the child,
+                broken = True  # its inputs closed, ends, and its results say how)
+                self.conn.close()
 
 
 def _exit_reason(code: int | None) -> str:
@@ -323,7 +471,7 @@ def _read_all(conn: Connection, inbox: queue.Queue) -> None:
 # --- the child ------------------------------------------------------------------------------
 
 
-def _child_main(task: ChildTask, out: Connection, schedule: Connection, own_ends: tuple) -> None:
+def _child_main(task: ChildTask, out: Connection, schedule: Connection, inputs: Connection, own_ends: tuple) -> None:
     """The child process: runs the task, sends its messages, and ends quietly however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the command line's (fork copies it): a SIGTERM ends us
@@ -332,7 +480,7 @@ def _child_main(task: ChildTask, out: Connection, schedule: Connection, own_ends
         conn.close()
     die_with_parent()
     try:
-        _run(task, out, schedule)
+        _run(task, out, schedule, inputs)
     except (BrokenPipeError, EOFError, ConnectionResetError):  # the parent is gone, or done with us
         pass
     except BaseException as exc:  # noqa: BLE001 (every error goes to the parent, which raises it)
@@ -353,18 +501,15 @@ def _send_error(out: Connection, exc: BaseException) -> None:
         pass
 
 
-def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
+def _run(task: ChildTask, out: Connection, schedule: Connection, inputs: Connection) -> None:
     keep_freed_memory()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the log's warnings are the parent's, which reads it too
-        reader = open_log(task.log)
-    runner = LogRunner(task.methods, task.params, task.cal, task.topics, reader.path)
+    runner = LogRunner(task.methods, task.params, task.cal, task.topics, task.log)
     backends = {m: PoseGraphBackend(task.params.backend, np.asarray(task.cal.mount), task.params.map_resolution)
                 for m in task.methods} if task.backend else {}
     publish = _Schedule(schedule, task.publish_period_ns)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for step in runner.run(_without_warnings(LogInputs(reader, task.topics, task.cal, task.reading))):
+        for step in runner.run(_received(inputs)):
             msg = _Sweep(step.sweep.stamp_ns, step.results, None, [])
             for r in step.results:
                 try:
@@ -392,17 +537,15 @@ def _taken(caught: list[warnings.WarningMessage]) -> list[tuple[str, type[Warnin
     return taken
 
 
-def _without_warnings(items: Iterable[Any]) -> Iterator[Any]:
-    """``items``, with the warnings raised while reading them dropped (the parent's reading says them)."""
-    it = iter(items)
+def _received(conn: Connection) -> Iterator[SweepInput | TicksInput | OdomInput]:
+    """The inputs the parent hands over (:class:`_InputFeed`), in order, to the end of the log."""
     while True:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                item = next(it)
-            except StopIteration:
-                return
-        yield item
+        items, end = conn.recv()
+        yield from items
+        if end == "error":
+            raise _InputsFailed
+        if end == "end":
+            return
 
 
 class _Schedule:

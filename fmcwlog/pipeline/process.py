@@ -9,8 +9,8 @@ The path of a sweep, in one place (:func:`process` is the recipe, step by step):
          and PoseGraphBackend (:mod:`fmcwlog.backend`), whose optimised poses replace the front
          end's in the outputs at the end.
 
-Where two or more CPUs are usable the methods after the first run in a child process
-(:mod:`fmcwlog.pipeline.method_process`) and their results join the same stream.
+Where two or more CPUs are usable the costliest method runs in a child process
+(:mod:`fmcwlog.pipeline.method_process`) and its results join the same stream.
 """
 
 from __future__ import annotations
@@ -77,8 +77,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
     ``out_dir`` must be empty or absent; with ``force`` it may also be an output folder
     fmcwlog made, but never one holding anything else or the log itself
     (:func:`fmcwlog.io.atomic.check_output_folder`). ``jobs``: 1 runs every method in this
-    process; otherwise (None: where two or more CPUs are usable) the methods after the first
-    run in a child process (:mod:`fmcwlog.pipeline.method_process`). The outputs are the same bytes
+    process; otherwise (None: where two or more CPUs are usable) the costliest method runs in a
+    child process (:mod:`fmcwlog.pipeline.method_process`). The outputs are the same bytes
     but the timings (the parquet's ``ms``, ``run.json``'s ``wall_seconds``, ``ms_per_sweep_median``
     and the back ends' ``seconds``). Raises :class:`~fmcwlog.errors.FmcwlogError` for input it
     cannot use, leaving ``out_dir`` as it was; so is a log that lost more than half its sweeps as
@@ -117,7 +117,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
             grids: dict[str, Any] = {m: own_grids.get(m) for m in opts.methods}  # the child's: its maps, as published
             backends = _backends(opts, cal, elsewhere)
-            steps = runner.run(inputs)
+            steps = runner.run(inputs if elsewhere is None else elsewhere.feed(inputs))
             if elsewhere is not None:
                 steps = elsewhere.steps(steps, grids, outputs)
             try:
@@ -134,8 +134,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 outputs.abort()
                 raise
             # 5. what the run found, said once in the summary and in run.json
-            diagnostics, diagnostic_notes = (runner.diagnostics() if elsewhere is None else
-                                             merge_diagnostics(runner.diagnostics(), elsewhere.end().diagnostics))
+            diagnostics, diagnostic_notes = _diagnostics(opts.methods, runner, elsewhere)
             notes = ([str(w.message) for w in caught] + _process_notes(runner, inputs, topics) + diagnostic_notes
                      + _backend_notes(optimised))
             many_skipped = _many_skipped_line(skipped)
@@ -223,6 +222,16 @@ def _prior_name(topics: InputTopics, methods: Sequence[str], doppler: bool) -> s
     return f"Doppler ego-motion for the improved method, {search} for the baseline (no odometry, no wheel ticks)"
 
 
+def _diagnostics(methods: Sequence[str], runner: LogRunner,
+                 elsewhere: MethodProcess | None) -> tuple[dict, list[str]]:
+    """The runners' :meth:`~fmcwlog.pipeline.runner.LogRunner.diagnostics`: this process's and the
+    child's, merged with the first method's first, as one process lists them."""
+    if elsewhere is None:
+        return runner.diagnostics()
+    here, there = runner.diagnostics(), elsewhere.end().diagnostics
+    return merge_diagnostics(there, here) if methods[0] in elsewhere.methods else merge_diagnostics(here, there)
+
+
 def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess | None) -> Backends:
     """Each method's back end (none without ``opts.backend``); the child's stand in for those it runs."""
     if opts.backend != "pose-graph":
@@ -236,14 +245,14 @@ def _backends(opts: ProcessOptions, cal: Calibration, elsewhere: MethodProcess |
 @contextmanager
 def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics: InputTopics,
                        jobs: int | None) -> Iterator[MethodProcess | None]:
-    """The child process that runs the methods after the first (:mod:`fmcwlog.pipeline.method_process`),
+    """The child process that runs the costliest method (:mod:`fmcwlog.pipeline.method_process`),
     ended on the way out; None where they all run here."""
     methods = child_methods(tuple(opts.methods), jobs)
     if not methods:
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9), opts.cloud_reading())  # as ProcessOutputs has it
+                     int(opts.publish_period * 1e9), tuple(opts.methods))  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 
@@ -270,8 +279,19 @@ def _feed(methods: Sequence[str], steps: Iterator[SweepStep], outputs: ProcessOu
 def _optimise(backends: Backends, outputs: ProcessOutputs, grids: dict,
               folder: Path) -> dict[str, BackendResult]:
     """Each back end's last optimisation: its trajectory replaces the front end's in the outputs,
-    its map the front end's grid, and ``<method>_backend.json`` records its graph."""
-    optimised = {m: be.finish() for m, be in backends.items()}
+    its map the front end's grid, and ``<method>_backend.json`` records its graph. This process's
+    back ends finish first, while the child's finish there; of several errors, the first method's
+    is raised, as in one process."""
+    done: dict[str, BackendResult] = {}
+    failed: dict[str, Exception] = {}
+    for m in sorted(backends, key=lambda m: isinstance(backends[m], ChildBackend)):
+        try:
+            done[m] = backends[m].finish()
+        except Exception as exc:  # noqa: BLE001 (raised below, the first method's first)
+            failed[m] = exc
+    if failed:
+        raise next(failed[m] for m in backends if m in failed)
+    optimised = {m: done[m] for m in backends}
     for m, res in optimised.items():
         outputs.correct(m, res.poses)
         grids[m] = res.grid

@@ -10,30 +10,41 @@
 //   P_i's yaw is th (L's rotations cancel; numpy wraps it twice, which moves neither sin nor cos),
 //   cos(ith + th), sin(ith + th) by the angle-sum formulas.
 // The results agree with numpy's to rounding (~1e-15 m on metre-scale points), not bit for bit.
+// deskew_placed also places the de-skewed points by one rigid transform (deskew.deskew_placed).
 #include "common.hpp"
 #include "kernels.hpp"
+
+#include <nanobind/stl/optional.h>
+
+#include <optional>
 
 namespace fmcwlog {
 namespace {
 
 using Times = nb::ndarray<const double, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using Mask = nb::ndarray<const bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
 // deskew.deskew on its column path: xy (N, 2) seen at t (N,) s, to the lidar frame at t_ref; twist
 // (v, v_y) m/s and omega rad/s of base_link; mount (mx, my, myaw) the lidar in base_link (m, rad).
-void deskew(Points xy, Times t, double t_ref, double v, double v_y, double omega, double mx, double my,
-            double myaw, OutPoints out) {
-    const size_t n = xy.shape(0);
-    if (t.shape(0) != n || out.shape(0) != n) throw nb::value_error("deskew: xy, t and out differ in length");
-    const double* p = xy.data();
-    const double* tt = t.data();
-    double* o = out.data();
-    nb::gil_scoped_release release;
-    // geometry.inverse(mount): L^-1 = (ix, iy, ith)
-    const double cm = std::cos(myaw), sm = std::sin(myaw);
-    const double ix = -cm * mx - sm * my, iy = sm * mx - cm * my, ith = wrap_angle(-myaw);
-    const double ci = std::cos(ith), si = std::sin(ith);
-    for (size_t i = 0; i < n; ++i) {
-        const double dt = tt[i] - t_ref;
+// Lidar-to-reference motion of a sweep (the loop-invariant part of deskew.deskew's column path):
+// L^-1 = (ix, iy, ith) and its rotation's (ci, si), for the mount (mx, my, myaw).
+struct Deskewer {
+    double t_ref, v, v_y, omega, mx, my, ix, iy, ci, si;
+
+    Deskewer(double t_ref_, double v_, double v_y_, double omega_, double mx_, double my_, double myaw)
+        : t_ref(t_ref_), v(v_), v_y(v_y_), omega(omega_), mx(mx_), my(my_) {
+        // geometry.inverse(mount)
+        const double cm = std::cos(myaw), sm = std::sin(myaw);
+        ix = -cm * mx - sm * my;
+        iy = sm * mx - cm * my;
+        const double ith = wrap_angle(-myaw);
+        ci = std::cos(ith);
+        si = std::sin(ith);
+    }
+
+    // The point (x, y) seen at time ti, in the lidar frame at t_ref: (ox, oy).
+    void operator()(double x, double y, double ti, double& ox, double& oy) const {
+        const double dt = ti - t_ref;
         const double th = omega * dt;
         const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
         double a, b;  // sin th / th and (1 - cos th) / th
@@ -54,10 +65,57 @@ void deskew(Points xy, Times t, double t_ref, double v, double v_y, double omega
         // compose(that, L): translation p + R(ith + th) m
         const double qx = c2 * mx + px - s2 * my, qy = s2 * mx + py + c2 * my;
         // rotate_translate: R(th) p_i + q
-        const double x = p[2 * i], y = p[2 * i + 1];
-        o[2 * i] = cth * x - sth * y + qx;
-        o[2 * i + 1] = sth * x + cth * y + qy;
+        ox = cth * x - sth * y + qx;
+        oy = sth * x + cth * y + qy;
     }
+};
+
+// deskew.deskew on its column path: xy (N, 2) seen at t (N,) s, to the lidar frame at t_ref; twist
+// (v, v_y) m/s and omega rad/s of base_link; mount (mx, my, myaw) the lidar in base_link (m, rad).
+void deskew(Points xy, Times t, double t_ref, double v, double v_y, double omega, double mx, double my,
+            double myaw, OutPoints out) {
+    const size_t n = xy.shape(0);
+    if (t.shape(0) != n || out.shape(0) != n) throw nb::value_error("deskew: xy, t and out differ in length");
+    const double* p = xy.data();
+    const double* tt = t.data();
+    double* o = out.data();
+    nb::gil_scoped_release release;
+    const Deskewer at(t_ref, v, v_y, omega, mx, my, myaw);
+    for (size_t i = 0; i < n; ++i) at(p[2 * i], p[2 * i + 1], tt[i], o[2 * i], o[2 * i + 1]);
+}
+
+// deskew.deskew_placed: the points where keep (N,; None: all) is set, de-skewed as deskew does and then
+// placed by one rigid transform (c, s the cosine and sine of its yaw; tx, ty m) as
+// geometry.rotate_translate places them: (c x - s y) + tx, (s x + c y) + ty, each operation rounded in
+// that order (the same bits as the two calls one after the other). Returns a new (K, 2) array.
+nb::ndarray<nb::numpy, double, nb::shape<-1, 2>> deskew_placed(Points xy, Times t, std::optional<Mask> keep,
+                                                              double t_ref, double v, double v_y, double omega,
+                                                              double mx, double my, double myaw, double c,
+                                                              double s, double tx, double ty) {
+    const size_t n = xy.shape(0);
+    if (t.shape(0) != n || (keep && keep->shape(0) != n))
+        throw nb::value_error("deskew_placed: xy, t and keep differ in length");
+    const double* p = xy.data();
+    const double* tt = t.data();
+    const bool* k = keep ? keep->data() : nullptr;
+    size_t m = n;
+    if (k) m = static_cast<size_t>(std::count(k, k + n, true));
+    double* out = new double[2 * m + 1];
+    {
+        nb::gil_scoped_release release;
+        const Deskewer at(t_ref, v, v_y, omega, mx, my, myaw);
+        size_t j = 0;
+        for (size_t i = 0; i < n; ++i) {
+            if (k && !k[i]) continue;
+            double dx, dy;
+            at(p[2 * i], p[2 * i + 1], tt[i], dx, dy);
+            out[2 * j] = c * dx - s * dy + tx;
+            out[2 * j + 1] = s * dx + c * dy + ty;
+            ++j;
+        }
+    }
+    nb::capsule owner(out, [](void* d) noexcept { delete[] static_cast<double*>(d); });
+    return nb::ndarray<nb::numpy, double, nb::shape<-1, 2>>(out, {m, 2}, owner);
 }
 
 }  // namespace
@@ -65,6 +123,9 @@ void deskew(Points xy, Times t, double t_ref, double v, double v_y, double omega
 void bind_deskew(nb::module_& m) {
     m.def("deskew", &deskew, nb::arg("xy"), nb::arg("t"), nb::arg("t_ref"), nb::arg("v"), nb::arg("v_y"),
           nb::arg("omega"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"), nb::arg("out"));
+    m.def("deskew_placed", &deskew_placed, nb::arg("xy"), nb::arg("t"), nb::arg("keep").none(), nb::arg("t_ref"),
+          nb::arg("v"), nb::arg("v_y"), nb::arg("omega"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"), nb::arg("c"),
+          nb::arg("s"), nb::arg("tx"), nb::arg("ty"));
 }
 
 }  // namespace fmcwlog

@@ -3,8 +3,9 @@ errors, nothing left behind.
 
 The reference is the same run in one process (``jobs=1``), compared file by file: bytes, except
 the timings (the parquet's ``ms`` column, run.json's seconds), read with plain pyarrow and json.
-Failures are injected by patching the baseline front end or back end in this process: the child
-is forked, so it runs the patched code (the tests that need that skip where fork is not used).
+Failures are injected by patching a front end or back end in this process: the child (the improved
+method) is forked, so it runs the patched code (the tests that need that skip where fork is not used);
+the baseline runs in the parent.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from helpers import assert_one_line_error, run_cli_here
@@ -25,8 +28,10 @@ from helpers import assert_one_line_error, run_cli_here
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.backend import PoseGraphBackend
 from fmcwlog.errors import LogError, MapSizeError, MethodProcessError, OutputError
-from fmcwlog.frontend.methods import BaselineFrontEnd
+from fmcwlog.frontend.methods import BaselineFrontEnd, ImprovedFrontEnd
+from fmcwlog.io.inputs import LogInputs
 from fmcwlog.pipeline import method_process
+from fmcwlog.types import SweepInput, TicksInput
 
 TIMINGS = {"wall_seconds", "seconds", "ms_per_sweep_median"}
 needs_fork = pytest.mark.skipif(method_process.START_METHOD != "fork",
@@ -82,7 +87,7 @@ def test_two_processes_write_the_bytes_of_one(crowd_log, tmp_path, monkeypatch, 
     one = process(crowd_log, tmp_path / "one", opts, jobs=1)
     assert started == []
     two = process(crowd_log, tmp_path / "two", opts, jobs=2)
-    assert started == [("baseline",)]
+    assert started == [("improved",)]
     assert_same_outputs(tmp_path / "one", tmp_path / "two")
     assert (one.sweeps, one.warnings, one.backend.keys()) == (two.sweeps, two.warnings, two.backend.keys())
     _no_children_left()
@@ -101,9 +106,10 @@ def test_one_process_where_one_method_or_one_cpu_or_asked(monkeypatch):
     both = ("improved", "baseline")
     monkeypatch.setattr(method_process, "usable_cpus", lambda: 1)
     assert method_process.child_methods(both, None) == ()
-    assert method_process.child_methods(both, 2) == ("baseline",)  # asked for
+    assert method_process.child_methods(both, 2) == ("improved",)  # asked for
     monkeypatch.setattr(method_process, "usable_cpus", lambda: 2)
-    assert method_process.child_methods(both, None) == ("baseline",)
+    assert method_process.child_methods(both, None) == ("improved",)  # the costliest, whatever the order
+    assert method_process.child_methods(both[::-1], None) == ("improved",)
     assert method_process.child_methods(both, 1) == ()
     assert method_process.child_methods(("baseline",), None) == ()
     assert method_process.child_methods(("improved",), 4) == ()
@@ -115,10 +121,14 @@ def test_fleet_workers_run_their_methods_in_one_process():
     assert "process(task.log, task.out_dir, task.options, force=task.force, on_sweep=on_sweep, jobs=1)" in source
 
 
-def _fail_at(monkeypatch, sweep: int, error: BaseException) -> None:
-    """Make the baseline front end raise ``error`` on its ``sweep``-th sweep (counted in the process
+FRONT_ENDS = {"improved": ImprovedFrontEnd, "baseline": BaselineFrontEnd}
+
+
+def _fail_at(monkeypatch, sweep: int, error: BaseException, method: str = "improved") -> None:
+    """Make ``method``'s front end raise ``error`` on its ``sweep``-th sweep (counted in the process
     that runs it: the child inherits the count, 0, when it is forked)."""
-    original = BaselineFrontEnd.step
+    front = FRONT_ENDS[method]
+    original = front.step
     calls = [0]
 
     def failing(self, *args):
@@ -127,7 +137,7 @@ def _fail_at(monkeypatch, sweep: int, error: BaseException) -> None:
             raise error
         return original(self, *args)
 
-    monkeypatch.setattr(BaselineFrontEnd, "step", failing)
+    monkeypatch.setattr(front, "step", failing)
 
 
 def _error_of(log: Path, out: Path, jobs: int) -> BaseException:
@@ -141,12 +151,13 @@ def _error_of(log: Path, out: Path, jobs: int) -> BaseException:
 @needs_fork
 @pytest.mark.parametrize("error", [LogError("a damaged sweep"), MapSizeError("the map is too large"),
                                    ValueError("a bug")])
-def test_child_front_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, error):
+@pytest.mark.parametrize("method", ["improved", "baseline"])  # in the child, in the parent
+def test_front_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, error, method):
     with monkeypatch.context() as patch:
-        _fail_at(patch, 7, error)
+        _fail_at(patch, 7, error, method)
         one = _error_of(crowd_log, tmp_path / "one", 1)
     with monkeypatch.context() as patch:
-        _fail_at(patch, 7, error)
+        _fail_at(patch, 7, error, method)
         two = _error_of(crowd_log, tmp_path / "two", 2)
     assert (type(two), str(two)) == (type(one), str(one))
     if isinstance(error, MapSizeError):  # as in one process: about this log
@@ -156,14 +167,31 @@ def test_child_front_end_error_is_the_one_process_error(crowd_log, tmp_path, mon
 
 @pytest.mark.slow
 @needs_fork
-def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch):
+@pytest.mark.parametrize("sweeps", [(7, 7), (8, 7), (7, 8)])  # (improved's, baseline's) failing sweep
+def test_of_two_errors_the_first_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, sweeps):
+    """Both methods fail: the one that fails first in one process (the earlier sweep; on the same sweep
+    the improved, which runs first there), not the one whose process got there first."""
+    got = []
+    for jobs in (1, 2):
+        with monkeypatch.context() as patch:
+            _fail_at(patch, sweeps[0], LogError("improved failed"), "improved")
+            _fail_at(patch, sweeps[1], LogError("baseline failed"), "baseline")
+            got.append(str(_error_of(crowd_log, tmp_path / f"out{jobs}", jobs)))
+    assert got[0] == got[1] == ("improved failed" if sweeps[0] <= sweeps[1] else "baseline failed")
+    _no_children_left()
+
+
+@pytest.mark.slow
+@needs_fork
+@pytest.mark.parametrize("method", ["improved", "baseline"])
+def test_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monkeypatch, method):
     error = OutputError("/tmp: cannot keep fmcwlog's temporary point store: no space left on device")
     original = PoseGraphBackend.add
     for jobs in (1, 2):
         calls = [0]
 
         def failing(self, r, calls=calls):
-            if r.method == "baseline":
+            if r.method == method:
                 calls[0] += 1
                 if calls[0] == 9:
                     raise error
@@ -180,18 +208,18 @@ def test_child_back_end_error_is_the_one_process_error(crowd_log, tmp_path, monk
 @needs_fork
 def test_a_child_that_dies_is_one_line_and_exit_status_2(crowd_log, tmp_path, monkeypatch):
     parent = os.getpid()
-    original = BaselineFrontEnd.step
+    original = ImprovedFrontEnd.step
 
     def dying(self, *args):
         if os.getpid() != parent:
             os.kill(os.getpid(), signal.SIGKILL)
         return original(self, *args)
 
-    monkeypatch.setattr(BaselineFrontEnd, "step", dying)
+    monkeypatch.setattr(ImprovedFrontEnd, "step", dying)
     out = tmp_path / "out"
     code, _, err = run_cli_here("process", str(crowd_log), "-o", str(out))
     line = assert_one_line_error(code, err, str(crowd_log), "killed by SIGKILL", "--jobs 1")
-    assert "baseline" in line
+    assert "improved" in line
     assert not out.exists() and list(tmp_path.iterdir()) == []
     _no_children_left()
     code, _, err = run_cli_here("process", str(crowd_log), "-o", str(out), "--jobs", "1")  # one process: no child
@@ -251,3 +279,113 @@ def test_method_process_error_names_the_way_out():
     assert issubclass(MethodProcessError, Exception)
     assert "SIGKILL" in method_process._exit_reason(-signal.SIGKILL)
     assert method_process._exit_reason(3) == "exit status 3"
+
+
+# --- the log read once, by the parent, and handed to the child ------------------------------
+
+
+def _inputs(n_sweeps: int, ticks_between: int = 3) -> list:
+    items: list = []
+    for k in range(n_sweeps):
+        items += [TicksInput(k * 100 + j, j, j) for j in range(ticks_between)]
+        items.append(SweepInput(k * 100 + 50, np.full((2, 2), float(k)), np.zeros(2), None, None))
+    return items + [TicksInput(10**9, 0, 0)]
+
+
+def _feed(items, sent: list):
+    return method_process._InputFeed(items, sent.append)
+
+
+def test_the_feed_hands_every_input_over_in_order_a_sweep_at_a_time():
+    items, sent = _inputs(30), []
+    got = list(_feed(items, sent))
+    assert got == items
+    assert [i for batch, _ in sent for i in batch] == items
+    assert all(isinstance(batch[-1], SweepInput) and end is None for batch, end in sent[:-1])
+    assert sent[-1] == ([items[-1]], "end")
+
+
+def test_the_feed_reads_a_bounded_number_of_sweeps_ahead():
+    items, pulled = _inputs(100), []
+
+    def reading():
+        for item in items:
+            pulled.append(item)
+            yield item
+
+    feed = iter(_feed(reading(), []))
+    for consumed in range(1, 200):
+        next(feed)
+        ahead = sum(isinstance(i, SweepInput) for i in pulled) - sum(isinstance(i, SweepInput) for i in items[:consumed])
+        assert ahead <= method_process.READ_AHEAD_SWEEPS
+
+
+def test_the_feed_says_each_warning_and_its_error_where_one_process_would():
+    """Read ahead, the inputs' warnings and error still come where the methods reach the input that raised them."""
+    items = _inputs(40)
+
+    def reading():
+        for k, item in enumerate(items):
+            if k == 7:
+                warnings.warn("input 7 is odd", UserWarning, stacklevel=1)
+            if k == 30:
+                raise LogError("the log is damaged at input 30")
+            yield item
+
+    sent: list = []
+    order: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(LogError, match="input 30"):
+            for k, _ in enumerate(_feed(reading(), sent)):
+                order += [str(w.message) for w in caught] + [f"got {k}"]
+                caught.clear()
+    assert order.index("input 7 is odd") == order.index("got 6") + 1 == order.index("got 7") - 1
+    assert order[-1] == "got 29"
+    assert [i for batch, _ in sent for i in batch] == items[:30] and sent[-1][1] == "error"
+
+
+def _reading_fails_at(monkeypatch, at: int, warn_at: int | None = None) -> None:
+    """Make the log's reading warn at input ``warn_at`` and raise a LogError at input ``at`` (in the
+    process that reads it: the parent, whichever start method)."""
+    original = LogInputs.__iter__
+
+    def failing(self):
+        for k, item in enumerate(original(self)):
+            if k == warn_at:
+                warnings.warn(f"reading: input {k} looks odd", UserWarning, stacklevel=1)
+            if k == at:
+                raise LogError(f"{self.path}: damaged at input {k}")
+            yield item
+
+    monkeypatch.setattr(LogInputs, "__iter__", failing)
+
+
+@pytest.mark.slow
+def test_the_reading_s_warnings_are_those_of_one_process(crowd_log, tmp_path, monkeypatch):
+    _reading_fails_at(monkeypatch, -1, warn_at=40)
+    one = process(crowd_log, tmp_path / "one", jobs=1)
+    two = process(crowd_log, tmp_path / "two", jobs=2)
+    assert one.warnings == two.warnings and "reading: input 40 looks odd" in two.warnings
+    assert_same_outputs(tmp_path / "one", tmp_path / "two")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("improved_fails_at", [None, 3, 1000])
+def test_an_error_reading_the_log_mid_way_is_the_one_process_error(crowd_log, tmp_path, monkeypatch,
+                                                                    improved_fails_at):
+    """The parent reads the log for both: its error comes where the methods reach it, after the
+    child's error on an earlier sweep, if any, as in one process."""
+    if improved_fails_at is not None and method_process.START_METHOD != "fork":
+        pytest.skip("the child's failure is injected by patching code the forked child inherits")
+    got = []
+    for jobs in (1, 2):
+        with monkeypatch.context() as patch:
+            _reading_fails_at(patch, 120, warn_at=40)
+            if improved_fails_at is not None:
+                _fail_at(patch, improved_fails_at, LogError("improved failed"), "improved")
+            error = _error_of(crowd_log, tmp_path / f"out{jobs}", jobs)
+        got.append((type(error), str(error)))
+    assert got[0] == got[1]
+    assert "improved failed" in got[0][1] if improved_fails_at == 3 else "damaged at input 120" in got[0][1]
+    _no_children_left()

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from fmcwlog.frontend import deskew as dk
 from fmcwlog.frontend import egomotion as eg
+from fmcwlog.geometry import transform_points
 from fmcwlog.kernels import compiled
 from fmcwlog.kernels import voxel as vx
 
@@ -49,7 +50,7 @@ def recorded():
     from fmcwlog.frontend import methods
 
     seen = {"fit": [], "deskew": [], "voxel": []}
-    originals = {name: getattr(methods, name) for name in ("fit_sensor_velocity", "deskew", "voxel_downsample")}
+    originals = {name: getattr(methods, name) for name in ("fit_sensor_velocity", "deskew_placed", "voxel_downsample")}
 
     def capturing(kind, function):
         def capture(*args, **kwargs):
@@ -58,7 +59,7 @@ def recorded():
         return capture
 
     methods.fit_sensor_velocity = capturing("fit", eg.fit_sensor_velocity_numpy)
-    methods.deskew = capturing("deskew", dk.deskew_numpy)
+    methods.deskew_placed = capturing("deskew", dk.deskew_placed_numpy)
     methods.voxel_downsample = capturing("voxel", vx.voxel_downsample_numpy)
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -106,7 +107,12 @@ def test_recorded_deskew_and_thinning_agree(recorded, use):
     use("compiled")
     assert len(recorded["deskew"]) > 200 and len(recorded["voxel"]) > 200
     for args, kwargs in recorded["deskew"]:
-        np.testing.assert_allclose(dk.deskew(*args, **kwargs), dk.deskew_numpy(*args, **kwargs), rtol=0, atol=1e-12)
+        xy, t, v, omega, mount, pose, keep = args
+        seen = dk.deskew(xy[keep], t[keep], v, omega, mount)
+        np.testing.assert_allclose(seen, dk.deskew_numpy(xy[keep], t[keep], v, omega, mount), rtol=0, atol=1e-12)
+        placed = dk.deskew_placed(*args, **kwargs)
+        np.testing.assert_array_equal(placed, transform_points(pose, seen))  # the two compiled steps' bits
+        np.testing.assert_allclose(placed, dk.deskew_placed_numpy(*args, **kwargs), rtol=0, atol=1e-12)
     for (xy, size), _ in recorded["voxel"]:
         for s in (size, 0.03, 0.5):
             np.testing.assert_array_equal(vx.voxel_downsample(xy, s), vx.voxel_downsample_numpy(xy, s))
@@ -183,6 +189,28 @@ def test_generated_deskew_agrees(use, seed, n, v, omega, v_y, mount, t_ref):
     use("compiled")
     got = dk.deskew(xy, t, v, omega, np.array(mount), t_ref, v_y)
     np.testing.assert_allclose(got, dk.deskew_numpy(xy, t, v, omega, np.array(mount), t_ref, v_y), rtol=0, atol=1e-12)
+
+
+@needs_core
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 1200), v=st.floats(-3.0, 3.0), omega=st.floats(-3.0, 3.0),
+       mount=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-4.0, 4.0)),
+       pose=st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(-10.0, 10.0)),
+       share=st.sampled_from([None, 0.0, 0.5, 1.0]))
+def test_generated_deskew_placed_agrees(use, seed, n, v, omega, mount, pose, share):
+    """De-skewed and placed in one call: the compiled de-skew's points under the pose bit for bit,
+    numpy's to rounding; the kept points in their order (``share``: the kept fraction, None: no mask)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-40, 40, (n, 2))
+    t = np.sort(rng.uniform(0, 0.1, n))
+    keep = None if share is None else rng.uniform(size=n) < share
+    mount, pose = np.array(mount), np.array(pose)
+    use("compiled")
+    got = dk.deskew_placed(xy, t, v, omega, mount, pose, keep)
+    kx, kt = (xy, t) if keep is None else (xy[keep], t[keep])
+    assert got.shape == kx.shape
+    np.testing.assert_array_equal(got, transform_points(pose, dk.deskew(kx, kt, v, omega, mount)) if len(kx) else kx)
+    np.testing.assert_allclose(got, dk.deskew_placed_numpy(xy, t, v, omega, mount, pose, keep), rtol=0, atol=1e-9)
 
 
 @needs_core

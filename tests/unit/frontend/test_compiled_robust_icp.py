@@ -45,7 +45,8 @@ def use(monkeypatch):
 
 def assert_same(fast, ref, tol=1e-9):
     """The same counts; poses, RMS distance and mixture means and weights within ``tol`` (m, rad,
-    or a fraction), the hessian within ``tol`` of its scale, the variances within ``1e-5 tol`` (m²)."""
+    or a fraction), the hessian within ``tol`` of its scale, the variances within ``1e-5 tol`` (m²) or
+    ``1e-2 tol`` of themselves (a wide component's E[d²] rounds in proportion to its size)."""
     assert fast.iterations == ref.iterations
     assert fast.n_correspondences_kept == ref.n_correspondences_kept
     assert fast.converged == ref.converged
@@ -59,7 +60,7 @@ def assert_same(fast, ref, tol=1e-9):
         for name in ("means", "mix"):
             np.testing.assert_allclose(getattr(fast.mixture, name), getattr(ref.mixture, name), rtol=0, atol=tol)
         # variances: E[d²] - E[d]² cancels for a collapsed component, leaving the rounding of E[d²]
-        np.testing.assert_allclose(fast.mixture.sigmas**2, ref.mixture.sigmas**2, rtol=0, atol=1e-5 * tol)
+        np.testing.assert_allclose(fast.mixture.sigmas**2, ref.mixture.sigmas**2, rtol=1e-2 * tol, atol=1e-5 * tol)
         assert fast.mixture.merge_overlap == ref.mixture.merge_overlap
         np.testing.assert_allclose(fast.mixture.fit_median, ref.mixture.fit_median, rtol=0, atol=tol, equal_nan=True)
 

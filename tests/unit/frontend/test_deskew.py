@@ -6,7 +6,7 @@ from helpers import same_bits
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fmcwlog.frontend.deskew import deskew, deskew_numpy, lidar_motion, se2_exp
+from fmcwlog.frontend.deskew import advance, deskew, deskew_numpy, lidar_motion, se2_exp
 from fmcwlog.geometry import compose, inverse, transform_points
 
 
@@ -149,3 +149,21 @@ def test_deskew_column_path_is_the_pose_chain(v, omega, v_y, mount, seed):
     assert lidar_motion(t, v, omega, m, 0.03, v_y).tobytes() == chain.tobytes()
     assert deskew_numpy(xy, t, v, omega, m, 0.03, v_y).tobytes() == transform_points(chain, xy).tobytes()
     np.testing.assert_allclose(deskew(xy, t, v, omega, m, 0.03, v_y), transform_points(chain, xy), rtol=0, atol=1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(pose=st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4),
+                      st.one_of(st.floats(-10.0, 10.0), st.sampled_from([np.inf, -np.inf, np.nan]))),
+       v=st.floats(-5.0, 5.0), omega=st.one_of(st.floats(-4.0, 4.0), st.sampled_from([0.0, -0.0, 1e-300])),
+       dt=st.floats(-1.0, 1.0), numpy_scalars=st.booleans())
+def test_advance_is_compose_of_se2_exp(pose, v, omega, dt, numpy_scalars):
+    """The float prediction gives the bits of ``compose(pose, se2_exp(...))`` (NaN where it does)."""
+    if numpy_scalars:
+        v, omega, dt = np.float64(v), np.float64(omega), np.float64(dt)
+    pose = np.array(pose)
+    with np.errstate(invalid="ignore"):
+        want = compose(pose, se2_exp(v, 0.0, omega, np.array(dt)))
+        got = advance(pose, v, omega, dt)
+    assert got.dtype == want.dtype and got.shape == want.shape
+    np.testing.assert_array_equal(got.view(np.int64) if np.isfinite(want).all() else np.isnan(got),
+                                  want.view(np.int64) if np.isfinite(want).all() else np.isnan(want))

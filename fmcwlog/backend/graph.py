@@ -179,6 +179,8 @@ class PoseGraph:
     def estimates(self) -> np.ndarray:
         """(n, 3) the current estimate of every node, in index order (one call into gtsam: its values
         are the nodes' ``Pose2`` alone, under the keys ``0 … n-1``, which it keeps sorted)."""
+        self._build()
+        gtsam = _gtsam()
         return np.asarray(gtsam.utilities.extractPose2(self.values), float).reshape(-1, 3)
 
     def closure_errors(self) -> np.ndarray:

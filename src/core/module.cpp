@@ -8,6 +8,10 @@ using namespace fmcwlog;
 NB_MODULE(_core, m) {
     m.doc() = "Compiled twins of fmcwlog's numpy kernels";
     m.attr("SOURCE_SHA256") = FMCWLOG_CORE_SOURCE_SHA256;
+    // Grids kept by objects that live to the interpreter's exit (fmcwlog's command freezes its
+    // objects out of the last collections; a test's traceback holds its frames) are not leaks:
+    // no warning about them after a command's last line.
+    nb::set_leak_warnings(false);
     nb::class_<TargetGrid>(m, "TargetGrid")
         .def(
             "__init__",

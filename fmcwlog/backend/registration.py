@@ -63,6 +63,11 @@ class Submap:
     """Target points (M, 2), their unit normals (M, 2), which have one (M,), and the KD-tree (built
     on first use where the compiled core built the normals without it).
 
+    ``near`` (M, k) int32 and ``reach`` (M, k + 1), m: each point's ``k`` nearest points (itself among
+    them, nearest first; -1 past M) and distances that every point but the first ``j`` of its row lies
+    at or beyond; built with the normals by the compiled core (None otherwise), they let its pairing
+    answer most passes without a grid query (``src/core/line_icp.cpp``).
+
     ``paired`` (M + 1,): ``has_normal`` with a last ``False`` for the index ``M`` that the tree
     returns where no point lies within the search's bound, so one lookup says which source points
     pair; ``points_normals`` (M, 4): each point beside its normal (both built here, not by the caller)."""
@@ -71,6 +76,8 @@ class Submap:
     normals: np.ndarray
     has_normal: np.ndarray
     _tree: cKDTree | None = field(default=None, repr=False)
+    near: np.ndarray | None = field(default=None, repr=False)
+    reach: np.ndarray | None = field(default=None, repr=False)
     paired: np.ndarray = field(init=False, repr=False)
     points_normals: np.ndarray = field(init=False, repr=False)
     grids: dict = field(init=False, repr=False, default_factory=dict)  # the compiled core's grid per gate (m)
@@ -101,8 +108,13 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
     if module is not None and len(points):
         points = np.ascontiguousarray(points, float)
         normals, has_normal = np.empty((len(points), 2)), np.empty(len(points), bool)
-        module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal)
-        return Submap(points, normals, has_normal)
+        if not np.isfinite(points).all():  # the neighbour table assumes finite points
+            module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal)
+            return Submap(points, normals, has_normal)
+        near = np.empty((len(points), p.normal_neighbours), np.int32)
+        reach = np.empty((len(points), p.normal_neighbours + 1))
+        module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal, near, reach)
+        return Submap(points, normals, has_normal, near=near, reach=reach)
     from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
     tree = cKDTree(points)
     k = min(p.normal_neighbours, len(points))
@@ -211,7 +223,8 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
 def _compiled(module, source_xy: np.ndarray, submap: Submap, initial: np.ndarray, p: LineICPParams,
               prior: tuple[np.ndarray, np.ndarray] | None) -> LineICPResult:
     """:func:`register_point_to_line` in the compiled core (``src/core/line_icp.cpp``): the same
-    pairs, the same iterations; its sums run in point order, so poses agree to rounding."""
+    pairs, the same iterations; its sums run in point order, so poses agree to rounding. The
+    submap's neighbour table, where it has one, spares most passes' grid queries (the same pairs)."""
     grid = submap.grids.get(p.max_distance)
     if grid is None:
         grid = submap.grids[p.max_distance] = module.TargetGrid(np.ascontiguousarray(submap.points, float),
@@ -221,6 +234,7 @@ def _compiled(module, source_xy: np.ndarray, submap: Submap, initial: np.ndarray
                                                np.asarray(prior[1], float).ravel().tolist())
     pose, h, residuals, pairs, iterations, converged = module.line_icp(
         grid, np.ascontiguousarray(submap.normals, float), np.ascontiguousarray(submap.has_normal, bool),
-        np.ascontiguousarray(source_xy, float), x, y, th, p.max_iterations, p.kernel_scale, p.tolerance, *held)
+        np.ascontiguousarray(source_xy, float), x, y, th, p.max_iterations, p.kernel_scale, p.tolerance, *held,
+        submap.near, submap.reach)
     hessian = np.array(h).reshape(3, 3) if pairs else np.zeros((3, 3))
-    return LineICPResult(np.array(pose), hessian, np.array(residuals), pairs, iterations, converged)
+    return LineICPResult(np.array(pose), hessian, residuals, pairs, iterations, converged)

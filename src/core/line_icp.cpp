@@ -32,9 +32,73 @@ struct System {
     }
 };
 
+using Near = nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Reach = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+// The pairing: each source point's nearest submap point within the gate, the TargetGrid's answer
+// (equal squared distances to the lowest index), asked of the grid only where the point's pair of
+// the pass before cannot tell it. The submap's neighbour table (submap_normals) lists each point
+// t's k nearest, nearest first, and distances reach_j(t) that every point but the first j lies at or
+// beyond. A source point at q whose last pair was t has every such point u at |q - u| >=
+// |t - u| - |q - t| >= reach_j(t) - |q - t|; so the nearest of t and its first j neighbours, where
+// nearer than that, is the nearest of all, and where that bound is past the gate no other point
+// pairs. The neighbours are taken one at a time until that holds (most often after one or two); a
+// margin covers the rounding.
+class Pairing {
+  public:
+    Pairing(const TargetGrid& grid, const int32_t* near, int64_t k, const double* reach, size_t n)
+        : grid_(grid), near_(near), k_(k), reach_(reach), gate_(grid.radius()), last_(n, -1) {}
+
+    // The pair of source point i, now at (qx, qy): the index grid.nearest gives, or -1.
+    int64_t operator()(size_t i, double qx, double qy) {
+        const int64_t t = last_[i];
+        if (near_ != nullptr && t >= 0 && std::isfinite(qx) && std::isfinite(qy)) {
+            const int64_t a = from_neighbours(t, qx, qy);
+            if (a != kAsk) return last_[i] = a;
+        }
+        double d;
+        return last_[i] = grid_.nearest(qx, qy, d);
+    }
+
+  private:
+    static constexpr int64_t kAsk = -2;
+
+    double d2(int64_t u, double qx, double qy) const {  // the grid's arithmetic: target - query
+        const double dx = grid_.x(u) - qx, dy = grid_.y(u) - qy;
+        return dx * dx + dy * dy;
+    }
+
+    int64_t from_neighbours(int64_t t, double qx, double qy) const {
+        double best = d2(t, qx, qy);
+        int64_t bi = t;
+        const double lever = std::sqrt(best) + 1e-9 * (1.0 + std::fabs(qx) + std::fabs(qy));  // |q - t| and the margin
+        const int32_t* nb = near_ + t * k_;
+        const double* reach = reach_ + t * (k_ + 1);
+        for (int64_t j = 0;; ++j) {
+            const double others = reach[j] - lever;  // every point but t and the first j neighbours
+            if (others > 0.0 && best < others * others) return std::sqrt(best) < gate_ ? bi : -1;  // the grid's gate
+            if (gate_ <= others) return -1;  // the nearest of those, and all others, at or past the gate
+            if (j == k_ || nb[j] < 0) return kAsk;
+            const int64_t u = nb[j];
+            const double d = d2(u, qx, qy);
+            if (d < best || (d == best && u < bi)) {
+                best = d;
+                bi = u;
+            }
+        }
+    }
+
+    const TargetGrid& grid_;
+    const int32_t* near_;
+    int64_t k_;
+    const double* reach_;
+    double gate_;
+    std::vector<int64_t> last_;  // each source point's pair of the pass before (-1: none yet, or none)
+};
+
 // _system: the residuals, Jacobian rows and Cauchy weights of the pairs at ``pose``.
-void build_system(const TargetGrid& grid, const double* s, size_t n, const double* normals, const bool* has_normal,
-                  const Vec3& pose, double c, System& out) {
+void build_system(const TargetGrid& grid, Pairing& pairing, const double* s, size_t n, const double* normals,
+                  const bool* has_normal, const Vec3& pose, double c, System& out) {
     out.clear();
     const double cs = std::cos(pose[2]), sn = std::sin(pose[2]);
     for (size_t i = 0; i < n; ++i) {
@@ -42,8 +106,7 @@ void build_system(const TargetGrid& grid, const double* s, size_t n, const doubl
         // NearestPairs._moved: c x + (-s) y + t_x, c y + s x + t_y
         const double mx = (x * cs + y * (-sn)) + pose[0];
         const double my = (y * cs + x * sn) + pose[1];
-        double d;
-        const int64_t k = grid.nearest(mx, my, d);
+        const int64_t k = pairing(i, mx, my);
         if (k < 0 || !has_normal[k]) continue;
         const double nx = normals[2 * k], ny = normals[2 * k + 1];
         const double dx = mx - grid.x(k), dy = my - grid.y(k);
@@ -97,25 +160,46 @@ bool solve3(Mat3 a, Vec3 b, Vec3& x) {
     return true;
 }
 
-using Result = std::tuple<Vec3, Mat3, std::vector<double>, int64_t, int, bool>;
+using Residuals = nb::ndarray<nb::numpy, double, nb::ndim<1>>;
+using Result = std::tuple<Vec3, Mat3, Residuals, int64_t, int, bool>;
 
-// register_point_to_line, whole: (pose, hessian at it (row major), residuals, pairs, iterations, converged).
+// The residuals handed to numpy as they are (no list of floats between).
+Residuals to_numpy(std::vector<double>&& r) {
+    if (r.empty()) r.reserve(1);
+    auto* kept = new std::vector<double>(std::move(r));
+    nb::capsule owner(kept, [](void* v) noexcept { delete static_cast<std::vector<double>*>(v); });
+    return Residuals(kept->data(), {kept->size()}, owner);
+}
+
+// register_point_to_line, whole: (pose, hessian at it (row major), residuals (an array), pairs, iterations,
+// converged).
 Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points source, double x, double y,
                 double theta, int max_iterations, double kernel_scale, double tolerance, std::optional<Vec3> prior_pose,
-                std::optional<Mat3> prior_info) {
+                std::optional<Mat3> prior_info, std::optional<Near> near, std::optional<Reach> reach) {
     if (normals.shape(0) != has_normal.shape(0)) throw nb::value_error("one normal flag per normal");
+    if (near.has_value() != reach.has_value()) throw nb::value_error("near and reach together");
+    if (near && (near->shape(0) != normals.shape(0) || reach->shape(0) != normals.shape(0)))
+        throw nb::value_error("near (M, k) and reach (M, k + 1): one row per submap point");
+    if (near && reach->shape(1) != near->shape(1) + 1) throw nb::value_error("reach (M, k + 1)");
+    if (near) {  // indices the grid has (its points are the normals' rows)
+        const int32_t* v = near->data();
+        for (size_t i = 0; i < near->size(); ++i)
+            if (v[i] < -1 || int64_t(v[i]) >= int64_t(normals.shape(0))) throw nb::value_error("near: an index past M");
+    }
     const double* s = source.data();
     const size_t n = source.shape(0);
     Vec3 pose{x, y, theta};
     bool converged = false;
     int it = 0;
     System sys;
+    Pairing pairing(grid, near ? near->data() : nullptr, near ? int64_t(near->shape(1)) : 0,
+                    reach ? reach->data() : nullptr, n);
     Mat3 h;
     Vec3 g;
     {
         nb::gil_scoped_release release;
         for (it = 1; it <= max_iterations; ++it) {
-            build_system(grid, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
+            build_system(grid, pairing, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
             if (sys.r.size() < 3) break;
             normal_equations(sys, h, g);
             if (prior_pose && prior_info) {
@@ -140,10 +224,11 @@ Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points
             }
         }
         if (it > max_iterations) it = max_iterations;
-        build_system(grid, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
+        build_system(grid, pairing, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
         normal_equations(sys, h, g);
     }
-    return {pose, h, sys.r, int64_t(sys.r.size()), it, converged};
+    const int64_t pairs = int64_t(sys.r.size());
+    return {pose, h, to_numpy(std::move(sys.r)), pairs, it, converged};
 }
 
 }  // namespace
@@ -151,7 +236,8 @@ Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points
 void bind_line_icp(nb::module_& m) {
     m.def("line_icp", &line_icp, nb::arg("grid"), nb::arg("normals"), nb::arg("has_normal"), nb::arg("source"),
           nb::arg("x"), nb::arg("y"), nb::arg("theta"), nb::arg("max_iterations"), nb::arg("kernel_scale"),
-          nb::arg("tolerance"), nb::arg("prior_pose").none(), nb::arg("prior_info").none());
+          nb::arg("tolerance"), nb::arg("prior_pose").none(), nb::arg("prior_info").none(), nb::arg("near").none() = nb::none(),
+          nb::arg("reach").none() = nb::none());
 }
 
 }  // namespace fmcwlog

@@ -7,6 +7,7 @@
 // The neighbours are those of the KD-tree query (squared distances dx^2 + dy^2, nearest first;
 // equal distances by index here, where the tree may order them otherwise: the same set but for a
 // tie at the k-th place, which only duplicated points make).
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/tuple.h>
 
 #include <cmath>
@@ -19,6 +20,8 @@ namespace {
 
 using Normals = nb::ndarray<double, nb::shape<-1, 2>, nb::c_contig, nb::device::cpu>;
 using Flags = nb::ndarray<bool, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Near = nb::ndarray<int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Reach = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 // The points bucketed by a uniform grid of square cells (index order within a cell).
 class Buckets {
@@ -184,12 +187,24 @@ Eigen2 eigen_2x2(double a, double b, double c) {
 }
 
 // build_submap's normals: ``points`` (M, 2); ``normals`` (M, 2) and ``has_normal`` (M,) are filled.
-void submap_normals(Points points, int64_t neighbours, double min_planarity, Normals normals, Flags has_normal) {
+// Where given, ``near`` (M, neighbours) gets each point's neighbours (the k nearest, itself among
+// them, nearest first; -1 past k = min(neighbours, M)) and ``reach`` (M, neighbours + 1) distances
+// (m): every point but the first j of its row lies at or beyond reach[j] (the j-th neighbour's
+// distance; past k, the k-th's, or inf where the k are all M points). The line ICP's pairing
+// (line_icp.cpp) answers from them where it can.
+void submap_normals(Points points, int64_t neighbours, double min_planarity, Normals normals, Flags has_normal,
+                    std::optional<Near> near, std::optional<Reach> reach) {
     const int64_t m = int64_t(points.shape(0));
     if (int64_t(normals.shape(0)) != m || int64_t(has_normal.shape(0)) != m) throw nb::value_error("outputs of M rows");
+    if (near.has_value() != reach.has_value()) throw nb::value_error("near and reach together");
+    if (near && (int64_t(near->shape(0)) != m || int64_t(near->shape(1)) != neighbours || int64_t(reach->shape(0)) != m ||
+                 int64_t(reach->shape(1)) != neighbours + 1))
+        throw nb::value_error("near (M, neighbours) and reach (M, neighbours + 1)");
     if (m == 0) return;
     if (neighbours < 1) throw nb::value_error("neighbours >= 1");
     const int64_t k = std::min(neighbours, m);
+    int32_t* near_out = near ? near->data() : nullptr;
+    double* reach_out = reach ? reach->data() : nullptr;
     const double* xy = points.data();
     double* out = normals.data();
     bool* flag = has_normal.data();
@@ -222,6 +237,14 @@ void submap_normals(Points points, int64_t neighbours, double min_planarity, Nor
         out[2 * q] = e.nx;
         out[2 * q + 1] = e.ny;
         flag[q] = e.small <= min_planarity * std::max(e.large, 1e-12) && k >= 3;
+        if (near_out) {
+            const double last = k == m ? kInf : std::sqrt(d2[size_t(k - 1)]);  // beyond the k
+            for (int64_t i = 0; i < neighbours; ++i) {
+                near_out[q * neighbours + i] = i < k ? int32_t(idx[size_t(i)]) : -1;
+                reach_out[q * (neighbours + 1) + i] = i < k ? std::sqrt(d2[size_t(i)]) : last;
+            }
+            reach_out[q * (neighbours + 1) + neighbours] = last;
+        }
     }
 }
 
@@ -229,7 +252,8 @@ void submap_normals(Points points, int64_t neighbours, double min_planarity, Nor
 
 void bind_submap(nb::module_& m) {
     m.def("submap_normals", &submap_normals, nb::arg("points"), nb::arg("neighbours"), nb::arg("min_planarity"),
-          nb::arg("normals"), nb::arg("has_normal"));
+          nb::arg("normals"), nb::arg("has_normal"), nb::arg("near").none() = nb::none(),
+          nb::arg("reach").none() = nb::none());
 }
 
 }  // namespace fmcwlog

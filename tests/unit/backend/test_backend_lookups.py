@@ -50,7 +50,7 @@ def test_inlier_fraction_is_the_kd_trees(use, seed, bound, shift):
     sub = build_submap(target)
     register_point_to_line(query, sub, pose, LineICPParams())  # leaves the ICP's 0.3 m grid in sub.grids
     assert verification.inlier_fraction(query, sub, pose, bound) == ref
-    assert 0.0 < ref <= 1.0 or bound == 0.02
+    assert 0.0 <= ref <= 1.0  # a shift of up to 0.42 m can leave no query point within 0.1 m
 
 
 @needs_core

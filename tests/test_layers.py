@@ -17,6 +17,7 @@ inside functions alike (``TYPE_CHECKING`` ones too), and followed transitively i
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -217,8 +218,10 @@ def _loaded_after(code: str, prefixes: tuple[str, ...]) -> list[str]:
 def test_importing_the_front_end_loads_no_file_format_plots_or_gtsam():
     stages = " ".join(f"import {m};" for m in sorted(MODULES) if m.startswith("fmcwlog.frontend"))
     assert _loaded_after(stages, ("mcap", "matplotlib", "gtsam", "pyarrow", "fmcwlog.io")) == []
-    # the probe sees what it looks for: the back end does load gtsam
-    assert "gtsam" in _loaded_after("import fmcwlog.backend", ("gtsam",))
+    # the probe sees what it looks for: the back end's first solve loads gtsam
+    solve = ("import numpy as np\nfrom fmcwlog.backend.graph import PoseGraph\n"
+             "g = PoseGraph()\ng.add_node(np.zeros(3))\ng.optimize()")
+    assert "gtsam" in _loaded_after(solve, ("gtsam",))
 
 
 def test_evaluation_does_not_import_the_estimation_stack():
@@ -276,3 +279,51 @@ def test_process_loads_no_other_command_plots_or_evaluation(tmp_path):
                          capture_output=True, text=True, cwd=PACKAGE.parent, check=True)
     assert ran.stdout.strip().splitlines()[-1] == "[]", ran.stdout[-500:]
     assert (out / "trajectories.parquet").stat().st_size > 0
+
+
+SCIPY = ("scipy.spatial", "scipy.optimize", "scipy.ndimage", "scipy.linalg", "scipy.sparse", "scipy.special")
+
+
+@pytest.fixture(scope="module")
+def short_log(tmp_path_factory) -> Path:
+    """A 1 s recording: keyframes, maps and a back end's nodes, no loop closure."""
+    log = tmp_path_factory.mktemp("short") / "one.mcap"
+    subprocess.run([sys.executable, "-m", "fmcwlog", "-q", "record", "--duration", "1", "-o", str(log)],
+                   cwd=PACKAGE.parent, check=True, capture_output=True)
+    return log
+
+
+def _process_loads(log: Path, out: Path, kernels: str, prefixes: tuple[str, ...]) -> list[str]:
+    """The modules starting with ``prefixes`` that ``fmcwlog -q process --jobs 1 LOG`` (both methods in
+    this one process) holds at its end with ``FMCWLOG_KERNELS=kernels``; its parquet is checked written."""
+    code = ("import sys\n"
+            "from fmcwlog.cli import cli\n"
+            "cli.main(sys.argv[1:], standalone_mode=False)\n"
+            f"print(sorted(m for m in sys.modules if m.startswith({prefixes!r})))")
+    env = {**os.environ, "FMCWLOG_KERNELS": kernels}
+    ran = subprocess.run([sys.executable, "-c", code, "-q", "process", "--jobs", "1", str(log), "-o", str(out)],
+                         capture_output=True, text=True, cwd=PACKAGE.parent, check=True, env=env)
+    assert (out / "trajectories.parquet").stat().st_size > 0
+    return eval(ran.stdout.strip().splitlines()[-1])  # a printed list of str
+
+
+def _core_built() -> bool:
+    from fmcwlog.kernels import compiled
+
+    return compiled._load()[0] is not None
+
+
+@pytest.mark.skipif(not _core_built() and os.environ.get("FMCWLOG_KERNELS") != "compiled",
+                    reason="the compiled core is not built")
+def test_process_with_compiled_kernels_loads_no_scipy_and_no_unused_gtsam(short_log, tmp_path):
+    """The compiled kernels need no KD-tree, no LAPACK wrapper and no special function: a run with
+    them loads no scipy (0.25 s of imports: spatial pulls sparse, linalg and special), and a back
+    end that never solves (no closure in 1 s) never loads gtsam; matplotlib is never loaded."""
+    loaded = _process_loads(short_log, tmp_path / "out", "compiled", (*SCIPY, "gtsam", "matplotlib", "fmcwlog._core"))
+    assert loaded == ["fmcwlog._core"], loaded  # the probe sees what it looks for: the core is loaded
+
+
+def test_process_with_numpy_kernels_still_loads_its_kd_tree(short_log, tmp_path):
+    """The numpy reference path imports scipy.spatial where it builds its first tree, and runs."""
+    loaded = _process_loads(short_log, tmp_path / "out", "numpy", ("scipy.spatial", "gtsam", "matplotlib"))
+    assert "scipy.spatial" in loaded and "gtsam" not in loaded and "matplotlib" not in loaded, loaded

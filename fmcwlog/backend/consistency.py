@@ -23,7 +23,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import transform_points
 from ..kernels import compiled
@@ -104,6 +103,8 @@ class _Nearest:
         if self._module is not None:
             self._grid = self._module.TargetGrid(np.ascontiguousarray(map_xy, float), CAP_M)
         else:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
+
             self._tree = cKDTree(map_xy, balanced_tree=False, compact_nodes=False)
 
     def distances(self, pose: np.ndarray, xy: np.ndarray) -> np.ndarray:

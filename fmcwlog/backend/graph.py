@@ -24,13 +24,23 @@ default (docs/design/back-end.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import gtsam
 import numpy as np
+
+if TYPE_CHECKING:
+    import gtsam
+
+
+def _gtsam():
+    """gtsam, imported at the first solve (0.08 s of imports a run without a closure never needs)."""
+    import gtsam
+
+    return gtsam
 
 
 def _pose2(x: np.ndarray) -> gtsam.Pose2:
-    return gtsam.Pose2(float(x[0]), float(x[1]), float(x[2]))
+    return _gtsam().Pose2(float(x[0]), float(x[1]), float(x[2]))
 
 
 def _array(p: gtsam.Pose2) -> np.ndarray:
@@ -55,27 +65,49 @@ class PoseGraph:
     gtsam's ISAM2 (``isam2_steps`` Gauss-Newton updates, ``relinearize_threshold`` on a variable's
     change, rad or m), and :meth:`optimize` with ``final=True`` runs LM on the whole graph once from
     ISAM2's estimate (and releases ISAM2: any later :meth:`optimize` runs LM). Another ``solver``
-    raises ``ValueError``. Poses are ``(x, y, θ)`` of base_link in the method's frame (m, m, rad)."""
+    raises ``ValueError``. Poses are ``(x, y, θ)`` of base_link in the method's frame (m, m, rad).
+
+    Until the first :meth:`optimize` the nodes and edges are only listed (``_pending``, in the order
+    given); that call imports gtsam and builds the graph from them in that order, so the graph, and
+    every solve, is the same as built one call at a time, and a run that never optimises (no
+    closure) never imports gtsam."""
 
     def __init__(self, cauchy_scale: float = 3.0, solver: str = "batch", isam2_steps: int = 3,
                  relinearize_threshold: float = 0.001):
-        self.graph = gtsam.NonlinearFactorGraph()
-        self.values = gtsam.Values()
+        if solver not in ("batch", "isam2"):
+            raise ValueError(f"unknown solver {solver!r} (batch, isam2)")
         self.cauchy_scale = cauchy_scale
         self.closures: list[Edge] = []
-        self._closure_factors: list[gtsam.BetweenFactorPose2] = []
         self.n = 0
         self.isam2_steps = isam2_steps
+        self._solver, self._relinearize_threshold = solver, relinearize_threshold
+        # what add_node / add_odometry / add_closure were given before the graph is built
+        self._pending: list[tuple[str, np.ndarray | Edge]] | None = []
+
+    def _build(self) -> None:
+        """Import gtsam, make the graph and add what :attr:`_pending` lists, in its order."""
+        if self._pending is None:
+            return
+        gt = _gtsam()  # the module; the annotations name it as gtsam
+        self.graph = gt.NonlinearFactorGraph()
+        self.values = gt.Values()
+        self._closure_factors: list[gtsam.BetweenFactorPose2] = []
         self._isam: gtsam.ISAM2 | None = None  # None: LM on the whole graph (batch, or after the final solve)
-        self._new_values = gtsam.Values()  # ISAM2: the nodes and factors it has not seen yet
-        self._new_factors = gtsam.NonlinearFactorGraph()
-        if solver == "isam2":
-            params = gtsam.ISAM2Params()
-            params.setRelinearizeThreshold(relinearize_threshold)
+        self._new_values = gt.Values()  # ISAM2: the nodes and factors it has not seen yet
+        self._new_factors = gt.NonlinearFactorGraph()
+        if self._solver == "isam2":
+            params = gt.ISAM2Params()
+            params.setRelinearizeThreshold(self._relinearize_threshold)
             params.relinearizeSkip = 1
-            self._isam = gtsam.ISAM2(params)
-        elif solver != "batch":
-            raise ValueError(f"unknown solver {solver!r} (batch, isam2)")
+            self._isam = gt.ISAM2(params)
+        pending, self._pending, self.n, self.closures = self._pending, None, 0, []
+        for kind, item in pending:
+            if kind == "node":
+                self.add_node(item)  # type: ignore[arg-type]
+            elif kind == "odometry":
+                self.add_odometry(item)  # type: ignore[arg-type]
+            else:
+                self.add_closure(item)  # type: ignore[arg-type]
 
     def _add(self, factor: gtsam.NonlinearFactor) -> None:
         self.graph.add(factor)
@@ -85,6 +117,11 @@ class PoseGraph:
     def add_node(self, estimate: np.ndarray) -> int:
         """A node with an initial estimate (3,); the first is held by a tight prior."""
         i = self.n
+        if self._pending is not None:
+            self._pending.append(("node", np.array(estimate, float)))
+            self.n += 1
+            return i
+        gtsam = _gtsam()
         self.values.insert(i, _pose2(estimate))
         if self._isam is not None:
             self._new_values.insert(i, _pose2(estimate))
@@ -95,11 +132,20 @@ class PoseGraph:
 
     def add_odometry(self, e: Edge) -> None:
         """An odometry edge ``e`` between two existing nodes, with Gaussian noise of its covariance."""
+        if self._pending is not None:
+            self._pending.append(("odometry", e))
+            return
+        gtsam = _gtsam()
         noise = gtsam.noiseModel.Gaussian.Covariance(e.covariance)
         self._add(gtsam.BetweenFactorPose2(e.a, e.b, _pose2(e.relative), noise))
 
     def add_closure(self, e: Edge) -> int:
         """A loop closure under the Cauchy kernel; returns its index among the closures."""
+        if self._pending is not None:
+            self._pending.append(("closure", e))
+            self.closures.append(e)
+            return len(self.closures) - 1
+        gtsam = _gtsam()
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(self.cauchy_scale),
                                                gtsam.noiseModel.Gaussian.Covariance(e.covariance))
         factor = gtsam.BetweenFactorPose2(e.a, e.b, _pose2(e.relative), noise)
@@ -110,6 +156,8 @@ class PoseGraph:
 
     def optimize(self, max_iterations: int = 100, final: bool = False) -> None:
         """Optimise from the current estimate (class docstring); ``final``: the last solve of the run."""
+        self._build()
+        gtsam = _gtsam()
         if self._isam is not None:
             self._isam.update(self._new_factors, self._new_values)
             for _ in range(self.isam2_steps - 1):
@@ -125,15 +173,20 @@ class PoseGraph:
 
     def estimate(self, i: int) -> np.ndarray:
         """The current estimate (3,) of node ``i`` (m, m, rad)."""
+        self._build()
         return _array(self.values.atPose2(i))
 
     def estimates(self) -> np.ndarray:
         """(n, 3) the current estimate of every node, in index order (one call into gtsam: its values
         are the nodes' ``Pose2`` alone, under the keys ``0 … n-1``, which it keeps sorted)."""
+        self._build()
+        gtsam = _gtsam()
         return np.asarray(gtsam.utilities.extractPose2(self.values), float).reshape(-1, 3)
 
     def closure_errors(self) -> np.ndarray:
         """Whitened error (standard deviations, Mahalanobis) of each closure at the estimate."""
+        self._build()
+        gtsam = _gtsam()
         out = np.zeros(len(self.closures))
         for k, (e, f) in enumerate(zip(self.closures, self._closure_factors)):
             pred = self.values.atPose2(e.a).between(self.values.atPose2(e.b))

@@ -25,15 +25,17 @@ these steps saves is measured in docs/design/speed-experiments.md.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg.lapack import dgesv
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,7 @@ class Submap:
     @property
     def tree(self) -> cKDTree:
         if self._tree is None:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
             self._tree = cKDTree(self.points)
         return self._tree
 
@@ -112,6 +115,7 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
         reach = np.empty((len(points), p.normal_neighbours + 1))
         module.submap_normals(points, p.normal_neighbours, p.min_planarity, normals, has_normal, near, reach)
         return Submap(points, normals, has_normal, near=near, reach=reach)
+    from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
     tree = cKDTree(points)
     k = min(p.normal_neighbours, len(points))
     _, idx = tree.query(points, k=k)
@@ -185,6 +189,8 @@ def register_point_to_line(source_xy: np.ndarray, submap: Submap, initial: np.nd
     module = compiled.core()
     if module is not None:
         return _compiled(module, source_xy, submap, initial, p, prior)
+    from scipy.linalg.lapack import dgesv  # here, not at import: scipy.linalg is 0.13 s of imports
+
     pose = np.asarray(initial, float).copy()
     c = p.kernel_scale
     nearest = NearestPairs(source_xy, submap.tree, submap.points, p.max_distance)

@@ -37,7 +37,6 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.special import ndtr
 
 from ..config import Checked, param
 
@@ -105,6 +104,8 @@ class DistanceMixture:
         """Bool (K,): the inlier component and those overlapping its 3σ band."""
         i = self.inlier
         band = self.means[i] + 3.0 * self.sigmas[i]
+        from scipy.special import ndtr  # here, not at import: scipy.special is 0.07 s of imports
+
         inside = ndtr((band - self.means) / self.sigmas)  # mass of each below the band
         group = inside > self.merge_overlap
         group[i] = True

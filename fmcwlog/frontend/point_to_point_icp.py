@@ -11,13 +11,17 @@ standard practice of ICP pipelines such as KISS-ICP; :mod:`fmcwlog.frontend.meth
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import transform_points, wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
 from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 
 def closed_form_pose(source_pts: np.ndarray, target_pts: np.ndarray) -> np.ndarray:

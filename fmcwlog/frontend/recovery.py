@@ -13,15 +13,18 @@ the best; the restart is kept only if its fit is better.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import transform_points
 from ..kernels.compiled import CompiledNearest, covering_nearest
 from ..kernels.correlative import CorrelativeParams
 from ..kernels.nearest import NearestPairs
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)

@@ -29,15 +29,18 @@ from __future__ import annotations
 
 from functools import lru_cache
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import Correspondences, NearestPairs
 from .gmmsc import DistanceMixture, gmmsc_weights
 from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 
 def huber_weights(r: np.ndarray, delta: float) -> np.ndarray:

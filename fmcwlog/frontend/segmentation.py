@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..kernels import compiled
@@ -111,6 +110,7 @@ def dbscan_numpy(feats: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
     if n == 0:
         return labels
     # the pairs' order depends on the tree, the labels do not (counts, components, minima)
+    from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
     pairs = cKDTree(feats, balanced_tree=False, compact_nodes=False).query_pairs(eps, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     core = np.bincount(pairs.ravel(), minlength=n) + 1 >= min_samples
@@ -251,6 +251,7 @@ def segment_clusters_numpy(
         near = (xy[:, 0] >= lo[0]) & (xy[:, 0] <= hi[0]) & (xy[:, 1] >= lo[1]) & (xy[:, 1] <= hi[1])
         inside = np.flatnonzero(near & ~centre)
         # the nearest distance is the same in any tree: the quicker build (unbalanced, uncompacted)
+        from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
         tree = cKDTree(centres, balanced_tree=False, compact_nodes=False)
         dist, _ = tree.query(xy[inside], k=1, distance_upper_bound=params.neighbourhood)
         near[inside] = np.isfinite(dist)

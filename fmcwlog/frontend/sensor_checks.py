@@ -32,15 +32,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
 from .deskew import se2_exp
 from .egomotion import EgoMotion
 from .twist_fusion import WheelNoise, fuse_twist, wheel_covariance
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 KEEP, DOPPLER, WHEELS = "keep", "doppler", "wheels"  # per-sweep decisions
 
@@ -164,6 +167,7 @@ class SensorChecks:
         if len(xy_prev) < 10 or len(xy) < 10 or not dt > 0:
             return None
         if self._prev_tree is None:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
             self._prev_tree = cKDTree(xy_prev)
         pts = xy[:: max(1, len(xy) // self.params.witness_points)]
         d_w, d_d = (self._misfit(pts, x, dt) for x in (x_w, x_d))

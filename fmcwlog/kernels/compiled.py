@@ -25,11 +25,14 @@ import sys
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..errors import FmcwlogError
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 ENV = "FMCWLOG_KERNELS"
 CHOICES = ("compiled", "numpy")
@@ -148,6 +151,7 @@ class MapIndex:
     def tree(self) -> cKDTree:
         """The points' ``cKDTree``, built at the first use."""
         if self._tree is None:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
             self._tree = cKDTree(self.points, **self._options)
         return self._tree
 

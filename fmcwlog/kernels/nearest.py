@@ -20,11 +20,14 @@ measurements behind this design are in ``docs/design/nearest-pairs.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import transform_points
+
+if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
+    from scipy.spatial import cKDTree
 
 
 @dataclass

@@ -77,6 +77,7 @@ from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
 from ..io.outputs import ProcessOutputs
+from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid
 from ..types import BASELINE, IMPROVED, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
 from .children import die_with_parent
@@ -207,8 +208,10 @@ class MethodProcess:
         self.sweeps = 0
         self._end: _End | None = None
         self._last: _End | None = None  # the last message, taken by steps() at the end of the log
-        if START_METHOD == "fork":  # the back end (gtsam) imported once, before the fork, not in each process
+        if START_METHOD == "fork":  # what both processes load, loaded once, before the fork (gtsam: at a first solve)
             importlib.import_module("fmcwlog.backend.pipeline")
+            if compiled.core() is None:  # the numpy kernels' KD-trees (scipy.spatial: 0.25 s of imports)
+                importlib.import_module("scipy.spatial")
         ctx = get_context(START_METHOD)
         results_in, results_out = ctx.Pipe(duplex=False)
         schedule_in, schedule_out = ctx.Pipe(duplex=False)

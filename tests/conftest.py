@@ -37,6 +37,20 @@ def pytest_runtest_teardown(item):
     helpers._current_test = None
 
 
+@pytest.fixture
+def use(monkeypatch):
+    """``use("compiled")`` or ``use("numpy")``: the kernel switch as a fresh process would set it
+    (the compiled module, or None)."""
+    from fmcwlog.kernels import compiled
+
+    def select(kind):
+        monkeypatch.setenv(compiled.ENV, kind)
+        monkeypatch.setattr(compiled, "_chosen", None)
+        monkeypatch.setattr(compiled, "_core", None)
+        return compiled.core()
+    return select
+
+
 @pytest.fixture(scope="session")
 def corridor_log(tmp_path_factory) -> Path:
     """26 s of the default scenario: the robot accelerates, drives 22 m and takes a corner."""

@@ -6,10 +6,8 @@ core selected as without it (the grid finds the same nearest distance under the 
 Where the module is not built the comparisons skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
 """
 
-import os
-
 import numpy as np
-import pytest
+from helpers import needs_core
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_consistency import SCENE, _drifted, _loop, _points
@@ -17,22 +15,6 @@ from test_consistency import SCENE, _drifted, _loop, _points
 from fmcwlog.backend import consistency, verification
 from fmcwlog.backend.graph import Edge, PoseGraph
 from fmcwlog.backend.registration import LineICPParams, build_submap, register_point_to_line
-from fmcwlog.kernels import compiled
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 @needs_core

@@ -7,35 +7,18 @@ the comparisons skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
 """
 
 import dataclasses
-import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS, record_small_ring
+from helpers import SAMPLE_LOGS, needs_core, record_small_ring
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.backend import local_edges, registration, verification
 from fmcwlog.backend.params import BackendParams
-from fmcwlog.kernels import compiled
 from fmcwlog.kernels import correlative as corr
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def assert_same_search(fast: corr.CorrelativeResult, ref: corr.CorrelativeResult) -> None:

@@ -7,19 +7,14 @@ information and residuals. Scenes: walls, clutter, points on a coarse lattice (e
 duplicated points, fewer points than a neighbourhood, and starts off by up to a metre.
 """
 
-import os
-
 import numpy as np
 import pytest
+from helpers import needs_core
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.backend import registration
 from fmcwlog.kernels import compiled
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
 
 
 @pytest.fixture

@@ -7,35 +7,18 @@ sees processing the 30 s crowd log, and on generated inputs. Where the module is
 comparisons skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
 """
 
-import os
 import tempfile
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS
+from helpers import SAMPLE_LOGS, needs_core
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.frontend import deskew as dk
 from fmcwlog.frontend import egomotion as eg
 from fmcwlog.geometry import transform_points
-from fmcwlog.kernels import compiled
 from fmcwlog.kernels import voxel as vx
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def _copy(value):

@@ -3,10 +3,9 @@ merge (compiled kernel), the registration covariance and the Doppler prior's inf
 floats where the compiled kernels run), and the float shortcuts that must give numpy's bits."""
 
 import math
-import os
 
 import numpy as np
-import pytest
+from helpers import needs_core
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -15,22 +14,6 @@ from fmcwlog.frontend.keyframe_map import KeyframeMap, LocalMapParams
 from fmcwlog.frontend.params import FrontEndParams
 from fmcwlog.frontend.sensor_checks import _norm
 from fmcwlog.geometry import between, between_floats
-from fmcwlog.kernels import compiled
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def _keyframes(seed: int, count: int, n: int, spread: float) -> list[np.ndarray]:

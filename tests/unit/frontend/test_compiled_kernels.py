@@ -6,13 +6,12 @@ not built the comparisons skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it 
 """
 
 import json
-import os
 import textwrap
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS, run_python
+from helpers import CORE, SAMPLE_LOGS, needs_core, run_python
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
@@ -23,21 +22,6 @@ from fmcwlog.frontend.icp import ICPParams
 from fmcwlog.frontend.recovery import inlier_fraction
 from fmcwlog.kernels import compiled
 from fmcwlog.kernels.nearest import NearestPairs, find_correspondences
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def _register(kind, use, *args):

@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS
+from helpers import SAMPLE_LOGS, needs_core
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -17,21 +17,6 @@ from fmcwlog.frontend.recent_grid import RecentOccupancy, local_max_log_odds, lo
 from fmcwlog.kernels import compiled
 from fmcwlog.kernels import occupancy as occ
 from fmcwlog.kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def assert_same_update(fast: occ.ScanUpdate, ref: occ.ScanUpdate) -> None:

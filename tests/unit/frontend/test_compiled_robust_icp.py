@@ -8,12 +8,11 @@ extrapolation, the pose prior, a mixture handed in). Where the module is not bui
 skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
 """
 
-import os
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS
+from helpers import SAMPLE_LOGS, needs_core
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
@@ -26,21 +25,6 @@ from fmcwlog.frontend.point_to_point_icp import register_point_to_point
 from fmcwlog.frontend.recovery import inlier_fraction
 from fmcwlog.kernels import compiled
 from fmcwlog.kernels.nearest import NearestPairs
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
-
-
-@pytest.fixture
-def use(monkeypatch):
-    """``use("compiled")`` or ``use("numpy")``: the switch as a fresh process would set it."""
-    def select(kind):
-        monkeypatch.setenv(compiled.ENV, kind)
-        monkeypatch.setattr(compiled, "_chosen", None)
-        monkeypatch.setattr(compiled, "_core", None)
-        return compiled.core()
-    return select
 
 
 def assert_same(fast, ref, tol=1e-9):

@@ -8,19 +8,12 @@ duplicates on a lattice (exact ties across cells), collinear walls, points exact
 maps far from the origin and maps so wide that the grid widens its cells.
 """
 
-import os
-
 import numpy as np
 import pytest
+from helpers import CORE, needs_core
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
-
-from fmcwlog.kernels import compiled
-
-CORE, WHY_NOT = compiled._load()
-needs_core = pytest.mark.skipif(
-    CORE is None and os.environ.get(compiled.ENV) != "compiled", reason=f"{WHY_NOT} (FMCWLOG_KERNELS=compiled fails instead)")
 
 
 def grid_nearest(points: np.ndarray, queries: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:

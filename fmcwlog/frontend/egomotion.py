@@ -171,7 +171,7 @@ def fit_sensor_velocity(
     drawn here by numpy's generator, so the same hypotheses, inliers and scores; the velocity and
     covariance to rounding), else :func:`fit_sensor_velocity_numpy`.
     """
-    args = dict(inlier_threshold=inlier_threshold, n_hypotheses=n_hypotheses, min_pair_sine=min_pair_sine,
+    args: dict[str, Any] = dict(inlier_threshold=inlier_threshold, n_hypotheses=n_hypotheses, min_pair_sine=min_pair_sine,
                 refinements=refinements, score_points=score_points, random_state=random_state, prior=prior,
                 prior_gate=prior_gate, bearings=bearings)
     core = compiled.core()

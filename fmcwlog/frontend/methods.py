@@ -220,7 +220,8 @@ class FrontEnd(ABC):
     def _moved(last: np.ndarray | None, pose: np.ndarray, distance: float, angle_deg: float) -> bool:
         if last is None:
             return True
-        d = between_floats(last, pose)  # the same values as ``between``'s array, as floats
+        # the same values as ``between``'s array, as floats
+        d: tuple[float, float, float] | np.ndarray | None = between_floats(last, pose)
         if d is None:
             d = between(last, pose)
         # math.radians is numpy's deg2rad: x * (pi / 180)

@@ -405,9 +405,9 @@ class MoverTracker:
             seen_free = self.recent.seen_free(map_xy, placed, p.free_log_odds)
         core = compiled.core()
         if core is not None:
-            moving = self._segment_compiled(core, xy, map_xy, t, epsilon, seen_free, lidar, stamp, when, seg_params)
-            if moving is not None:
-                return self._off_structure(moving, grid, map_xy)
+            found = self._segment_compiled(core, xy, map_xy, t, epsilon, seen_free, lidar, stamp, when, seg_params)
+            if found is not None:
+                return self._off_structure(found, grid, map_xy)
         seg = segment_clusters(xy, epsilon, seg_params, seeds=self.seeds(lidar, when), seed_points=seen_free)
         idx = np.flatnonzero(seg.clustered)
         labels = seg.labels[idx]

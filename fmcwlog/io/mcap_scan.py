@@ -323,8 +323,8 @@ class McapScan:
             return False
         length = self.summary.chunks.get(pos)
         channels = self.summary.chunk_channels.get(pos)
-        return length is not None and length >= _PREFIX and pos + length <= end and bool(channels) \
-            and skip_chunk(channels)
+        return length is not None and length >= _PREFIX and pos + length <= end and channels is not None \
+            and bool(channels) and skip_chunk(channels)
 
     def _frame(self, fh: IO[bytes], pos: int, end: int) -> tuple[int, bytes]:
         """The opcode and body of the record at ``pos``; a chunk the index lists is framed by it."""

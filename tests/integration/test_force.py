@@ -11,7 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, run_cli_here
+from helpers import SAMPLE_LOGS, assert_one_line_error, copy_log, record_scenario, run_cli_here
 
 from fmcwlog.io.atomic import MARKER
 
@@ -206,7 +206,7 @@ def test_calibrate_force_never_overwrites_its_inputs(tmp_path, log):
         assert _snapshot(work) == before
 
 
-def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path, log):
+def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path_factory, tmp_path, log):
     """``kill`` (or ``timeout``, a job scheduler) mid-run: as Ctrl-C, exit status 143 with one line, the
     earlier output as it was and no ``.out.partial-PID`` folder. Python's default SIGTERM once ended the
     process on the spot, leaving the temporary folder behind."""
@@ -219,12 +219,13 @@ def test_sigterm_mid_process_leaves_the_earlier_output_and_no_temporary(tmp_path
     code, _, err = run_cli_here("-q", "process", str(log), "-o", str(out), "--jobs", "1")
     assert code == 0, err
     before = _snapshot(out)
-    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(SAMPLE_LOGS / "corridor_30s.mcap"),
+    long_log = record_scenario(tmp_path_factory, "corridor", 120.0)  # seconds of processing, not one
+    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(long_log),
                              "-o", str(out), "--force"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
     while not list(tmp_path.glob(".out.partial-*")) and time.time() < deadline:
         time.sleep(0.05)
-    time.sleep(0.5)  # into the sweeps (300 of them: several seconds)
+    time.sleep(0.5)  # into the sweeps (1,200 of them: a few seconds)
     proc.send_signal(signal.SIGTERM)
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 143, stderr

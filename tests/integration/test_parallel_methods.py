@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from helpers import assert_one_line_error, run_cli_here
+from helpers import assert_one_line_error, record_scenario, run_cli_here
 
 from fmcwlog.api import ProcessOptions, process
 from fmcwlog.backend import PoseGraphBackend
@@ -250,12 +250,14 @@ def _descendants(pid: int) -> set[int]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").exists(), reason="needs Linux /proc")
-def test_ctrl_c_stops_both_and_leaves_nothing(corridor_log, tmp_path):
+def test_ctrl_c_stops_both_and_leaves_nothing(tmp_path_factory, tmp_path):
     """SIGINT to the command's process group, as a terminal's Ctrl-C: both processes end, status 130,
-    no output folder, no temporary folder, no process left. (The 26 s log: still in its sweeps when
-    the signal comes, where the 6 s crowd could be done and the interpreter ending, which SIGINT kills.)"""
+    no output folder, no temporary folder, no process left. (A 2-minute log, a few seconds of
+    processing: still in its sweeps when the signal comes, where a short log could be done and the
+    interpreter ending, which SIGINT kills.)"""
+    log = record_scenario(tmp_path_factory, "corridor", 120.0)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(corridor_log), "-o", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "fmcwlog", "process", str(log), "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                             # as from a terminal: a shell's background job (a CI runner's) ignores SIGINT
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -264,7 +266,7 @@ def test_ctrl_c_stops_both_and_leaves_nothing(corridor_log, tmp_path):
         time.sleep(0.02)  # until the child runs: the parent's sweeps begin next
     children = _descendants(proc.pid)
     assert children, "the child process never started"
-    time.sleep(1.0)
+    time.sleep(0.3)
     os.killpg(proc.pid, signal.SIGINT)
     output, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, (output, err)

@@ -368,3 +368,21 @@ def _bench_module(name: str):
 # bench/replay_frames.py: whether a viewer places every message of an MCAP file (each frame a message
 # names resolves to map through the file's own tf at its stamp), read with plain mcap + mcap_ros2
 replay_frames = _bench_module("replay_frames")
+
+
+def wall_scene(seed: int, n_walls: int, n_points: int, n_source: int, offset, n_clutter: int,
+               extent: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
+    """Random walls within ±``extent`` m as ``n_points`` points (the target, map frame) and a view of
+    ``n_source`` of them with 1 cm noise plus ``n_clutter`` random points within ±(``extent`` + 1) m
+    that the map lacks (movers), seen from ``offset`` (x, y, θ): the source in its own frame, C-ordered."""
+    rng = np.random.default_rng(seed)
+    ends = rng.uniform(-extent, extent, (n_walls, 4))
+    t = rng.random(n_points)
+    seg = rng.integers(0, n_walls, n_points)
+    target = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2])
+    pick = rng.choice(n_points, min(n_source, n_points), replace=False)
+    seen = target[pick] + rng.normal(0, 0.01, (len(pick), 2))
+    seen = np.concatenate([seen, rng.uniform(-extent - 1, extent + 1, (n_clutter, 2))])
+    x, y, th = offset
+    c, s = np.cos(-th), np.sin(-th)
+    return np.ascontiguousarray((seen - (x, y)) @ np.array([[c, s], [-s, c]])), target

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS, needs_core, record_small_ring
+from helpers import SAMPLE_LOGS, needs_core, record_small_ring, wall_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -110,17 +110,8 @@ def grid_points(grid: corr.LikelihoodGrid) -> np.ndarray:
 
 
 def _scene(seed, n_walls, n_points, n_source, offset):
-    """Random walls as points (target) and a noisy, partly cluttered view of them from ``offset`` (source)."""
-    rng = np.random.default_rng(seed)
-    ends = rng.uniform(-6, 6, (n_walls, 4))
-    t = rng.random(n_points)
-    seg = rng.integers(0, n_walls, n_points)
-    target = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2])
-    pick = rng.choice(n_points, min(n_source, n_points), replace=False)
-    seen = np.concatenate([target[pick] + rng.normal(0, 0.01, (len(pick), 2)), rng.uniform(-7, 7, (n_source // 10 + 1, 2))])
-    x, y, th = offset
-    c, s = np.cos(-th), np.sin(-th)
-    return np.ascontiguousarray((seen - (x, y)) @ np.array([[c, s], [-s, c]])), target
+    """Walls within ±6 m and a view of them with n_source // 10 + 1 clutter points (:func:`helpers.wall_scene`)."""
+    return wall_scene(seed, n_walls, n_points, n_source, offset, n_source // 10 + 1, extent=6.0)
 
 
 @needs_core

@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import CORE, SAMPLE_LOGS, needs_core, run_python
+from helpers import CORE, SAMPLE_LOGS, needs_core, run_python, wall_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
@@ -87,29 +87,13 @@ def test_recorded_registrations_agree(recorded, use):
         assert inlier_fraction(source, ref.pose, tree, 0.1, fast.search) == inlier_fraction(source, ref.pose, tree, 0.1)
 
 
-def _scene(seed, n_segments, n_points, n_source, offset):
-    """Random walls as points (target), a noisy and partly new view of them moved by ``offset`` (source)."""
-    rng = np.random.default_rng(seed)
-    ends = rng.uniform(-8, 8, (n_segments, 4))
-    t = rng.random(n_points)
-    seg = rng.integers(0, n_segments, n_points)
-    target = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2])
-    pick = rng.choice(n_points, min(n_source, n_points), replace=False)
-    seen = target[pick] + rng.normal(0, 0.01, (len(pick), 2))
-    seen = np.concatenate([seen, rng.uniform(-9, 9, (n_source // 10, 2))])  # clutter not in the map
-    x, y, th = offset
-    c, s = np.cos(-th), np.sin(-th)
-    local = (seen - (x, y)) @ np.array([[c, s], [-s, c]])  # the source in its own frame
-    return np.ascontiguousarray(local), target
-
-
 @needs_core
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), n_segments=st.integers(1, 12), n_points=st.integers(1, 2000),
        n_source=st.integers(0, 600), dx=st.floats(-0.4, 0.4), dy=st.floats(-0.4, 0.4), dth=st.floats(-0.2, 0.2),
        gate=st.sampled_from([0.05, 0.3, 0.5, 2.0]), iterations=st.integers(1, 40))
 def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source, dx, dy, dth, gate, iterations):
-    source, target = _scene(seed, n_segments, n_points, n_source, (dx, dy, dth))
+    source, target = wall_scene(seed, n_segments, n_points, n_source, (dx, dy, dth), n_source // 10)
     tree = cKDTree(target)
     params = replace(ICPParams(), max_correspondence_distance=gate, max_iterations=iterations)
     start = np.zeros(3)

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import SAMPLE_LOGS, needs_core
+from helpers import SAMPLE_LOGS, needs_core, wall_scene
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
@@ -108,23 +108,6 @@ def test_recorded_registrations_agree(recorded, use):
         assert d == inlier_fraction(source, ref.pose, cKDTree(target), 0.1)
 
 
-def _scene(seed, n_segments, n_points, n_source, offset, clutter):
-    """Random walls as points (target), a noisy and partly new view of them moved by ``offset``
-    (source), with ``clutter`` of the view's size in random points that the map lacks (movers)."""
-    rng = np.random.default_rng(seed)
-    ends = rng.uniform(-8, 8, (n_segments, 4))
-    t = rng.random(n_points)
-    seg = rng.integers(0, n_segments, n_points)
-    target = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2])
-    pick = rng.choice(n_points, min(n_source, n_points), replace=False)
-    seen = target[pick] + rng.normal(0, 0.01, (len(pick), 2))
-    seen = np.concatenate([seen, rng.uniform(-9, 9, (int(clutter * len(pick)), 2))])
-    x, y, th = offset
-    c, s = np.cos(-th), np.sin(-th)
-    local = (seen - (x, y)) @ np.array([[c, s], [-s, c]])  # the source in its own frame
-    return np.ascontiguousarray(local), target
-
-
 @needs_core
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), n_segments=st.integers(1, 12), n_points=st.integers(1, 2000),
@@ -140,7 +123,8 @@ def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source
                                        fit_samples, em_iter, prior, given_mixture):
     # w_th > 0: with 0 a mixture can keep pairs of weight down to subnormal numbers, whose step is
     # rounding noise in either implementation.
-    source, target = _scene(seed, n_segments, n_points, n_source, (dx, dy, dth), clutter)
+    source, target = wall_scene(seed, n_segments, n_points, n_source, (dx, dy, dth),
+                                int(clutter * min(n_source, n_points)))
     gmm = replace(GMMSCParams(), n_components=k, w_th=w_th, merge_overlap=merge, max_fit_samples=fit_samples,
                   max_iter=em_iter)
     params = replace(ICPParams(), max_correspondence_distance=gate, max_iterations=iterations, use_huber=use_huber,

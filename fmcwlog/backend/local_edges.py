@@ -25,7 +25,8 @@ by the front end's poses, since on both logs the single node does better (ring 0
 query is the node's points thinned to 5 cm; the alternatives measured against both are in
 docs/design/back-end.md. A match that did not
 converge, paired fewer than ``min_pairs`` points or moved more than ``local_gate`` m or
-``local_gate_deg`` from the front end's relative pose gives no edge (counted, not an error).
+``local_gate_deg`` from the front end's relative pose gives no edge (counted, not an error); nor
+does a node with no static points (``empty``: every point of its sweep was on a mover or dropped).
 
 Cost: a match is some 1.1-1.4 ms, mostly the nearest-point pairing (a 6-nearest KD-tree query of
 every query point, then re-queries of the points that moved). Its ICP stops once a step moves less
@@ -54,7 +55,8 @@ from .registration import LineICPParams, Submap, build_submap, register_point_to
 @dataclass
 class LocalMatcher:
     """The submaps of recent nodes (built once each) and the matching of a new node against them.
-    ``rejected``: matches that gave no edge, by reason."""
+    ``rejected``: matches that gave no edge, by reason (``empty``, ``points``, ``converged``, ``pairs``,
+    ``gate``)."""
 
     p: BackendParams
     _submaps: dict[int, Submap] = field(default_factory=dict)
@@ -86,6 +88,9 @@ class LocalMatcher:
 
     def _match(self, nodes: list[Node], j: int, q: np.ndarray) -> Edge | None:
         p = self.p
+        if not len(nodes[j].points) or not len(q):  # a keyframe without static points: nothing to match
+            self.rejected["empty"] = self.rejected.get("empty", 0) + 1
+            return None
         prior = between(nodes[j].frontend_pose, nodes[-1].frontend_pose)
         sub = self._submap(nodes, j)
         failed = "points" if min(len(q), len(sub.points)) < p.min_pairs else None

@@ -135,7 +135,8 @@ def load_run(out_dir: Path) -> dict[str, Any]:
 def _check_parquet(path: Path) -> None:
     """A trajectories.parquet that can be read whole, with the columns report needs."""
     try:
-        table = pq.read_table(path)
+        with open(path, "rb") as fh:  # opened here: Arrow takes a path as UTF-8, which a name need not be
+            table = pq.read_table(fh)
     except (pa.ArrowException, OSError, ValueError) as exc:
         first = (str(exc).splitlines() or [type(exc).__name__])[0]
         raise ReportError(f"{path}: damaged, cannot be read ({first})") from None
@@ -304,7 +305,8 @@ def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, L
 
 def _sweep_times(out_dir: Path, log: Path, reader: Log, run: dict) -> tuple[np.ndarray, np.ndarray]:
     """Method and ms of every row of trajectories.parquet, once its stamps are checked against the log."""
-    table = pq.read_table(out_dir / "trajectories.parquet", columns=["method", "stamp_ns", "ms"])
+    with open(out_dir / "trajectories.parquet", "rb") as fh:  # Arrow takes a path as UTF-8; a name need not be
+        table = pq.read_table(fh, columns=["method", "stamp_ns", "ms"])
     _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
     return table.column("method").to_numpy(zero_copy_only=False), table.column("ms").to_numpy()
 

@@ -162,8 +162,8 @@ def _from_folder(row: dict[str, Any], folder: Path) -> tuple[float, float] | Non
     row["log"] = row["log"] or run.get("log")
     min_corr = int(((run.get("params") or {}).get("icp") or {}).get("min_correspondences", 10))
     try:
-        table = pq.read_table(folder / "trajectories.parquet",
-                              columns=["method", "t", "icp_iterations", "correspondences"])
+        with open(folder / "trajectories.parquet", "rb") as fh:  # Arrow takes a path as UTF-8; a name need not be
+            table = pq.read_table(fh, columns=["method", "t", "icp_iterations", "correspondences"])
     except (OSError, ValueError, KeyError):
         return None
     t = table.column("t").to_numpy()

@@ -62,8 +62,9 @@ def _named(path: str | os.PathLike) -> Path:
         p = p.resolve()
     if not p.name:
         raise OutputError(f"{path}: cannot write an output in place of the file system's root")
-    room = _NAME_MAX - len(f".{p.name}.partial-{_PID_MAX}".encode()) + len(p.name.encode())
-    if len(p.name.encode(errors="surrogateescape")) > room:  # else a valid name fails on its temporary's
+    size = len(os.fsencode(p.name))  # the name's bytes on disk, undecodable ones (surrogates) included
+    room = _NAME_MAX - len(f"..partial-{_PID_MAX}".encode())
+    if size > room:  # else a valid name fails on its temporary's
         raise OutputError(f"{path}: the name is too long: it is written first as .NAME.partial-PID, which must "
                           f"fit the file system's {_NAME_MAX}-byte limit; use a name of at most {room} bytes")
     return p
@@ -126,8 +127,10 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
+    """``text`` as UTF-8; a character UTF-8 cannot hold (a file name's undecodable byte, read by Python as
+    a lone surrogate) is written as its escape (``\\udcff``), so that a page naming such a file is written."""
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8", errors="backslashreplace")
 
 
 def to_jsonable(x: Any) -> Any:

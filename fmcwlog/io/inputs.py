@@ -143,6 +143,7 @@ class LogInputs:
         self.untimed_sweeps = 0  # PointCloud2 sweeps without a time field: taken at their stamp
         self.time_fields: dict[str, int] = {}  # how point times were read, other than the log format's t: sweeps
         self.clouds_3d = [0, 0, 0]  # 3-D sweeps, their points, those kept within the band
+        self.cloud_points = [0, 0]  # points of the PointCloud2 sweeps read, those dropped as no-returns
 
     @property
     def skipped(self) -> dict[str, int]:
@@ -239,6 +240,7 @@ class LogInputs:
             elif (layout.time.name, layout.time.unit) != ("t", "s"):  # other than the log format's t
                 what = layout.time.describe(layout.time_datatype)
                 self.time_fields[what] = self.time_fields.get(what, 0) + 1
+            self.cloud_points = [self.cloud_points[0] + layout.points, self.cloud_points[1] + layout.no_returns]
             if layout.kept is not None:
                 self.clouds_3d = [a + b for a, b in zip(self.clouds_3d, (1, layout.points, layout.kept))]
         else:
@@ -316,6 +318,20 @@ class LogInputs:
             raise LogError(f"{self.path}: no usable message on {self.prior.topic}, the motion prior"
                            f"{self._skipped_text(self.prior)}{self.reader.damage_note()}")
 
+    def _no_returns_note(self) -> str | None:
+        """The warning where more than :data:`MANY_SKIPPED_SHARE` of the cloud points read were no-returns
+        (NaN, infinite or at the origin: dropped as decoded), louder where more than :data:`MOST_SKIPPED_SHARE`
+        were; None where fewer."""
+        points, dropped = self.cloud_points
+        if not points or dropped <= MANY_SKIPPED_SHARE * points:
+            return None
+        text = (f"dropped {dropped} of {points} points ({100 * dropped / points:.1f} %) on {self.topics.scan} as "
+                "no-returns (x, y or velocity NaN or infinite, or the point at the sensor's origin)")
+        if dropped > MOST_SKIPPED_SHARE * points:
+            return (f"MOST POINTS ARE NO-RETURNS: {text}; the results stand on the {points - dropped} left: "
+                    "check the sensor (blocked or facing open space) and its driver")
+        return text
+
     def notes(self) -> list[str]:
         """One warning per kind of skipped message, with its count and the first case."""
         out = []
@@ -335,6 +351,9 @@ class LogInputs:
                        "after the stamp): their points were taken as measured at the sweep's stamp, not deskewed")
         for what, n in self.time_fields.items():
             out.append(f"point times of {n} sweeps on {self.topics.scan}: {what}")
+        no_returns = self._no_returns_note()
+        if no_returns:
+            out.append(no_returns)
         sweeps, points, kept = self.clouds_3d
         if sweeps:
             band = self.reading.inputs.plane_band_deg

@@ -224,7 +224,8 @@ def write_trajectories_parquet(path: Path, rows: TrajectoryRows) -> None:
     meta.update({"fmcwlog.frames": "each trajectory in its own frame <method>/odom, starting at its origin; "
                                    "base_link is the rear-axle midpoint (REP-105)",
                  "fmcwlog.angles": "radians, counter-clockwise positive, z up (REP-103)"})
-    pq.write_table(table.replace_schema_metadata(meta), path)
+    with open(path, "wb") as fh:  # opened here: Arrow takes a path as UTF-8, which a name need not be
+        pq.write_table(table.replace_schema_metadata(meta), fh)
     # Arrow's allocator (mimalloc) keeps the writer's freed buffers resident (26 MB for 36,000 rows):
     # give them back, so that what runs after the write does not stand on them
     pa.default_memory_pool().release_unused()

@@ -18,6 +18,12 @@ The bounds (:class:`InputLimits`) and why:
 
 A message outside them raises :class:`Rejected`, which :class:`fmcwlog.io.inputs.LogInputs`
 counts and skips.
+
+No-returns are not damage: a PointCloud2 point whose ``x``, ``y`` (``z``, ``velocity`` where read) is
+NaN or infinite, or which lies exactly at the sensor's origin (what organised clouds publish where a
+beam saw nothing), is dropped as it is decoded and counted (:attr:`CloudLayout.no_returns`); so is a
+LaserScan range that is not finite, outside ``[range_min, range_max]`` or zero (REP-117). A sweep of
+no-returns only has no points (``empty``).
 """
 
 from __future__ import annotations
@@ -137,12 +143,28 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
 class CloudLayout:
     """What :func:`sweep_from_pointcloud` found in a cloud beside its sweep: ``time`` how its point times
     were read (None: no time field, every point at the stamp), ``time_datatype`` that field's
-    PointField datatype; of a 3-D cloud (``kept`` not None), ``kept`` of its ``points`` within the band."""
+    PointField datatype; of a 3-D cloud (``kept`` not None), ``kept`` of its ``points`` within the band;
+    ``no_returns`` of its ``points`` dropped as no-returns (module docstring)."""
 
     time: TimeField | None
     time_datatype: int
     points: int
     kept: int | None
+    no_returns: int = 0
+
+
+def _drop_no_returns(cols: dict[str, np.ndarray], names: tuple[str, ...]) -> int:
+    """Remove from every column of ``cols`` the points that are no-returns: a non-finite value in one
+    of ``names`` (those read), or ``x`` = ``y`` (= ``z``) = 0. Returns how many were removed."""
+    read = [cols[k] for k in names if k in cols]
+    keep = np.logical_and.reduce([np.isfinite(a) for a in read])
+    at_origin = np.logical_and.reduce([cols[k] == 0 for k in ("x", "y", "z") if k in cols])
+    keep &= ~at_origin
+    dropped = int(keep.size - np.count_nonzero(keep))
+    if dropped:
+        for k in cols:
+            cols[k] = cols[k][keep]
+    return dropped
 
 
 def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimits(),
@@ -174,10 +196,13 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
     except (ValueError, KeyError) as exc:
         raise Rejected(path, "PointCloud2", ns, "layout", str(exc)) from None
     n = len(cols["x"])
-    t = time.seconds(cols[time.name], ns) if time is not None else np.zeros(n)
+    no_returns = _drop_no_returns(cols, ("x", "y", "z", "velocity"))
+    t = time.seconds(cols[time.name], ns) if time is not None else np.zeros(n - no_returns)
     vel, inten = cols.get("velocity"), cols.get("intensity")
     xy = np.column_stack([cols["x"], cols["y"]])
     kept = None
+    if n and no_returns == n:
+        raise Rejected(path, "PointCloud2", ns, "empty", f"no points: all {n} are no-returns (NaN, infinite or at the origin)")
     if is_3d(cols.get("z"), cols.get(ring) if ring else None):
         xyz = np.column_stack([xy, cols["z"]])
         band = plane_band(xyz, reading.inputs.plane_band_deg)
@@ -196,14 +221,14 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
             raise
         raise Rejected(path, "PointCloud2", None, "times",
                        f"{exc.detail} ({time.describe(types[time.name])}; {TIME_FIELD_HELP})") from None
-    layout = CloudLayout(time, types[time.name] if time else 0, n, kept)
+    layout = CloudLayout(time, types[time.name] if time else 0, n, kept, no_returns)
     return SweepInput(ns, xy, t, vel, inten), layout
 
 
 def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:
     """A ``sensor_msgs/LaserScan`` to a :class:`SweepInput` without Doppler.
 
-    Ranges outside ``[range_min, range_max]`` or not finite are no return (REP-117). Angles
+    Ranges outside ``[range_min, range_max]``, not finite or zero are no return (REP-117). Angles
     must be finite, ``angle_increment`` non-zero, and ``angle_max`` within 1.5 beams of
     ``angle_min + (n - 1)·angle_increment`` (drivers differ by one beam in how they count).
 
@@ -226,7 +251,7 @@ def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits
     i = np.arange(r.size)
     ang = a0 + i * inc
     once_round = i * abs(inc) < 2 * math.pi - 0.5 * abs(inc)  # else the first beam's direction again
-    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max) & once_round
+    ok = np.isfinite(r) & (r >= msg.range_min) & (r <= msg.range_max) & (r > 0) & once_round
     inten = np.asarray(msg.intensities, dtype=float)[ok] if len(msg.intensities) == r.size else None
     xy = np.column_stack([r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok])])
     t = (i * dt)[ok]

@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
+from .errors import ConfigError, excerpt
 
 _RANGE_KEY = "fmcwlog.range"
 
@@ -96,9 +96,10 @@ def _hints(cls: type) -> dict[str, Any]:
 
 
 def _word(name: Any) -> str:
-    """A parameter or section name as typed, quoted where it holds spaces or characters that do not print."""
+    """A parameter or section name as typed, quoted where it holds spaces or characters that do not print
+    (at most :data:`~fmcwlog.errors.EXCERPT_CHARS` of it)."""
     text = str(name)
-    return text if text and text.isprintable() and " " not in text else repr(text)
+    return excerpt(text if text and text.isprintable() and " " not in text else repr(text))
 
 
 def _show(value: Any) -> str:
@@ -160,7 +161,7 @@ def parse_set_option(items: tuple[str, ...]) -> dict[str, dict[str, str]]:
         key, sep, value = item.partition("=")
         section, dot, name = key.strip().partition(".")
         if not sep or not section or not dot or not name:
-            raise ConfigError(f"--set expects SECTION.NAME=VALUE, got {item!r}")
+            raise ConfigError(f"--set expects SECTION.NAME=VALUE, got {excerpt(repr(item))}")
         out.setdefault(section, {})[name] = value.strip()
     return out
 

@@ -53,6 +53,18 @@ class MapSizeError(FmcwlogError, ValueError):
     """An occupancy grid would exceed its cell budget (points far off, or a resolution too fine)."""
 
 
+EXCERPT_CHARS = 80  # the most of a user's input a message quotes
+
+
+def excerpt(text: str, limit: int = EXCERPT_CHARS) -> str:
+    """``text`` from a user's input as a message quotes it: control characters escaped, at most
+    ``limit`` characters, cut with ``…`` (``'1111…' (4000001 characters)``) where it is longer."""
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit + 1])
+    if len(text) <= limit and len(shown) <= limit:
+        return shown
+    return f"{shown[:limit - 1]}… ({len(text)} characters)"
+
+
 def os_reason(exc: OSError) -> str:
     """``No space left on device`` -> ``no space left on device``: the end of a one-line message."""
     text = exc.strerror or str(exc) or type(exc).__name__

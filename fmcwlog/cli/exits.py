@@ -29,9 +29,17 @@ class SomeFailed(click.ClickException):
     exit_code = 1  # not 2: the command and its input were fine, some logs were not
 
 
+MAX_MESSAGE_CHARS = 4000  # beyond any message but one quoting a user's input whole
+
+
 def one_line(message: str) -> str:
     """A message as one printable line: a line break or control character a user's input carried in
-    (a file name, a key) is shown escaped, never breaking the line."""
+    (a file name, a key) is shown escaped, never breaking the line. Messages quote input through
+    :func:`fmcwlog.errors.excerpt`; one longer than :data:`MAX_MESSAGE_CHARS` all the same is cut in the
+    middle, so that no input, however long, is echoed whole."""
+    if len(message) > MAX_MESSAGE_CHARS:
+        head, tail = MAX_MESSAGE_CHARS // 2, MAX_MESSAGE_CHARS // 4
+        message = f"{message[:head]}… ({len(message) - head - tail} characters left out) …{message[-tail:]}"
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 
 

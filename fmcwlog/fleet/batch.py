@@ -23,6 +23,7 @@ from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, OutputError
+from ..io.atomic import remove_stale_partials
 from ..io.digest import log_size
 from ..pipeline.options import ProcessOptions, options_digest
 from .inputs import LOG_PATTERNS, find_logs, unique_names
@@ -34,7 +35,6 @@ from .state import (
     follow_renamed,
     is_fmcwlog_output,
     read_batch,
-    remove_stale_partials,
     write_batch,
 )
 from .tasks import Limits, LogOutcome, LogTask

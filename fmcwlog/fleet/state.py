@@ -14,8 +14,6 @@ lives here; ``fmcwlog report OUT`` reads it.
 from __future__ import annotations
 
 import json
-import os
-import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -91,9 +89,6 @@ def is_fmcwlog_output(out_dir: Path) -> bool:
     return marker is not None and marker.get("made_by") == "fmcwlog process"
 
 
-_PARTIAL = re.compile(r"^\.(?P<name>.+)\.partial-(?P<pid>\d+)$")
-
-
 def remove_partial(out_root: Path, name: str, pid: int) -> bool:
     """Remove what a worker of process ``pid`` left of ``OUT/<name>`` when it was killed."""
     tmp = out_root / f".{name}.partial-{pid}"
@@ -101,29 +96,6 @@ def remove_partial(out_root: Path, name: str, pid: int) -> bool:
         shutil.rmtree(tmp, ignore_errors=True)
         return True
     return False
-
-
-def remove_stale_partials(out_root: Path, names: set[str]) -> list[Path]:
-    """Temporary folders of these logs whose writer no longer runs (a batch killed earlier)."""
-    removed: list[Path] = []
-    if not out_root.is_dir():
-        return removed
-    for p in out_root.iterdir():
-        m = _PARTIAL.match(p.name)
-        if m and m["name"] in names and not _alive(int(m["pid"])):
-            shutil.rmtree(p, ignore_errors=True)
-            removed.append(p)
-    return removed
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
 
 
 def read_batch(out_root: Path) -> dict[str, Any]:

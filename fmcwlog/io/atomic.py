@@ -80,8 +80,37 @@ def partial_path(path: str | os.PathLike) -> Path:
     return path.with_name(f".{path.name}.partial-{os.getpid()}")
 
 
-_PARTIAL = re.compile(r"^\.(?P<name>.+)\.partial-\d+$")
+_PARTIAL = re.compile(r"^\.(?P<name>.+)\.partial-(?P<pid>\d+)$")
 _batch: ContextVar[list[tuple[Path, Path]] | None] = ContextVar("fmcwlog_atomic_batch", default=None)
+
+
+def remove_stale_partials(out_root: Path, names: set[str]) -> list[Path]:
+    """The temporaries (``.NAME.partial-PID``, :func:`partial_path`) of outputs ``names`` in ``out_root``
+    whose writer no longer runs (killed earlier), removed; returns them. A PID that is alive, whoever
+    runs it, keeps its temporary."""
+    removed: list[Path] = []
+    if not out_root.is_dir():
+        return removed
+    for p in out_root.iterdir():
+        m = _PARTIAL.match(p.name)
+        if m and m["name"] in names and not _alive(int(m["pid"])):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    p.unlink()
+            removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # someone else's process; a number beyond any PID
+        return True
+    return True
 
 
 @contextmanager
@@ -309,6 +338,7 @@ def atomic_folder(out_dir: str | os.PathLike, force: bool = False, inputs: Itera
     out_dir = _named(out_dir).absolute()
     tmp = partial_path(out_dir)
     with created_parents(out_dir):
+        remove_stale_partials(out_dir.parent, {out_dir.name})  # a run of the same output killed earlier
         try:
             shutil.rmtree(tmp, ignore_errors=True)
             tmp.mkdir()

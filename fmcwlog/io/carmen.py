@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CarmenImportError
+from ..errors import CarmenImportError, excerpt
 from ..geometry import between
 
 MAX_STAMP_S = 2**31 - 1  # builtin_interfaces/Time.sec is an int32
@@ -122,7 +122,7 @@ def _floats(tokens: list[str], what: str, finite: bool = True) -> list[float]:
 def _stamp(token: str) -> float:
     t = _floats([token], "timestamp")[0]
     if not 0.0 <= t <= MAX_STAMP_S:
-        raise _Bad(f"timestamp {token} s is outside [0, {MAX_STAMP_S}] s")
+        raise _Bad(f"timestamp {excerpt(token)} s is outside [0, {MAX_STAMP_S}] s")
     return t
 
 
@@ -320,7 +320,7 @@ def parse_log(path: str | Path) -> ParsedLog:
                     (_cmu_line if out.format == "cmu" else _carmen_line)(tok, out)
                     _check_order(out, lineno, counts, latest)
                 except (_Bad, IndexError, ValueError) as exc:
-                    why = str(exc) if isinstance(exc, _Bad) else f"{tok[0]}: too few or malformed fields"
+                    why = str(exc) if isinstance(exc, _Bad) else f"{excerpt(tok[0])}: too few or malformed fields"
                     out.bad_lines.append((lineno, why))
     except EOFError:
         out.stopped = f"the compressed file ends early, after line {out.lines}"

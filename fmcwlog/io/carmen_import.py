@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CarmenImportError, os_reason
+from ..errors import CarmenImportError, excerpt, os_reason
 from ..geometry import interpolate_poses, inverse
 from .atomic import created_parents, reported_write_errors
 from .carmen import ParsedLog, ScanRecord, parse_log
@@ -57,7 +57,7 @@ def _no_scans(parsed: ParsedLog) -> str:
     if len(readable) < len(parsed.ignored):
         other = f", {sum(parsed.ignored.values())} of binary data or unknown records: not a text log?"
     else:
-        kinds = ", ".join(readable[:5]) + (", ..." if len(readable) > 5 else "")
+        kinds = ", ".join(excerpt(k) for k in readable[:5]) + (", ..." if len(readable) > 5 else "")
         other = f", {sum(parsed.ignored.values())} of kinds not imported: {kinds}" if readable else ""
     first = f"; first malformed: line {parsed.bad_lines[0][0]}: {parsed.bad_lines[0][1]}" if parsed.bad_lines else ""
     stopped = f"; {parsed.stopped}" if parsed.stopped else ""

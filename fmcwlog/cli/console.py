@@ -1,12 +1,16 @@
 """What a command prints goes through the ``fmcwlog`` logger, so that -q and -v choose it.
 
 Information goes to stdout as it is; warnings and errors to stderr as ``fmcwlog: warning: ...``,
-a library's ``warnings.warn`` among them (one line, no source line).
+a library's ``warnings.warn`` among them (one line, no source line). A reader of stdout that goes
+away (``fmcwlog process ... | head -1``) is no error: what is left to print is dropped, and the
+command ends as it would have (:func:`echo_out`).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import warnings
 
 import click
@@ -22,7 +26,19 @@ class _ConsoleHandler(logging.Handler):
         if record.levelno >= logging.WARNING:
             click.echo(f"fmcwlog: {record.levelname.lower()}: {msg}", err=True)
         else:
-            click.echo(msg)
+            echo_out(msg)
+
+
+def echo_out(text: str, nl: bool = True) -> None:
+    """``text`` on stdout; where its reader has gone (a broken pipe), stdout is pointed at the null
+    device, so that neither this nor any later write, nor the flush at exit, fails the command."""
+    try:
+        click.echo(text, nl=nl)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..fleet.tasks import Limits
-from .console import console
+from .console import console, echo_out
 from .exits import SomeFailed, UserError
 from .loading import loading_modules
 from .paths import as_path, as_paths
@@ -157,7 +157,7 @@ def process_cmd(logs, out_dir, method, config_file, set_items, scan_topic, ticks
 
     params = params_from(config_file, set_items)
     if show_config:
-        click.echo(params_toml(params), nl=False)
+        echo_out(params_toml(params), nl=False)
         return
     _check_arguments(logs, out_dir, ray_address)
     methods = ProcessOptions().methods if method == "all" else (method,)

@@ -12,7 +12,7 @@ from ..sim.recorder import record
 from ..sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
 from ..sim.scenarios import scenario as builtin_world
 from ..sim.world import load_world
-from .console import console
+from .console import console, echo_out
 from .exits import UserError
 from .paths import as_path
 from .progress import progress
@@ -72,7 +72,7 @@ def record_cmd(output, scenario, world_file, duration, seed, speed, config_file,
     cfg = simulation_config(config_file, set_items, duration=duration, seed=seed, speed=speed)
     world = load_world(world_file) if world_file else builtin_world(scenario or DEFAULT_SCENARIO)
     if show_config:
-        click.echo(cfg.toml(), nl=False)
+        echo_out(cfg.toml(), nl=False)
         return
     if output is None:
         raise UserError("missing -o/--output: the log file to write")

@@ -8,6 +8,7 @@ import click
 
 from ..evaluation.published import PAPER_FEATURE_ERROR_REDUCTION_PCT
 from ..fleet.state import is_batch_folder
+from ..io.atomic import check_folder_can_be_made
 from .console import console
 from .exits import UserError
 from .paths import as_path
@@ -58,6 +59,8 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
             raise UserError(f"{batches[0]}: a batch folder is reported alone (no other folders, --log or --relations)")
         _report_fleet(batches[0])
         return
+    if len(out_dirs) > 1:  # refused before any folder gets its report
+        check_folder_can_be_made(comparison_dir or Path("."))
     results = [report_folder(out_dir, log, relations) for out_dir in out_dirs]
     if len(results) > 1:
         _compare(results, comparison_dir or Path("."))

@@ -181,6 +181,22 @@ def write_json(path: str | os.PathLike, obj: Any, sort_keys: bool = False) -> No
     write_text(path, json_text(obj, sort_keys))
 
 
+def check_folder_can_be_made(folder: str | os.PathLike) -> None:
+    """Raise :class:`OutputError` where ``folder`` is not a folder and cannot be made one: it, or the
+    nearest of its parents that exists, is a file, or that parent cannot be written. For a command
+    that writes other outputs first, so that it refuses before it writes any."""
+    path = Path(folder).absolute()
+    existing = next((p for p in (path, *path.parents) if os.path.lexists(p)), None)
+    if existing is None:
+        return
+    if not existing.is_dir():
+        where = "it is a file" if existing == path else f"{existing} is a file"
+        raise OutputError(f"{folder}: cannot create it ({where})")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        where = "permission denied" if existing == path else f"{existing} cannot be written"
+        raise OutputError(f"{folder}: cannot write in it ({where})")
+
+
 @contextmanager
 def created_parents(path: str | os.PathLike) -> Iterator[None]:
     """Create ``path``'s missing parent folders; if the block fails, remove ``path``'s temporary

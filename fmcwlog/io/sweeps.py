@@ -64,15 +64,23 @@ class InputLimits:
     """Bounds beyond which a decoded value is damage, not a measurement (module docstring).
 
     max_sweep_s: latest point time in a sweep, s. max_range_m: farthest point from the sensor, m.
+    scan_rate: the calibration's ``scan_rate`` (Hz) ``max_sweep_s`` comes from; None where it gave none.
     """
 
     max_sweep_s: float = 1.0
     max_range_m: float = 1000.0
+    scan_rate: float | None = None
 
     @classmethod
     def from_calibration(cls, cal: Calibration) -> InputLimits:
         return cls(1.0 / cal.scan_rate if cal.scan_rate else 1.0,
-                   2.0 * cal.max_range if cal.max_range else 1000.0)
+                   2.0 * cal.max_range if cal.max_range else 1000.0, cal.scan_rate or None)
+
+    def sweep_bound(self) -> str:
+        """``[0, 0.02 s] (1 / the calibration's scan_rate, 50 Hz)``: the bound of point times, and whence."""
+        if self.scan_rate:
+            return f"[0, {self.max_sweep_s:g} s] (1 / the calibration's scan_rate, {self.scan_rate:g} Hz)"
+        return f"[0, {self.max_sweep_s:g} s]" + (" (the calibration gives no scan_rate)" if self.max_sweep_s == 1.0 else "")
 
 
 class Rejected(LogError):
@@ -131,7 +139,8 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
             raise Rejected(path, what, ns, "nonfinite", f"{name} holds NaN or infinite values")
     slack = time_slack(limits.max_sweep_s)
     if t.min() < -slack or t.max() > limits.max_sweep_s + slack:
-        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s")
+        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s, "
+                                                f"outside {limits.sweep_bound()}")
     reach = float(np.max(np.hypot(xy[:, 0], xy[:, 1])))
     if reach > limits.max_range_m:
         raise Rejected(path, what, ns, "range", f"a point lies {reach:.4g} m from the sensor")

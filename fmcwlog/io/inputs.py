@@ -57,7 +57,7 @@ _SKIP_TEXT = {
     "layout": "{n} sweeps on {topic} whose point layout cannot be read",
     "angles": "{n} sweeps on {topic} whose beam angles are unusable",
     "nonfinite": "{n} sweeps on {topic} holding NaN or infinite values",
-    "times": "{n} sweeps on {topic} whose point times lie outside {sweep_bound}",
+    "times": "{n} sweeps on {topic} whose point times lie outside [0, {max_sweep_s:g} s]",
     "range": "{n} sweeps on {topic} with points farther than {max_range_m:g} m from the sensor",
     "velocity": "{n} sweeps on {topic} with radial velocities beyond ±{max_velocity:g} m/s",
     "empty": "{n} sweeps on {topic} with no points",
@@ -299,7 +299,7 @@ class LogInputs:
     def _skip_text(self, stream: _Stream, kind: str) -> str:
         """The warning for one kind of skipped message: count, topic, bound and (but for a repeated
         stamp, which is its own case) the first case."""
-        values = {"sweep_bound": self.limits.sweep_bound(), "max_range_m": self.limits.max_range_m,
+        values = {"max_sweep_s": self.limits.max_sweep_s, "max_range_m": self.limits.max_range_m,
                   "max_speed": MAX_SPEED, "max_velocity": 2 * MAX_SPEED, "max_gap": MAX_CLOCK_GAP_S}
         text = _SKIP_TEXT[kind].format(n=stream.skipped[kind], topic=stream.topic, **values)
         return text if kind.endswith("_repeated") else f"{text} (first: {stream.first_detail[kind]})"

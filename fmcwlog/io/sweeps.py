@@ -77,10 +77,11 @@ class InputLimits:
                    2.0 * cal.max_range if cal.max_range else 1000.0, cal.scan_rate or None)
 
     def sweep_bound(self) -> str:
-        """``[0, 0.02 s] (1 / the calibration's scan_rate, 50 Hz)``: the bound of point times, and whence."""
-        if self.scan_rate:
-            return f"[0, {self.max_sweep_s:g} s] (1 / the calibration's scan_rate, {self.scan_rate:g} Hz)"
-        return f"[0, {self.max_sweep_s:g} s]" + (" (the calibration gives no scan_rate)" if self.max_sweep_s == 1.0 else "")
+        """``, beyond a sweep's 0.02 s (1 / the calibration's scan_rate, 50 Hz)``: where the bound of point
+        times comes from, for a message refusing them; empty where no scan_rate set it."""
+        if not self.scan_rate:
+            return ""
+        return f", beyond a sweep's {self.max_sweep_s:g} s (1 / the calibration's scan_rate, {self.scan_rate:g} Hz)"
 
 
 class Rejected(LogError):
@@ -139,8 +140,8 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
             raise Rejected(path, what, ns, "nonfinite", f"{name} holds NaN or infinite values")
     slack = time_slack(limits.max_sweep_s)
     if t.min() < -slack or t.max() > limits.max_sweep_s + slack:
-        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s, "
-                                                f"outside {limits.sweep_bound()}")
+        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s"
+                                                f"{limits.sweep_bound()}")
     reach = float(np.max(np.hypot(xy[:, 0], xy[:, 1])))
     if reach > limits.max_range_m:
         raise Rejected(path, what, ns, "range", f"a point lies {reach:.4g} m from the sensor")
@@ -264,5 +265,8 @@ def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits
     inten = np.asarray(msg.intensities, dtype=float)[ok] if len(msg.intensities) == r.size else None
     xy = np.column_stack([r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok])])
     t = (i * dt)[ok]
+    if r.size and not ok.any():
+        raise Rejected(path, "LaserScan", ns, "empty", f"no points: none of its {r.size} ranges is a return (NaN, "
+                                                       "infinite, zero or outside [range_min, range_max])")
     _check_points(path, "LaserScan", ns, xy, t, None, limits)
     return SweepInput(ns, xy, t, None, inten)

@@ -361,7 +361,7 @@ _IMPOSSIBLE = {
     13: (_set_floats("t", -0.5), "times", "outside [0, 0.1 s]"),
     15: (_set_floats("t", 1e6), "times", "outside [0, 0.1 s]"),
     17: (_set_floats("x", 1e9), "range", "farther than 60 m"),
-    19: (_set_floats("velocity", np.inf), "nonfinite", "NaN or infinite"),
+    19: (_set_floats("t", np.nan), "nonfinite", "NaN or infinite"),  # a NaN x, y or velocity is a no-return
     21: (_set_floats("velocity", 1e30), "velocity", "beyond ±200 m/s"),
     23: (_attr(width=0, row_step=0, data=b""), "empty", "no points"),
 }

@@ -137,9 +137,10 @@ def _junk(path: Path) -> Path:
 
 
 def _nan_points(topic, i, msg):
-    if topic == "/fmcw/points" and i == 5:
+    if topic == "/fmcw/points" and i == 5:  # a NaN point time (a NaN x or y is a no-return, dropped)
+        off = next(f.offset for f in msg.fields if f.name == "t")
         data = bytearray(msg.data)
-        data[0:4] = np.float32(np.nan).tobytes()
+        data[off:off + 4] = np.float32(np.nan).tobytes()
         msg.data = bytes(data)
 
 

@@ -129,6 +129,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 optimised = _optimise(backends, outputs, grids, tmp)
                 if elsewhere is not None:
                     grids.update(elsewhere.end().grids)  # without a back end: the child's last maps
+                _check_mapped(log, grids, runner.sweeps)
                 outputs.finish(grids)
             except BaseException:
                 outputs.abort()
@@ -185,6 +186,15 @@ def _skipped_share(log: Path, inputs: LogInputs, keep_going: bool) -> SkippedSha
         raise LogError(f"{log}: " + skipped.text(f"more than half: not processed, as the results would not be the "
                                                  f"log's; --keep-going processes the {skipped.read - skipped.skipped} left"))
     return skipped
+
+
+def _check_mapped(log: Path, grids: dict[str, Any], sweeps: int) -> None:
+    """Refuse a log of which no method mapped a single cell: every point of every sweep was left out
+    (closer than the front end's ``min_range``, or on a mover), so that no estimate stands on the scans."""
+    sizes = [g.width * g.height for g in grids.values() if g is not None and hasattr(g, "width")]
+    if sizes and not any(sizes):
+        raise LogError(f"{log}: no point of its {sweeps} sweeps could be mapped: each lies closer to the sensor "
+                       "than frontend.min_range or on a mover; nothing would be estimated from the scans")
 
 
 def _many_skipped_line(skipped: SkippedShare | None) -> str | None:

@@ -119,6 +119,19 @@ def test_every_point_at_the_origin_is_one_line_of_error(log, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_every_point_within_min_range_is_one_line_of_error(log, tmp_path):
+    bad = tmp_path / "near.mcap"
+
+    def edit(topic, i, msg):
+        if topic == "/fmcw/points":
+            _set_field(msg, "x", lambda v: 0 * v + 0.05)
+            _set_field(msg, "y", lambda v: 0 * v)
+    copy_log(log, bad, edit=edit)
+    code, _, err = _process(bad, tmp_path / "out")
+    assert_one_line_error(code, err, str(bad), "could be mapped", "frontend.min_range")
+    assert not (tmp_path / "out").exists() and [p.name for p in tmp_path.iterdir()] == ["near.mcap"]
+
+
 def test_an_all_zero_carmen_log_is_one_line_of_error(tmp_path):
     lines = []
     for i in range(40):

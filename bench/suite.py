@@ -3,8 +3,9 @@
 For each scenario and seed it records a log, processes it with each method in
 a child process of its own (so each method's time and peak memory are its
 own), runs KISS-ICP on the same log as a peer (`bench/kiss_icp_peer.py`, needs
-the `bench` extra), evaluates everything with `fmcwlog report`'s code, and
-writes one table, averaged over the seeds, as Markdown and JSON. Then it
+the `bench` extra), evaluates everything with `fmcwlog report`'s code (the improved
+method's front end alone, `improved_frontend.tum`, as a row of its own beside the full
+method), and writes one table, averaged over the seeds, as Markdown and JSON. Then it
 measures how `process` scales with the log's length.
 
     pip install -e '.[bench]'
@@ -85,6 +86,8 @@ def run_one(scenario: str, seed: int, duration: float, tmp: Path, with_kiss: boo
         rows[method] = _row(result, method, peak)
         if method == "improved":
             rows["wheel_odometry"] = _row(result, "wheel_odometry", None)
+            if "improved_frontend" in result["methods"]:  # the front end alone, before the back end
+                rows["improved_frontend"] = _row(result, "improved_frontend", None)
     if with_kiss:
         out = tmp / f"{scenario}_{seed}_kiss"
         try:

@@ -36,7 +36,8 @@ Both maps take a keyframe's points when the robot has moved or turned enough
 since the last one, which also bounds the KD-tree rebuilds.
 
 Only registration's input is thinned, as KISS-ICP thins each deskewed frame: the first point
-in beam order of each ``source_voxel`` (10 cm) voxel (:func:`fmcwlog.kernels.voxel.voxel_downsample`),
+in beam order of each ``source_voxel`` (10 cm) voxel (:func:`fmcwlog.kernels.voxel.voxel_downsample`,
+as the map keeps a keyframe's; ``source_thinning = "centroid"`` keeps each voxel's centroid),
 for both methods (thinning the source is the classic ICP pipeline's practice too). The map,
 the occupancy grid, segmentation, the Doppler fit and the published clouds keep every point.
 The 10 cm voxel is an accuracy choice: coarser voxels cost the improved method's ATE +25 to
@@ -63,7 +64,7 @@ from ..geometry import _is_pose, between, between_floats, compose, transform_poi
 from ..kernels import compiled
 from ..kernels.correlative import LikelihoodGrid, correlative_match
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
-from ..kernels.voxel import voxel_downsample
+from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskew_placed
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
@@ -265,7 +266,7 @@ class FrontEnd(ABC):
             pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
         else:
             pts = _transform(self.mount, xy[use])
-        source = voxel_downsample(pts, p.source_voxel)
+        source = (voxel_centroids if p.source_thinning == "centroid" else voxel_downsample)(pts, p.source_voxel)
 
         pose_cov = None
         searched = recovered = False

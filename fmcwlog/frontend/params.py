@@ -33,6 +33,10 @@ class FrontEndParams(Checked):
         casting costs more than a map update and gains little from dense sweeps.
     source_voxel: the sweep is thinned to one point per voxel of this size (m)
         before registration (the map keeps full density); 0 keeps every point.
+    source_thinning: which point a ``source_voxel`` voxel keeps: ``first``, its first point in
+        beam order (:func:`fmcwlog.kernels.voxel.voxel_downsample`), or ``centroid``, the mean of
+        its points, whatever their order (:func:`fmcwlog.kernels.voxel.voxel_centroids`);
+        docs/design/frontend-params.md has the measurements behind the default.
     voxel_size: map point spacing (m).
     map_resolution: occupancy grid cell size (m).
     prior_sigma_along, prior_sigma_across, prior_sigma_yaw: floor of the Doppler
@@ -77,6 +81,7 @@ class FrontEndParams(Checked):
     grid_distance: float = param(0.5, "m", ge=0.0, le=100.0)
     grid_angle_deg: float = param(10.0, "deg", ge=0.0, le=180.0)
     source_voxel: float = param(0.1, "m", ge=0.0, le=10.0)
+    source_thinning: str = param("first", "", choices=("first", "centroid"))
     # the map keeps a point per voxel, so its size follows the area seen over voxel_size²; 1 mm is
     # already finer than any planar LiDAR's range noise
     voxel_size: float = param(0.05, "m", ge=0.001, le=10.0)

@@ -386,13 +386,13 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double 
         const double x = s[2 * i], y = s[2 * i + 1];
         const double mx = c * x + (-sn) * y + pose[0];  // NearestPairs._moved's order
         const double my = c * y + sn * x + pose[1];
-        double d;
-        const int64_t j = grid.nearest(mx, my, d);
+        double d, at[2];
+        const int64_t j = grid.nearest(mx, my, d, at);
         if (j < 0) continue;
         out.mx.push_back(mx);
         out.my.push_back(my);
-        out.tx.push_back(grid.x(j));
-        out.ty.push_back(grid.y(j));
+        out.tx.push_back(at[0]);
+        out.ty.push_back(at[1]);
         out.dist.push_back(d);
     }
 }

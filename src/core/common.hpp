@@ -110,14 +110,16 @@ class TargetGrid {
     double y(int64_t i) const { return xy_[2 * size_t(i) + 1]; }
 
     // The nearest target point to (qx, qy) closer than the radius: its index and distance, or -1 and inf.
-    int64_t nearest(double qx, double qy, double& dist) const {
+    // at (optional): the point's (x, y) where one is found, read from the cell just scanned (the same
+    // numbers as x(index), y(index), without a look-up in index order).
+    int64_t nearest(double qx, double qy, double& dist, double* at = nullptr) const {
         dist = kInf;
         if (!std::isfinite(qx) || !std::isfinite(qy)) return -1;
         const double fx = std::floor((qx - x0_) * inv_cell_), fy = std::floor((qy - y0_) * inv_cell_);  // any cell near q
         const double reach = double(rings_) + 1.0;
         if (fx < -reach || fy < -reach || fx > double(nx_) + reach || fy > double(ny_) + reach) return -1;
         const int64_t cx = int64_t(fx), cy = int64_t(fy);
-        Best b{radius_ * radius_ * (1.0 + 1e-9), -1};  // a bound: the root decides below
+        Best b{radius_ * radius_ * (1.0 + 1e-9), -1, -1};  // a bound: the root decides below
         if (cx >= 0 && cx < nx_ && cy >= 0 && cy < ny_) scan(cy * nx_ + cx, qx, qy, b);
         for (int64_t r = 1; r <= rings_; ++r) {
             const int64_t xl = cx - r, xh = cx + r, yl = cy - r, yh = cy + r;
@@ -138,13 +140,17 @@ class TargetGrid {
             dist = kInf;
             return -1;
         }
+        if (at != nullptr) {
+            at[0] = oxy_[2 * size_t(b.slot)];
+            at[1] = oxy_[2 * size_t(b.slot) + 1];
+        }
         return b.index;
     }
 
   private:
     struct Best {
         double d2;
-        int64_t index;
+        int64_t index, slot;  // the point's index and its place in cell order
     };
     static double sq(double v) { return v * v; }
     // How far (qx) is left of column x's box, or right of it; 0 for its own column (m).
@@ -181,7 +187,7 @@ class TargetGrid {
         }
         if (km < 0 || m > b.d2) return;
         const int64_t i = order_[size_t(km)];
-        if (m < b.d2 || i < b.index) b = Best{m, i};
+        if (m < b.d2 || i < b.index) b = Best{m, i, km};
     }
 
     double radius_, cell_ = 1.0, inv_cell_ = 1.0, margin_ = 0.0, x0_ = 0.0, y0_ = 0.0;

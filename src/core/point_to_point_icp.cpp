@@ -27,12 +27,12 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, double px, do
         const double x = s[2 * i], y = s[2 * i + 1];
         const double mx = c * x + (-sn) * y + px;
         const double my = c * y + sn * x + py;
-        double d;
-        const int64_t j = grid.nearest(mx, my, d);
+        double d, at[2];
+        const int64_t j = grid.nearest(mx, my, d, at);
         if (j < 0) continue;
         out.src.push_back(int64_t(i));
-        out.tx.push_back(grid.x(j));
-        out.ty.push_back(grid.y(j));
+        out.tx.push_back(at[0]);
+        out.ty.push_back(at[1]);
         out.dist.push_back(d);
     }
 }

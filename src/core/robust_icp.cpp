@@ -74,9 +74,33 @@ double median_of(std::vector<double> x) {
     return (lo + hi) / 2;
 }
 
+// The distances of a sweep's pairs in increasing order, each with its pair's index: what the
+// median and the weights' running minimum read. The order among equal distances is left open:
+// neither answer depends on it (equal distances have equal weights).
+struct SortedDistances {
+    std::vector<std::pair<double, uint32_t>> by_d;
+    void assign(const std::vector<double>& d) {
+        by_d.resize(d.size());
+        for (size_t i = 0; i < d.size(); ++i) by_d[i] = {d[i], uint32_t(i)};
+        std::sort(by_d.begin(), by_d.end(),
+                  [](const std::pair<double, uint32_t>& a, const std::pair<double, uint32_t>& b) { return a.first < b.first; });
+    }
+    // robust_icp.median / np.median of finite distances: the middle value, or the mean of the middle two.
+    double median() const {
+        const size_t n = by_d.size();
+        if (n == 0) return std::numeric_limits<double>::quiet_NaN();
+        const size_t h = n / 2;
+        return n % 2 ? by_d[h].first : (by_d[h - 1].first + by_d[h].first) / 2;
+    }
+};
+
 // DistanceMixture.weights: eq. 21 at max(d, mu_inlier), the inlier group's summed posterior, made
-// non-increasing in the distance (running minimum in stable distance order).
-void mixture_weights(const Mixture& m, const std::vector<double>& d, std::vector<double>& w) {
+// non-increasing in the distance (running minimum in stable distance order). d: the distances,
+// sorted: the same in increasing order. A weight is a function of its distance alone, so the running
+// minimum over any order of increasing distance gives each pair the minimum over all distances up
+// to its own: the reference's numbers.
+void mixture_weights(const Mixture& m, const std::vector<double>& d, const SortedDistances& sorted,
+                     std::vector<double>& w) {
     const size_t n = d.size(), k = m.means.size();
     w.assign(n, 0.0);
     if (n == 0) return;
@@ -99,19 +123,18 @@ void mixture_weights(const Mixture& m, const std::vector<double>& d, std::vector
         }
         double num = 0.0, den = 0.0;
         for (size_t j = 0; j < k; ++j) {
-            const double p = std::exp(logp[j] - top);
+            const double e = logp[j] - top;
+            const double p = e == 0.0 ? 1.0 : std::exp(e);  // exp(0) is 1 exactly
             if (group[j]) num += p;
             den += p;
         }
         w[i] = num / den;
     }
-    std::vector<size_t> order(n);
-    std::iota(order.begin(), order.end(), size_t(0));
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
-    double run = w[order[0]];
+    double run = w[sorted.by_d[0].second];
     for (size_t i = 0; i < n; ++i) {
-        run = std::min(run, w[order[i]]);
-        w[order[i]] = run;
+        const size_t at = sorted.by_d[i].second;
+        run = std::min(run, w[at]);
+        w[at] = run;
     }
 }
 
@@ -363,13 +386,13 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double 
         const double x = s[2 * i], y = s[2 * i + 1];
         const double mx = c * x + (-sn) * y + pose[0];  // NearestPairs._moved's order
         const double my = c * y + sn * x + pose[1];
-        double d;
-        const int64_t j = grid.nearest(mx, my, d);
+        double d, at[2];
+        const int64_t j = grid.nearest(mx, my, d, at);
         if (j < 0) continue;
         out.mx.push_back(mx);
         out.my.push_back(my);
-        out.tx.push_back(grid.x(j));
-        out.ty.push_back(grid.y(j));
+        out.tx.push_back(at[0]);
+        out.ty.push_back(at[1]);
         out.dist.push_back(d);
     }
 }
@@ -452,6 +475,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
     Pairs pairs;
     std::vector<double> gmm_w, w, last_d, kept_d;
     std::vector<size_t> keep;
+    SortedDistances sorted;
     {
         nb::gil_scoped_release release;
         for (iterations = 1; iterations <= p.max_iterations; ++iterations) {
@@ -461,7 +485,8 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
             bool weighted = false;  // GMMSC weights (and the keep list) in use
             keep.clear();
             if (gmm_on) {
-                const double med = median_of(pairs.dist);
+                sorted.assign(pairs.dist);
+                const double med = sorted.median();
                 const double r = p.gmm_refit_ratio;
                 const double ref = has_mix ? mix.fit_median : std::numeric_limits<double>::quiet_NaN();
                 const bool refit = !has_mix || r >= 1.0 || med < r * ref || med * r > ref;
@@ -477,7 +502,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
                 if (!has_mix || p.n_components == 1) {
                     gmm_w.assign(np, 1.0);
                 } else {
-                    mixture_weights(mix, pairs.dist, gmm_w);
+                    mixture_weights(mix, pairs.dist, sorted, gmm_w);
                 }
                 weighted = true;
                 for (size_t i = 0; i < np; ++i)

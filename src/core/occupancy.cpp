@@ -137,9 +137,10 @@ struct Tally {
     size_t touched = 0, hits = 0;
 };
 
-// The widest sample loop count_ray may use: 2 AVX2 (where the CPU has it), 1 SSE2, 0 scalar. They
-// give the same cells (the same operations per sample); tests set lower ones to compare them.
-int g_simd = 2;
+// The widest sample loop count_ray may use: 3 AVX-512, 2 AVX2 (each where the CPU has it), 1 SSE2,
+// 0 scalar. They give the same cells (the same operations per sample); tests set lower ones to
+// compare them.
+int g_simd = 3;
 
 // A ray's new cells that are not its end cell, in order (count_ray), as window flat indices (the
 // window holds at most 2^31 - 1 cells).
@@ -225,6 +226,60 @@ __attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double o
     return k;
 }
 
+// keep_samples_avx2 eight at a time (AVX-512: the same operations per lane, the kept cells packed
+// by the CPU); returns the next sample.
+__attribute__((target("avx512f,avx512vl"))) int64_t keep_samples_avx512(const Ray& r, double ox, double oy, double res,
+                                                                           double step, double inv_res, double guard,
+                                                                           int64_t last, int64_t x0, int64_t y0, int64_t ww,
+                                                                           Kept& kept) {
+    const __m512d ux = _mm512_set1_pd(r.ux), uy = _mm512_set1_pd(r.uy), vox = _mm512_set1_pd(ox),
+                  voy = _mm512_set1_pd(oy), inv = _mm512_set1_pd(inv_res), lo = _mm512_set1_pd(guard),
+                  hi = _mm512_set1_pd(1.0 - guard), vstep = _mm512_set1_pd(step),
+                  lanes = _mm512_set_pd(7.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0, 0.0);
+    const __m256i vx0 = _mm256_set1_epi32(int32_t(x0)), vy0 = _mm256_set1_epi32(int32_t(y0)),
+                  vww = _mm256_set1_epi32(int32_t(ww)), vend = _mm256_set1_epi32(int32_t(kept.end_flat));
+    constexpr int kFloor = _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC;
+    int32_t* out = kept.cells;
+    size_t n = kept.n;
+    __m256i before_last = _mm256_set1_epi32(int32_t(kept.prev));  // lane 7: the cell before
+    int64_t k = 0;
+    for (; k + 7 < last; k += 8) {
+        const __m512d s = _mm512_mul_pd(_mm512_add_pd(_mm512_set1_pd(double(k)), lanes), vstep);  // double(k + j) step
+        const __m512d ax = _mm512_add_pd(_mm512_mul_pd(ux, s), vox), ay = _mm512_add_pd(_mm512_mul_pd(uy, s), voy);
+        const __m512d qx = _mm512_mul_pd(ax, inv), qy = _mm512_mul_pd(ay, inv);
+        const __m512d fx = _mm512_roundscale_pd(qx, kFloor), fy = _mm512_roundscale_pd(qy, kFloor);
+        const __m512d rx = _mm512_sub_pd(qx, fx), ry = _mm512_sub_pd(qy, fy);
+        const __mmask8 clear = _mm512_cmp_pd_mask(rx, lo, _CMP_GT_OQ) & _mm512_cmp_pd_mask(rx, hi, _CMP_LT_OQ) &
+                               _mm512_cmp_pd_mask(ry, lo, _CMP_GT_OQ) & _mm512_cmp_pd_mask(ry, hi, _CMP_LT_OQ);
+        if (clear == 0xFF) {
+            const __m256i cx = _mm256_sub_epi32(_mm512_cvttpd_epi32(fx), vx0), cy = _mm256_sub_epi32(_mm512_cvttpd_epi32(fy), vy0);
+            const __m256i flat = _mm256_add_epi32(_mm256_mullo_epi32(cy, vww), cx);
+            const __m256i before = _mm256_alignr_epi32(flat, before_last, 7);  // prev, f0, ..., f6
+            const __mmask8 keep = __mmask8(~(_mm256_cmpeq_epi32_mask(flat, before) | _mm256_cmpeq_epi32_mask(flat, vend)));
+            _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + n), _mm256_maskz_compress_epi32(keep, flat));
+            n += size_t(__builtin_popcount(unsigned(keep)));
+            before_last = flat;
+        } else {  // near a cell's edge: the division decides (rare)
+            alignas(64) double px[8], py[8];
+            _mm512_store_pd(px, ax);
+            _mm512_store_pd(py, ay);
+            kept.n = n;
+            kept.prev = _mm256_extract_epi32(before_last, 7);
+            for (int j = 0; j < 8; ++j) kept.keep((floor_int(py[j] / res) - y0) * ww + (floor_int(px[j] / res) - x0));
+            n = kept.n;
+            before_last = _mm256_set1_epi32(int32_t(kept.prev));
+        }
+    }
+    kept.n = n;
+    kept.prev = _mm256_extract_epi32(before_last, 7);
+    return k;
+}
+
+bool has_avx512() {
+    static const bool yes = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+    return yes;
+}
+
 bool has_avx2() {
     static const bool yes = __builtin_cpu_supports("avx2");
     return yes;
@@ -252,12 +307,14 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
     const double guard = ray_guard(r, ox, oy, std::min(double(last) * p.step, r.length), inv_res);
     // the ray's new cells that are not its end cell, in order, then their counts; a ray has at
     // most its samples' cells
-    static thread_local std::vector<int32_t> t_cells;  // 4 spare: the AVX2 loop stores 4 cells at once
-    if (t_cells.size() < size_t(last) + 6) t_cells.resize(size_t(last) + 6);
+    static thread_local std::vector<int32_t> t_cells;  // 8 spare: the AVX-512 loop stores 8 cells at once
+    if (t_cells.size() < size_t(last) + 10) t_cells.resize(size_t(last) + 10);
     Kept kept{t_cells.data(), 0, -1, end_flat};
     int64_t k = 0;
 #if defined(FMCWLOG_OCCUPANCY_AVX2)
-    if (int32_cells && g_simd >= 2 && has_avx2())
+    if (int32_cells && g_simd >= 3 && has_avx512())
+        k = keep_samples_avx512(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
+    else if (int32_cells && g_simd >= 2 && has_avx2())
         k = keep_samples_avx2(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
 #endif
 #if defined(__SSE2__)
@@ -307,10 +364,11 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
 // zeroed on the way: the cells only traversed, by flat index, then the hit cells, by flat index
 // (protect_hits: a hit cell gets no free update). `tally` says how many of each there are, so the
 // outputs are sized exactly (they are kept with the scan until every grid holding it has applied
-// them) and each cell is written without a branch: to the traversed run's next slot and to the hit
-// run's next slot, the one it belongs to then taken. Four empty cells are skipped at once.
+// them) and each cell is written without a branch to the traversed run's next slot, taken where it
+// belongs there (the few hit cells go to their own run). 32 bytes of empty cells are skipped at once.
+// `rays`: the scan's, the most a count can be.
 template <class C>
-void collect(C* counts, int64_t size, int64_t ww, const ScanParams& p, const Tally& tally,
+void collect(C* counts, int64_t size, int64_t ww, size_t rays, const ScanParams& p, const Tally& tally,
              std::vector<int32_t>& rows, std::vector<int32_t>& cols, std::vector<float>& increment) {
     const size_t traversed_only = tally.touched - tally.hits, total = tally.touched;
     // one spare slot: the traversed run's slot past its last cell is written (unused) until the end
@@ -331,17 +389,22 @@ void collect(C* counts, int64_t size, int64_t ww, const ScanParams& p, const Tal
     int32_t* hc = t_hit_cols.data();
     float* hi = t_hit_inc.data();
     size_t f = 0, h = 0;  // where the next traversed-only and hit cell go
+    // a traversed-only cell's increment by its count (at most one a ray): float(l_free count)
+    static thread_local std::vector<float> t_free_inc;
+    t_free_inc.resize(rays + 1);
+    for (size_t k = 0; k <= rays; ++k) t_free_inc[k] = float(p.l_free * double(k));
+    const float* free_inc = t_free_inc.data();
     const double free_scale = p.protect_hits ? 0.0 : 1.0;
     auto take = [&](int32_t row, int32_t col, C k) {
-        const bool hit = k.hit != 0, only = !hit & (k.free != 0);
         fr[f] = row;
         fc[f] = col;
-        fi[f] = float(p.l_free * double(k.free));
-        f += size_t(only);
-        hr[h] = row;
-        hc[h] = col;
-        hi[h] = float(p.l_free * (free_scale * double(k.free)) + p.l_occ * double(k.hit));
-        h += size_t(hit);
+        fi[f] = free_inc[k.free];
+        f += size_t((k.hit == 0) & (k.free != 0));
+        if (k.hit != 0) {  // few: about one a ray
+            hr[h] = row;
+            hc[h] = col;
+            hi[h++] = float(p.l_free * (free_scale * double(k.free)) + p.l_occ * double(k.hit));
+        }
     };
     const int32_t height = int32_t(size / ww), width = int32_t(ww);
     for (int32_t row = 0; row < height; ++row) {
@@ -380,7 +443,7 @@ void count_window(const std::vector<Ray>& rays, double ox, double oy, int64_t x0
     try {
         Tally tally;
         for (const Ray& r : rays) count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data(), tally);
-        collect(counts.data(), size, ww, p, tally, rows, cols, increment);
+        collect(counts.data(), size, ww, rays.size(), p, tally, rows, cols, increment);
     } catch (...) {  // out of memory: the kept buffer may hold counts, so let it go
         kept_counts<C>() = std::vector<C>();
         throw;
@@ -631,7 +694,7 @@ void bind_occupancy(nb::module_& m) {
             g_simd = level;
             return was;
         },
-        nb::arg("level"), "Tests: the widest ray-sample loop (2 AVX2 where the CPU has it, 1 SSE2, 0 scalar); the old one.");
+        nb::arg("level"), "Tests: the widest ray-sample loop (3 AVX-512, 2 AVX2, each where the CPU has it, 1 SSE2, 0 scalar); the old one.");
     m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));

@@ -116,30 +116,64 @@ inline double sample_s(const Ray& r, int64_t k, int64_t last, double step) {
 }
 
 // A window cell's count of rays that traverse it (in a sample not in their end cell) and that end
-// in it with a hit.
-struct Counts {
-    int32_t free, hit;
+// in it with a hit: 16 bits each where the scan has fewer than 2^16 rays (neither count can exceed
+// the rays), so that the window takes half the cache, else 32.
+template <class T>
+struct CountsOf {
+    T free, hit;
 };
-constexpr size_t kKeptCells = size_t(1) << 21;  // 16 MB
-thread_local std::vector<Counts> t_counts;
+using Counts16 = CountsOf<uint16_t>;
+using Counts32 = CountsOf<int32_t>;
+constexpr size_t kKeptCells = size_t(1) << 21;  // at most 16 MB kept
+// the window buffers a thread keeps (clean between casts)
+template <class C>
+std::vector<C>& kept_counts() {
+    static thread_local std::vector<C> counts;
+    return counts;
+}
 
-// The widest sample loop count_ray may use: 2 AVX2 (where the CPU has it), 1 SSE2, 0 scalar. They
-// give the same cells (the same operations per sample); tests set lower ones to compare them.
-int g_simd = 2;
+// The cells of a window with nonzero counts (touched), and those with a hit among them.
+struct Tally {
+    size_t touched = 0, hits = 0;
+};
 
-// A ray's new cells that are not its end cell, in order (count_ray).
+// The widest sample loop count_ray may use: 3 AVX-512, 2 AVX2 (each where the CPU has it), 1 SSE2,
+// 0 scalar. They give the same cells (the same operations per sample); tests set lower ones to
+// compare them.
+int g_simd = 3;
+
+// A ray's new cells that are not its end cell, in order (count_ray), as window flat indices (the
+// window holds at most 2^31 - 1 cells).
 struct Kept {
-    int64_t* cells;
+    int32_t* cells;
     size_t n;
     int64_t prev, end_flat;
     void keep(int64_t flat) {  // no branch: one on each sample would mispredict often
-        cells[n] = flat;
+        cells[n] = int32_t(flat);
         n += size_t((flat != prev) & (flat != end_flat));
         prev = flat;
     }
 };
 
 #if defined(FMCWLOG_OCCUPANCY_AVX2)
+// kPack[m]: the byte shuffle that moves the int32 lanes set in m (4 bits) to the front, in order.
+struct PackTable {
+    alignas(16) uint8_t at[16][16];
+    constexpr PackTable() : at() {
+        for (int m = 0; m < 16; ++m) {
+            int to = 0;
+            for (int lane = 0; lane < 4; ++lane) {
+                if (!(m & (1 << lane))) continue;
+                for (int b = 0; b < 4; ++b) at[m][4 * to + b] = uint8_t(4 * lane + b);
+                ++to;
+            }
+            for (int b = 4 * to; b < 16; ++b) at[m][b] = 0x80;
+        }
+    }
+};
+constexpr PackTable kPackTable{};
+constexpr const uint8_t (&kPack)[16][16] = kPackTable.at;
+
 // count_ray's samples 0, 1, ... four at a time (AVX2), before the last; returns the next sample.
 // The window's cells lie within +-2^30 and it holds at most 2^31 - 1 cells (int32 lanes).
 __attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double ox, double oy, double res, double step,
@@ -149,6 +183,11 @@ __attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double o
                   voy = _mm256_set1_pd(oy), inv = _mm256_set1_pd(inv_res), lo = _mm256_set1_pd(guard),
                   hi = _mm256_set1_pd(1.0 - guard), vstep = _mm256_set1_pd(step), lanes = _mm256_set_pd(3.0, 2.0, 1.0, 0.0);
     const __m128i vx0 = _mm_set1_epi32(int32_t(x0)), vy0 = _mm_set1_epi32(int32_t(y0)), vww = _mm_set1_epi32(int32_t(ww));
+    const __m128i vend = _mm_set1_epi32(int32_t(kept.end_flat));
+    // the kept cells' count and the cell before (lane 3) held in registers, not in `kept`
+    int32_t* out = kept.cells;
+    size_t n = kept.n;
+    __m128i before_last = _mm_set1_epi32(int32_t(kept.prev));
     int64_t k = 0;
     for (; k + 3 < last; k += 4) {
         const __m256d s = _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(double(k)), lanes), vstep);  // double(k + j) step
@@ -160,18 +199,85 @@ __attribute__((target("avx2"))) int64_t keep_samples_avx2(const Ray& r, double o
             _mm256_and_pd(_mm256_cmp_pd(rx, lo, _CMP_GT_OQ), _mm256_cmp_pd(rx, hi, _CMP_LT_OQ)),
             _mm256_and_pd(_mm256_cmp_pd(ry, lo, _CMP_GT_OQ), _mm256_cmp_pd(ry, hi, _CMP_LT_OQ)));
         if (_mm256_movemask_pd(clear) == 15) {
+            // the four cells, each kept where it differs from the one before and from the end cell:
+            // compared side by side, the kept ones packed to the front and stored at once
             const __m128i cx = _mm_sub_epi32(_mm256_cvttpd_epi32(fx), vx0), cy = _mm_sub_epi32(_mm256_cvttpd_epi32(fy), vy0);
-            alignas(16) int32_t flat[4];
-            _mm_store_si128(reinterpret_cast<__m128i*>(flat), _mm_add_epi32(_mm_mullo_epi32(cy, vww), cx));
-            for (int j = 0; j < 4; ++j) kept.keep(flat[j]);
-        } else {
+            const __m128i flat = _mm_add_epi32(_mm_mullo_epi32(cy, vww), cx);
+            const __m128i before = _mm_alignr_epi8(flat, before_last, 12);  // the cell before each: prev, f0, f1, f2
+            const __m128i drop = _mm_or_si128(_mm_cmpeq_epi32(flat, before), _mm_cmpeq_epi32(flat, vend));
+            const int keep = ~_mm_movemask_ps(_mm_castsi128_ps(drop)) & 15;
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(out + n),
+                             _mm_shuffle_epi8(flat, _mm_load_si128(reinterpret_cast<const __m128i*>(kPack[keep]))));
+            n += size_t(__builtin_popcount(unsigned(keep)));
+            before_last = flat;
+        } else {  // near a cell's edge: the division decides (rare)
             alignas(32) double px[4], py[4];
             _mm256_store_pd(px, ax);
             _mm256_store_pd(py, ay);
+            kept.n = n;
+            kept.prev = _mm_cvtsi128_si32(_mm_shuffle_epi32(before_last, 3));
             for (int j = 0; j < 4; ++j) kept.keep((floor_int(py[j] / res) - y0) * ww + (floor_int(px[j] / res) - x0));
+            n = kept.n;
+            before_last = _mm_set1_epi32(int32_t(kept.prev));
         }
     }
+    kept.n = n;
+    kept.prev = _mm_cvtsi128_si32(_mm_shuffle_epi32(before_last, 3));
     return k;
+}
+
+// keep_samples_avx2 eight at a time (AVX-512: the same operations per lane, the kept cells packed
+// by the CPU); returns the next sample.
+__attribute__((target("avx512f,avx512vl"))) int64_t keep_samples_avx512(const Ray& r, double ox, double oy, double res,
+                                                                           double step, double inv_res, double guard,
+                                                                           int64_t last, int64_t x0, int64_t y0, int64_t ww,
+                                                                           Kept& kept) {
+    const __m512d ux = _mm512_set1_pd(r.ux), uy = _mm512_set1_pd(r.uy), vox = _mm512_set1_pd(ox),
+                  voy = _mm512_set1_pd(oy), inv = _mm512_set1_pd(inv_res), lo = _mm512_set1_pd(guard),
+                  hi = _mm512_set1_pd(1.0 - guard), vstep = _mm512_set1_pd(step),
+                  lanes = _mm512_set_pd(7.0, 6.0, 5.0, 4.0, 3.0, 2.0, 1.0, 0.0);
+    const __m256i vx0 = _mm256_set1_epi32(int32_t(x0)), vy0 = _mm256_set1_epi32(int32_t(y0)),
+                  vww = _mm256_set1_epi32(int32_t(ww)), vend = _mm256_set1_epi32(int32_t(kept.end_flat));
+    constexpr int kFloor = _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC;
+    int32_t* out = kept.cells;
+    size_t n = kept.n;
+    __m256i before_last = _mm256_set1_epi32(int32_t(kept.prev));  // lane 7: the cell before
+    int64_t k = 0;
+    for (; k + 7 < last; k += 8) {
+        const __m512d s = _mm512_mul_pd(_mm512_add_pd(_mm512_set1_pd(double(k)), lanes), vstep);  // double(k + j) step
+        const __m512d ax = _mm512_add_pd(_mm512_mul_pd(ux, s), vox), ay = _mm512_add_pd(_mm512_mul_pd(uy, s), voy);
+        const __m512d qx = _mm512_mul_pd(ax, inv), qy = _mm512_mul_pd(ay, inv);
+        const __m512d fx = _mm512_roundscale_pd(qx, kFloor), fy = _mm512_roundscale_pd(qy, kFloor);
+        const __m512d rx = _mm512_sub_pd(qx, fx), ry = _mm512_sub_pd(qy, fy);
+        const __mmask8 clear = _mm512_cmp_pd_mask(rx, lo, _CMP_GT_OQ) & _mm512_cmp_pd_mask(rx, hi, _CMP_LT_OQ) &
+                               _mm512_cmp_pd_mask(ry, lo, _CMP_GT_OQ) & _mm512_cmp_pd_mask(ry, hi, _CMP_LT_OQ);
+        if (clear == 0xFF) {
+            const __m256i cx = _mm256_sub_epi32(_mm512_cvttpd_epi32(fx), vx0), cy = _mm256_sub_epi32(_mm512_cvttpd_epi32(fy), vy0);
+            const __m256i flat = _mm256_add_epi32(_mm256_mullo_epi32(cy, vww), cx);
+            const __m256i before = _mm256_alignr_epi32(flat, before_last, 7);  // prev, f0, ..., f6
+            const __mmask8 keep = __mmask8(~(_mm256_cmpeq_epi32_mask(flat, before) | _mm256_cmpeq_epi32_mask(flat, vend)));
+            _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + n), _mm256_maskz_compress_epi32(keep, flat));
+            n += size_t(__builtin_popcount(unsigned(keep)));
+            before_last = flat;
+        } else {  // near a cell's edge: the division decides (rare)
+            alignas(64) double px[8], py[8];
+            _mm512_store_pd(px, ax);
+            _mm512_store_pd(py, ay);
+            kept.n = n;
+            kept.prev = _mm256_extract_epi32(before_last, 7);
+            for (int j = 0; j < 8; ++j) kept.keep((floor_int(py[j] / res) - y0) * ww + (floor_int(px[j] / res) - x0));
+            n = kept.n;
+            before_last = _mm256_set1_epi32(int32_t(kept.prev));
+        }
+    }
+    kept.n = n;
+    kept.prev = _mm256_extract_epi32(before_last, 7);
+    return k;
+}
+
+bool has_avx512() {
+    static const bool yes = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+    return yes;
 }
 
 bool has_avx2() {
@@ -185,21 +291,30 @@ bool has_avx2() {
 // the end cell too, or, where protect_hits and every ray hits, zeroes it as a hit cell: the same
 // increments); the cells along a ray are monotone, so its samples in a cell are consecutive.
 // `int32_cells`: the window's cells lie within +-2^30 (SSE2 converts through int32).
+// `tally` counts the window cells reached for the first time (touched) and first hit (hits).
+template <class C>
 void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64_t ww, const ScanParams& p,
-               bool int32_cells, Counts* counts) {
+               bool int32_cells, C* counts, Tally& tally) {
     const int64_t end_flat = (int64_t(r.ey) - y0) * ww + (int64_t(r.ex) - x0);
-    if (r.hit) ++counts[end_flat].hit;
+    if (r.hit) {
+        C& c = counts[end_flat];
+        tally.touched += size_t((c.free == 0) & (c.hit == 0));
+        tally.hits += size_t(c.hit == 0);
+        ++c.hit;
+    }
     const int64_t last = int64_t(r.samples) - 1;
     const double inv_res = 1.0 / p.res;
     const double guard = ray_guard(r, ox, oy, std::min(double(last) * p.step, r.length), inv_res);
     // the ray's new cells that are not its end cell, in order, then their counts; a ray has at
     // most its samples' cells
-    static thread_local std::vector<int64_t> t_cells;
-    if (t_cells.size() < size_t(last) + 2) t_cells.resize(size_t(last) + 2);
+    static thread_local std::vector<int32_t> t_cells;  // 8 spare: the AVX-512 loop stores 8 cells at once
+    if (t_cells.size() < size_t(last) + 10) t_cells.resize(size_t(last) + 10);
     Kept kept{t_cells.data(), 0, -1, end_flat};
     int64_t k = 0;
 #if defined(FMCWLOG_OCCUPANCY_AVX2)
-    if (int32_cells && g_simd >= 2 && has_avx2())
+    if (int32_cells && g_simd >= 3 && has_avx512())
+        k = keep_samples_avx512(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
+    else if (int32_cells && g_simd >= 2 && has_avx2())
         k = keep_samples_avx2(r, ox, oy, p.res, p.step, inv_res, guard, last, x0, y0, ww, kept);
 #endif
 #if defined(__SSE2__)
@@ -236,43 +351,102 @@ void count_ray(const Ray& r, double ox, double oy, int64_t x0, int64_t y0, int64
         kept.keep((fast_sample_cell(r.uy, s, oy, p.res, inv_res, guard) - y0) * ww +
                   (fast_sample_cell(r.ux, s, ox, p.res, inv_res, guard) - x0));
     }
-    for (size_t i = 0; i < kept.n; ++i) ++counts[kept.cells[i]].free;
+    size_t touched = 0;
+    for (size_t i = 0; i < kept.n; ++i) {
+        C& c = counts[kept.cells[i]];
+        touched += size_t((c.free == 0) & (c.hit == 0));
+        ++c.free;
+    }
+    tally.touched += touched;
 }
 
 // cast_numpy's cells and increments from the window's counts (`size` cells, width ww), which are
 // zeroed on the way: the cells only traversed, by flat index, then the hit cells, by flat index
-// (protect_hits: a hit cell gets no free update). The outputs are sized exactly (they are kept
-// with the scan until every grid holding it has applied them).
-void collect(Counts* counts, int64_t size, int64_t ww, const ScanParams& p, std::vector<int32_t>& rows,
-             std::vector<int32_t>& cols, std::vector<float>& increment) {
-    size_t traversed_only = 0, hit = 0;
-    for (int64_t c = 0; c < size; ++c) {
-        hit += size_t(counts[c].hit != 0);
-        traversed_only += size_t(counts[c].hit == 0 && counts[c].free != 0);
+// (protect_hits: a hit cell gets no free update). `tally` says how many of each there are, so the
+// outputs are sized exactly (they are kept with the scan until every grid holding it has applied
+// them) and each cell is written without a branch to the traversed run's next slot, taken where it
+// belongs there (the few hit cells go to their own run). 32 bytes of empty cells are skipped at once.
+// `rays`: the scan's, the most a count can be.
+template <class C>
+void collect(C* counts, int64_t size, int64_t ww, size_t rays, const ScanParams& p, const Tally& tally,
+             std::vector<int32_t>& rows, std::vector<int32_t>& cols, std::vector<float>& increment) {
+    const size_t traversed_only = tally.touched - tally.hits, total = tally.touched;
+    // one spare slot: the traversed run's slot past its last cell is written (unused) until the end
+    rows.resize(total + 1);
+    cols.resize(total + 1);
+    increment.resize(total + 1);
+    static thread_local std::vector<int32_t> t_hit_rows, t_hit_cols;
+    static thread_local std::vector<float> t_hit_inc;
+    if (t_hit_rows.size() < tally.hits + 1) {
+        t_hit_rows.resize(tally.hits + 1);
+        t_hit_cols.resize(tally.hits + 1);
+        t_hit_inc.resize(tally.hits + 1);
     }
-    rows.resize(traversed_only + hit);
-    cols.resize(traversed_only + hit);
-    increment.resize(traversed_only + hit);
-    size_t f = 0, h = traversed_only;  // where the next traversed-only and hit cell go
+    int32_t* fr = rows.data();
+    int32_t* fc = cols.data();
+    float* fi = increment.data();
+    int32_t* hr = t_hit_rows.data();
+    int32_t* hc = t_hit_cols.data();
+    float* hi = t_hit_inc.data();
+    size_t f = 0, h = 0;  // where the next traversed-only and hit cell go
+    // a traversed-only cell's increment by its count (at most one a ray): float(l_free count)
+    static thread_local std::vector<float> t_free_inc;
+    t_free_inc.resize(rays + 1);
+    for (size_t k = 0; k <= rays; ++k) t_free_inc[k] = float(p.l_free * double(k));
+    const float* free_inc = t_free_inc.data();
+    const double free_scale = p.protect_hits ? 0.0 : 1.0;
+    auto take = [&](int32_t row, int32_t col, C k) {
+        fr[f] = row;
+        fc[f] = col;
+        fi[f] = free_inc[k.free];
+        f += size_t((k.hit == 0) & (k.free != 0));
+        if (k.hit != 0) {  // few: about one a ray
+            hr[h] = row;
+            hc[h] = col;
+            hi[h++] = float(p.l_free * (free_scale * double(k.free)) + p.l_occ * double(k.hit));
+        }
+    };
     const int32_t height = int32_t(size / ww), width = int32_t(ww);
     for (int32_t row = 0; row < height; ++row) {
-        Counts* line = counts + int64_t(row) * ww;
-        for (int32_t col = 0; col < width; ++col) {
-            const Counts k = line[col];
-            if (k.hit != 0) {
-                const double traversed = p.protect_hits ? 0.0 : double(k.free);
-                rows[h] = row;
-                cols[h] = col;
-                increment[h++] = float(p.l_free * traversed + p.l_occ * double(k.hit));
-            } else if (k.free != 0) {
-                rows[f] = row;
-                cols[f] = col;
-                increment[f++] = float(p.l_free * double(k.free));
-            } else {
-                continue;
-            }
-            line[col] = Counts{0, 0};
+        C* line = counts + int64_t(row) * ww;
+        int32_t col = 0;
+        constexpr int32_t kBlock = int32_t(32 / sizeof(C));  // cells in 32 bytes
+        for (; col + kBlock <= width; col += kBlock) {
+            uint64_t w[4];
+            std::memcpy(w, line + col, sizeof w);
+            if ((w[0] | w[1] | w[2] | w[3]) == 0) continue;
+            for (int32_t j = 0; j < kBlock; ++j) take(row, col + j, line[col + j]);
+            std::memset(static_cast<void*>(line + col), 0, sizeof w);
         }
+        for (; col < width; ++col) {
+            take(row, col, line[col]);
+            line[col] = C{0, 0};
+        }
+    }
+    std::memcpy(fr + traversed_only, hr, tally.hits * sizeof(int32_t));
+    std::memcpy(fc + traversed_only, hc, tally.hits * sizeof(int32_t));
+    std::memcpy(fi + traversed_only, hi, tally.hits * sizeof(float));
+    rows.resize(total);
+    cols.resize(total);
+    increment.resize(total);
+}
+
+// count_ray over the scan's rays into its window (x0, y0, width ww, `size` cells), then collect: in
+// a buffer kept by the thread up to kKeptCells cells (clean between casts), else in its own.
+template <class C>
+void count_window(const std::vector<Ray>& rays, double ox, double oy, int64_t x0, int64_t y0, int64_t ww, int64_t size,
+                  const ScanParams& p, bool int32_cells, std::vector<int32_t>& rows, std::vector<int32_t>& cols,
+                  std::vector<float>& increment) {
+    std::vector<C> own;
+    std::vector<C>& counts = size_t(size) <= kKeptCells ? kept_counts<C>() : own;
+    if (counts.size() < size_t(size)) counts.resize(size_t(size));
+    try {
+        Tally tally;
+        for (const Ray& r : rays) count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data(), tally);
+        collect(counts.data(), size, ww, rays.size(), p, tally, rows, cols, increment);
+    } catch (...) {  // out of memory: the kept buffer may hold counts, so let it go
+        kept_counts<C>() = std::vector<C>();
+        throw;
     }
 }
 
@@ -315,19 +489,12 @@ nb::object occupancy_cast(Points points, double ox, double oy, double resolution
             x0 = int64_t(wx0);
             y0 = int64_t(wy0);
             const int64_t ww = int64_t(wx1) + 1 - x0, size = (int64_t(wy1) + 1 - y0) * ww;
-            // the window's counts: a buffer kept by the thread (clean between casts) up to kKeptCells
-            std::vector<Counts> own;
-            std::vector<Counts>& counts = size_t(size) <= kKeptCells ? t_counts : own;
-            if (counts.size() < size_t(size)) counts.resize(size_t(size));
             const double small = double(int64_t(1) << 30);
             const bool int32_cells = wx0 > -small && wy0 > -small && wx1 < small && wy1 < small;
-            try {
-                for (const Ray& r : rays) count_ray(r, ox, oy, x0, y0, ww, p, int32_cells, counts.data());
-                collect(counts.data(), size, ww, p, rows, cols, increment);
-            } catch (...) {  // out of memory: the kept buffer may hold counts, so let it go
-                t_counts = std::vector<Counts>();
-                throw;
-            }
+            if (n < 65536)
+                count_window<Counts16>(rays, ox, oy, x0, y0, ww, size, p, int32_cells, rows, cols, increment);
+            else
+                count_window<Counts32>(rays, ox, oy, x0, y0, ww, size, p, int32_cells, rows, cols, increment);
         }
     }
     if (!fits) return nb::none();
@@ -346,18 +513,27 @@ void occupancy_apply(LogOdds log_odds, Observed observed, int64_t row0, int64_t 
         throw nb::value_error("occupancy_apply: log_odds and observed must have one shape");
     const int32_t* r = rows.data();
     const int32_t* c = cols.data();
+    if (m == 0) return;
+    // every cell inside the grid, from the extremes of rows and cols (a loop without branches)
+    int32_t r_lo = r[0], r_hi = r[0], c_lo = c[0], c_hi = c[0];
     for (size_t i = 0; i < m; ++i) {
-        const int64_t row = row0 + r[i], col = col0 + c[i];
-        if (row < 0 || row >= height || col < 0 || col >= width)
-            throw nb::index_error("occupancy_apply: a cell lies outside the grid");
+        r_lo = std::min(r_lo, r[i]);
+        r_hi = std::max(r_hi, r[i]);
+        c_lo = std::min(c_lo, c[i]);
+        c_hi = std::max(c_hi, c[i]);
     }
+    if (row0 + r_lo < 0 || row0 + r_hi >= height || col0 + c_lo < 0 || col0 + c_hi >= width)
+        throw nb::index_error("occupancy_apply: a cell lies outside the grid");
     const float lo = float(l_min), hi = float(l_max);
+    // the window's cell (0, 0) in the grid: row0 width + col0 >= -(r_lo width + c_lo), so
+    // corner + rows[i] width + cols[i] is a cell of the grid
+    const int64_t corner = row0 * width + col0;
     float* value = log_odds.data();
     bool* seen = observed.data();
     const float* inc = increment.data();
     nb::gil_scoped_release release;
     for (size_t i = 0; i < m; ++i) {
-        const size_t at = size_t((row0 + r[i]) * width + (col0 + c[i]));
+        const int64_t at = corner + int64_t(r[i]) * width + c[i];
         value[at] = std::min(std::max(value[at] + inc[i], lo), hi);
         seen[at] = true;
     }
@@ -518,7 +694,7 @@ void bind_occupancy(nb::module_& m) {
             g_simd = level;
             return was;
         },
-        nb::arg("level"), "Tests: the widest ray-sample loop (2 AVX2 where the CPU has it, 1 SSE2, 0 scalar); the old one.");
+        nb::arg("level"), "Tests: the widest ray-sample loop (3 AVX-512, 2 AVX2, each where the CPU has it, 1 SSE2, 0 scalar); the old one.");
     m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));

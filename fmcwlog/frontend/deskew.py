@@ -39,7 +39,10 @@ _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 
 
 def _floats(*values: object) -> bool:
     """Whether every value is a Python or numpy float (twists given as numbers, not arrays)."""
-    return all(type(q) is float or type(q) is np.float64 for q in values)
+    for q in values:  # a loop, not all() over a generator: called a few times a sweep
+        if type(q) is not float and type(q) is not np.float64:
+            return False
+    return True
 
 
 def _by_columns(dt: np.ndarray, mount: np.ndarray, *twist: object) -> bool:

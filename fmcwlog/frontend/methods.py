@@ -85,9 +85,11 @@ from .twist_fusion import (
     TwistSources,
     doppler_design,
     fuse_twist,
+    fuse_twist_lists,
     hold_covariance,
     observability,
     wheel_covariance,
+    wheel_variances,
 )
 
 
@@ -184,7 +186,8 @@ class FrontEnd(ABC):
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
-        self._ranges: tuple[np.ndarray, np.ndarray] | None = None  # (xy, its ranges) of the sweep in step
+        # (xy, its ranges, ranges < min_range) of the sweep in step
+        self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -257,11 +260,12 @@ class FrontEnd(ABC):
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
         ranges = np.hypot(xy[:, 0], xy[:, 1])  # (N,) m from the lidar
-        self._ranges = (xy, ranges)  # for this sweep's stages (the tracker's free-space test)
         near = ranges < p.min_range
+        self._ranges = (xy, ranges, near)  # for this sweep's stages (the tracker's free-space test, the body mask)
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
-        use = ~near & ~motion.moving
+        n_moving = int(np.count_nonzero(motion.moving))
+        use = ~(near | motion.moving) if n_moving else ~near  # neither inside the body mask nor moving
         if p.deskew:  # base_link at t_k
             pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
         else:
@@ -287,7 +291,7 @@ class FrontEnd(ABC):
             self.path_m += _step_length(self.pose, pose)
 
         static_map = _transform(pose, pts)
-        duration = float(t.max(initial=0.0))  # s, the sweep's last capture time
+        duration = float(np.maximum.reduce(t, initial=0.0))  # s, the sweep's last capture time (t.max's reduction)
         skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
         lidar = compose(pose, self.mount)
         keyframe = self._update_maps(pose, static_map, skew, lidar)
@@ -295,15 +299,18 @@ class FrontEnd(ABC):
         if prior.twist is None:
             self.hold.update(pose, ts, (v, omega), 0.5 * duration)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
-        moving = motion.moving & ~near
-        moving_xy = xy[moving]
-        moving_map = _transform(lidar, moving_xy) if len(moving_xy) else np.empty((0, 2))
         vel = sweep.velocity
+        if n_moving:
+            moving = motion.moving > near  # moving and not near (True > False only)
+            moving_xy = xy[moving]
+            moving_map = _transform(lidar, moving_xy) if len(moving_xy) else np.empty((0, 2))
+            moving_vel = None if vel is None else vel[moving]
+        else:  # what those give with no point moving: empty, in the inputs' dtypes
+            moving_map, moving_vel = np.empty((0, 2)), None if vel is None else vel[:0].copy()
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
-                           iterations, kept, int(np.count_nonzero(motion.moving)), ms, static_map,
-                           None if vel is None else vel[use], moving_map, None if vel is None else vel[moving],
-                           motion.moving, motion.segmented, keyframe, searched, recovered)
+                           iterations, kept, n_moving, ms, static_map, None if vel is None else vel[use],
+                           moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered)
 
     @staticmethod
     def scan_prior(prior: PriorMotion, motion: MotionEstimate) -> bool:
@@ -438,6 +445,8 @@ class ImprovedFrontEnd(FrontEnd):
         self._registered_last = False
         self.tracker = MoverTracker(params.tracking, params.map_resolution)  # movers followed over this log's sweeps
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
+        self._floor = float(self._doppler_floor[0, 0])  # its diagonal as a float
+        self._design_rows = self.design.tolist()  # the design matrix as nested lists, for the float path
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only
@@ -478,16 +487,23 @@ class ImprovedFrontEnd(FrontEnd):
         assert sweep.velocity is not None
         p = self.params
         expected = None
+        fast = compiled.core() is not None
         if prior_twist is not None and _finite_pair(prior_twist):
-            expected = self.design @ np.asarray(prior_twist, dtype=float)
+            if fast:  # the 2x2 product on floats (to rounding)
+                (a00, a01), (a10, a11) = self._design_rows
+                v, w = float(prior_twist[0]), float(prior_twist[1])
+                expected = np.array([a00 * v + a01 * w, a10 * v + a11 * w])
+            else:
+                expected = self.design @ np.asarray(prior_twist, dtype=float)
         # returns inside the body mask are the robot itself (or a cover on the window): they move with
         # the sensor, Doppler 0 whatever the motion, so they are no evidence of it
-        inside = (sweep.xy[:, 0] ** 2 + sweep.xy[:, 1] ** 2) < p.min_range**2
+        near = self._near_of(sweep.xy) if fast else None
+        inside = (sweep.xy[:, 0] ** 2 + sweep.xy[:, 1] ** 2) < p.min_range**2 if near is None else near
         v_r = np.where(inside, np.nan, sweep.velocity) if inside.any() else sweep.velocity
         ego = fit_sensor_velocity(sweep.xy, v_r, random_state=p.seed, prior=expected,
                                   prior_gate=p.doppler_prior_gate, bearings=bearings)
         self._raw_fit = ego.unconstrained or ego
-        decision = self.checks.judge(sweep.stamp_ns * 1e-9, sweep.xy, ego, prior_twist)
+        decision = self.checks.judge(sweep.stamp_ns * 1e-9, sweep.xy, ego, prior_twist, expected)
         if decision == DOPPLER and ego.unconstrained is not None:
             self._drop_wheels = True
             ego = ego.unconstrained
@@ -498,12 +514,30 @@ class ImprovedFrontEnd(FrontEnd):
     def fuse(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
         """Doppler's two equations and the wheels' (or the hold's) ``(v, ω)`` by weighted least squares."""
         p = self.params
+        if compiled.core() is not None and type(doppler.v_sensor) is np.ndarray and doppler.v_sensor.shape == (2,):
+            return self._fuse_floats(doppler, wheels)
         if wheels.twist is not None:
             x_w, c_w = np.asarray(wheels.twist, dtype=float), wheel_covariance(wheels.twist, p.wheel_noise)
         else:
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + self._doppler_floor
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def _fuse_floats(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
+        """:meth:`fuse` on Python floats (:func:`~.twist_fusion.fuse_twist_lists`, what :func:`fuse_twist`
+        computes where the compiled kernels run): the wheels' or the hold's diagonal covariance and the
+        floor added to the fit's covariance as numbers, the design matrix read once per log."""
+        p = self.params
+        if wheels.twist is not None:
+            x_w = [float(wheels.twist[0]), float(wheels.twist[1])]
+            s_v, s_w = wheel_variances(wheels.twist, p.wheel_noise)
+        else:
+            x_w = [float(self.scan_twist[0]), float(self.scan_twist[1])]
+            s_v, s_w = p.wheel_noise.hold_speed**2, p.wheel_noise.hold_yaw_rate**2  # hold_covariance's
+        (c00, c01), (c10, c11) = doppler.covariance.tolist()
+        floor = self._floor
+        c_d = [[c00 + floor, c01 + 0.0], [c10 + 0.0, c11 + floor]]  # + the floor's eye(2) * σ²
+        return fuse_twist_lists(doppler.v_sensor.tolist(), c_d, self._design_rows, x_w, [[s_v, 0.0], [0.0, s_w]])
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
         """Moving mask (N,): DBSCAN and the Doppler verdict (eq. 17-19) and, with tracking on, the
@@ -522,6 +556,13 @@ class ImprovedFrontEnd(FrontEnd):
         ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
                                     p.segmentation, yaw_error, ranges)
+
+    def _near_of(self, xy: np.ndarray) -> np.ndarray | None:
+        """The step's ``near`` mask (ranges below ``min_range``) of ``xy`` if this is the sweep in
+        :meth:`step`, else None. The same points as ``x² + y² < min_range²`` but for a point within
+        a rounding of the circle (``np.hypot`` against the squares)."""
+        found = self._ranges
+        return found[2] if found is not None and found[0] is xy else None
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

@@ -69,15 +69,12 @@ class RecentOccupancy:
         core = compiled.core()
         if core is None or len(map_xy) == 0:
             return self.seen_free_numpy(map_xy, candidates, threshold)
-        log_odds, ix0, iy0 = [], [], []
-        for grid in self.grids:
-            log_odds.append(grid.log_odds)  # read first: it flushes the grid's queue
-            ix0.append(grid.ix0)
-            iy0.append(grid.iy0)
+        log_odds = [grid.log_odds for grid in self.grids]  # read first: it flushes each grid's queue
         out = np.zeros(len(map_xy), bool)
         core.occupancy_seen_free(
-            log_odds, ix0, iy0, np.ascontiguousarray(map_xy, dtype=float),
-            np.ascontiguousarray(candidates, dtype=bool), float(threshold), self.resolution, out)
+            log_odds, [grid.ix0 for grid in self.grids], [grid.iy0 for grid in self.grids],
+            np.ascontiguousarray(map_xy, dtype=float), np.ascontiguousarray(candidates, dtype=bool), float(threshold),
+            self.resolution, out)
         return out
 
     def seen_free_numpy(self, map_xy: np.ndarray, candidates: np.ndarray, threshold: float) -> np.ndarray:

@@ -108,21 +108,24 @@ class SensorChecks:
     _prev: tuple[float, np.ndarray] | None = None  # stamp (s) and points (lidar frame) of the last sweep
     _prev_tree: cKDTree | None = None
 
-    def judge(self, stamp: float, xy: np.ndarray, ego: EgoMotion, wheel_twist: tuple[float, float] | None) -> str:
+    def judge(self, stamp: float, xy: np.ndarray, ego: EgoMotion, wheel_twist: tuple[float, float] | None,
+              z_pred: np.ndarray | None = None) -> str:
         """Which source to believe for this sweep: :data:`KEEP` (the gated fit), :data:`DOPPLER`
         (``ego.unconstrained``, without the wheels) or :data:`WHEELS` (without Doppler).
 
         ``stamp`` (s): the sweep's; ``xy`` (N, 2): its points in the lidar frame (m), kept as the
         next call's previous sweep; ``ego``: its Doppler fit with the wheels' prior
         (:func:`.egomotion.fit_sensor_velocity`); ``wheel_twist``: the wheels' ``(v, ω)`` over the
-        sweep (m/s, rad/s), None without wheels. Call once per sweep, in time order."""
+        sweep (m/s, rad/s), None without wheels. ``z_pred``: ``design @ wheel_twist`` (the lidar's velocity
+        the wheels predict) where the caller has it already. Call once per sweep, in time order."""
         prev, self._prev, self._prev_tree = self._prev, (stamp, xy), None
         if self._t0 is None:
             self._t0 = stamp
         if wheel_twist is None or not _finite(ego.v_sensor):
             return KEEP
         x_w = np.asarray(wheel_twist, dtype=float)
-        z_pred = self.design @ x_w
+        if z_pred is None:
+            z_pred = self.design @ x_w
         free = ego.unconstrained
         seen = ego.v_sensor if free is None else free.v_sensor
         n_pred = _norm(z_pred)

@@ -99,7 +99,14 @@ def wheel_covariance(twist: tuple[float, float] | np.ndarray, noise: WheelNoise)
     speed = abs(float(twist[0]))
     s_v = max(noise.speed_rel * speed, noise.speed_min)
     s_w = max(noise.yaw_rate_per_speed * speed, noise.yaw_rate_min)
-    return np.diag([s_v**2, s_w**2])
+    return np.array([[s_v**2, 0.0], [0.0, s_w**2]])  # np.diag's values
+
+
+def wheel_variances(twist: tuple[float, float], noise: WheelNoise) -> tuple[float, float]:
+    """The diagonal of :func:`wheel_covariance` as two floats ((m/s)², (rad/s)²)."""
+    speed = abs(float(twist[0]))
+    return max(noise.speed_rel * speed, noise.speed_min) ** 2, max(noise.yaw_rate_per_speed * speed,
+                                                                   noise.yaw_rate_min) ** 2
 
 
 def hold_covariance(noise: WheelNoise) -> np.ndarray:
@@ -165,41 +172,54 @@ def _inv2_floats(m: list[list[float]]) -> list[list[float]] | None:
     return [[m11 / det, -m01 / det], [-m10 / det, m00 / det]]
 
 
-def _mul(p: list[list[float]], q: list[list[float]]) -> list[list[float]]:
-    """The 2x2 product ``p q`` of nested lists."""
-    return [[p[i][0] * q[0][j] + p[i][1] * q[1][j] for j in (0, 1)] for i in (0, 1)]
-
-
-def _apply(p: list[list[float]], v: list[float]) -> list[float]:
-    """``p v`` of a 2x2 nested list and a 2-vector."""
-    return [p[0][0] * v[0] + p[0][1] * v[1], p[1][0] * v[0] + p[1][1] * v[1]]
-
-
 def _fuse_twist_floats(z: np.ndarray | None, c_d: np.ndarray | None, a: np.ndarray,
                        x_w: np.ndarray, c_w: np.ndarray) -> FusedTwist:
     """:func:`fuse_twist_numpy`'s operations on Python floats (same contract and errors)."""
     xw = np.asarray(x_w, dtype=float)
-    info_w = _inv2_floats(np.asarray(c_w, dtype=float).tolist())
+    cw = np.asarray(c_w, dtype=float).tolist()
+    if z is None or c_d is None:
+        if _inv2_floats(cw) is None:
+            raise ValueError("the wheels' covariance must be positive definite")
+        return FusedTwist(xw.copy(), np.array(cw), np.zeros(2), float("nan"))
+    return fuse_twist_lists(np.asarray(z, dtype=float).tolist(), np.asarray(c_d, dtype=float).tolist(),
+                            np.asarray(a, dtype=float).tolist(), xw.tolist(), cw)
+
+
+def fuse_twist_lists(z: list[float], c_d: list[list[float]], a: list[list[float]], x_w: list[float],
+                     c_w: list[list[float]]) -> FusedTwist:
+    """:func:`fuse_twist`'s compiled-switch path on Python numbers: ``z`` and ``x_w`` as 2-lists,
+    ``c_d``, ``a`` and ``c_w`` as nested 2x2 lists (a caller holding floats skips the arrays). Each
+    product and sum is :func:`fuse_twist_numpy`'s, in its order, written out (no helper calls)."""
+    info_w = _inv2_floats(c_w)
     if info_w is None:
         raise ValueError("the wheels' covariance must be positive definite")
-    w_d = None if z is None or c_d is None else _inv2_floats(np.asarray(c_d, dtype=float).tolist())
-    if z is None or w_d is None:
-        return FusedTwist(xw.copy(), np.asarray(c_w, dtype=float).copy(), np.zeros(2), float("nan"))
-    am = np.asarray(a, dtype=float).tolist()
-    at = [[am[0][0], am[1][0]], [am[0][1], am[1][1]]]
-    zl, xl = np.asarray(z, dtype=float).tolist(), xw.tolist()
-    at_w = _mul(at, w_d)
-    info_d = _mul(at_w, am)
-    cov = _inv2_floats([[info_d[i][j] + info_w[i][j] for j in (0, 1)] for i in (0, 1)])
+    w_d = _inv2_floats(c_d)
+    if w_d is None:
+        return FusedTwist(np.array(x_w), np.array(c_w), np.zeros(2), float("nan"))
+    (a00, a01), (a10, a11) = a
+    (d00, d01), (d10, d11) = w_d
+    (i00, i01), (i10, i11) = info_w
+    # at_w = Aᵀ W_d
+    t00, t01 = a00 * d00 + a10 * d10, a00 * d01 + a10 * d11
+    t10, t11 = a01 * d00 + a11 * d10, a01 * d01 + a11 * d11
+    # info_d = at_w A
+    n00, n01 = t00 * a00 + t01 * a10, t00 * a01 + t01 * a11
+    n10, n11 = t10 * a00 + t11 * a10, t10 * a01 + t11 * a11
+    cov = _inv2_floats([[n00 + i00, n01 + i01], [n10 + i10, n11 + i11]])
     assert cov is not None  # info_w is positive definite, info_d positive semi-definite
-    b_d, b_w = _apply(at_w, zl), _apply(info_w, xl)
-    x = _apply(cov, [b_d[0] + b_w[0], b_d[1] + b_w[1]])
-    ax = _apply(am, x)
-    r_d, r_w = [zl[0] - ax[0], zl[1] - ax[1]], [xl[0] - x[0], xl[1] - x[1]]
-    wr_d, wr_w = _apply(w_d, r_d), _apply(info_w, r_w)
-    chi2 = (r_d[0] * wr_d[0] + r_d[1] * wr_d[1]) + (r_w[0] * wr_w[0] + r_w[1] * wr_w[1])
-    share = [min(max(cov[i][0] * info_d[0][i] + cov[i][1] * info_d[1][i], 0.0), 1.0) for i in (0, 1)]  # np.clip
-    return FusedTwist(np.array(x), np.array(cov), np.array(share), chi2)
+    (c00, c01), (c10, c11) = cov
+    z0, z1 = z
+    w0, w1 = x_w
+    bd0, bd1 = t00 * z0 + t01 * z1, t10 * z0 + t11 * z1  # at_w z
+    bw0, bw1 = i00 * w0 + i01 * w1, i10 * w0 + i11 * w1  # info_w x_w
+    s0, s1 = bd0 + bw0, bd1 + bw1
+    x0, x1 = c00 * s0 + c01 * s1, c10 * s0 + c11 * s1
+    rd0, rd1 = z0 - (a00 * x0 + a01 * x1), z1 - (a10 * x0 + a11 * x1)
+    rw0, rw1 = w0 - x0, w1 - x1
+    chi2 = ((rd0 * (d00 * rd0 + d01 * rd1) + rd1 * (d10 * rd0 + d11 * rd1))
+            + (rw0 * (i00 * rw0 + i01 * rw1) + rw1 * (i10 * rw0 + i11 * rw1)))
+    share = [min(max(c00 * n00 + c01 * n10, 0.0), 1.0), min(max(c10 * n01 + c11 * n11, 0.0), 1.0)]  # np.clip
+    return FusedTwist(np.array([x0, x1]), np.array(cov), np.array(share), chi2)
 
 
 def observability(mount: tuple[float, float, float], min_lever: float) -> str:

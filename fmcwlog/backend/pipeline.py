@@ -199,7 +199,7 @@ class PoseGraphBackend:
         if self._path_m - self._last_query_path >= self.p.closure_every:
             self._last_query_path = self._path_m
             self._close_loops(node.index)
-        if self._dirty and self._nodes_since_opt >= self.p.optimize_every:
+        if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
         self._spill(node.index - max(self.p.local_links, 1))
 
@@ -261,8 +261,17 @@ class PoseGraphBackend:
                  for i in range(lo, hi)]
         return voxel_downsample(np.concatenate(parts), SUBMAP_VOXEL)
 
+    def _optimize_period(self) -> int:
+        """New nodes between two re-optimisations: ``optimize_every``, or ``optimize_share`` of the
+        graph's nodes where that is more (a re-solve costs more the larger the graph: a share keeps
+        their total linear in the log's length)."""
+        return max(self.p.optimize_every, int(self.p.optimize_share * len(self.nodes)))
+
     def _optimize(self, final: bool = False) -> None:
-        self.graph.optimize(final=final)
+        """Re-solve the graph and take its estimates; a solve before the last stops at
+        ``optimize_tolerance`` (its estimates only place the next candidates' searches, which
+        reach 1.5 m and more around them), the last one runs to gtsam's default."""
+        self.graph.optimize(final=final, relative_tolerance=None if final else self.p.optimize_tolerance)
         self._estimates = self.graph.estimates()
         self._nodes_since_opt = 0
         self._dirty = False

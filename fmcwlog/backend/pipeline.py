@@ -10,8 +10,8 @@ placed by the current estimate (:mod:`.verification`) and adds the ones that pas
 Cauchy kernel (:mod:`.graph`). Once a closure is in, the graph is re-optimised every
 ``optimize_every`` nodes (or ``optimize_share`` of its nodes, where more: a re-solve costs more the
 larger the graph), to ``optimize_tolerance``, so that later candidates are searched around corrected
-estimates. :meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and returns every sweep's pose corrected
-through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
+estimates. :meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and
+returns every sweep's pose corrected through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
 the front end's poses), the closures, and an occupancy grid rebuilt from the nodes' points at
 their optimised poses.
 

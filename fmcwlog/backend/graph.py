@@ -154,8 +154,10 @@ class PoseGraph:
         self._closure_factors.append(factor)
         return len(self.closures) - 1
 
-    def optimize(self, max_iterations: int = 100, final: bool = False) -> None:
-        """Optimise from the current estimate (class docstring); ``final``: the last solve of the run."""
+    def optimize(self, max_iterations: int = 100, final: bool = False, relative_tolerance: float | None = None) -> None:
+        """Optimise from the current estimate (class docstring); ``final``: the last solve of the run.
+        ``relative_tolerance``: LM stops once an iteration lowers the error by less than this fraction
+        of it (None: gtsam's default, 1e-5)."""
         self._build()
         gtsam = _gtsam()
         if self._isam is not None:
@@ -169,6 +171,8 @@ class PoseGraph:
             self._isam = None  # its Bayes tree freed before LM builds its own (the peak); LM from here on
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
+        if relative_tolerance is not None:
+            params.setRelativeErrorTol(relative_tolerance)
         self.values = gtsam.LevenbergMarquardtOptimizer(self.graph, self.values, params).optimize()
 
     def estimate(self, i: int) -> np.ndarray:

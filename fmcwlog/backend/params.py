@@ -84,6 +84,12 @@ class BackendParams(Checked):
     cauchy_scale: scale of the Cauchy kernel on closures, in standard deviations; a closure whose
         whitened error ends above it weighs less than half and is counted as not accepted.
     optimize_every: re-optimise after this many new nodes once a closure has been added (≥ 1).
+    optimize_tolerance: such a re-optimisation stops once a Levenberg-Marquardt iteration lowers the
+        graph's error by less than this fraction of it (0-1); the last one, in
+        :meth:`~.pipeline.PoseGraphBackend.finish`, runs to gtsam's default (1e-5).
+    optimize_share: re-optimise after this share of the graph's nodes instead, where that is more
+        than ``optimize_every`` (0-1): a re-solve costs more the larger the graph, so a share keeps
+        their total about linear in the log's length.
     solver: ``batch`` re-solves the whole graph with Levenberg-Marquardt each time; ``isam2`` hands
         gtsam's ISAM2 what was added since the last time and solves the whole graph once in
         :meth:`~.pipeline.PoseGraphBackend.finish`: less CPU, but its Bayes tree is held and grows
@@ -135,6 +141,8 @@ class BackendParams(Checked):
     min_pairs: int = param(30, "pairs", ge=1, le=100_000)
     cauchy_scale: float = param(3.0, "sigma", gt=0.0, le=100.0)
     optimize_every: int = param(10, "nodes", ge=1, le=100_000)
+    optimize_tolerance: float = param(1e-3, "", gt=0.0, le=1.0)
+    optimize_share: float = param(0.05, "", ge=0.0, le=1.0)
     solver: str = param("batch", choices=("batch", "isam2"))
     isam2_steps: int = param(3, "", ge=1, le=100)
     isam2_relinearize: float = param(0.001, "m, rad", gt=0.0, le=10.0)

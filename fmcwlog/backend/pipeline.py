@@ -8,9 +8,10 @@ against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` m
 (:mod:`.candidates`), verifies each candidate against a submap of the candidate's neighbours
 placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
 Cauchy kernel (:mod:`.graph`). Once a closure is in, the graph is re-optimised every
-``optimize_every`` nodes, so that later candidates are searched around corrected estimates.
-:meth:`PoseGraphBackend.finish` optimises once more and returns every sweep's pose corrected
-through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
+``optimize_every`` nodes (or ``optimize_share`` of its nodes, where more: a re-solve costs more the
+larger the graph), to ``optimize_tolerance``, so that later candidates are searched around corrected
+estimates. :meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and
+returns every sweep's pose corrected through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
 the front end's poses), the closures, and an occupancy grid rebuilt from the nodes' points at
 their optimised poses.
 
@@ -199,7 +200,7 @@ class PoseGraphBackend:
         if self._path_m - self._last_query_path >= self.p.closure_every:
             self._last_query_path = self._path_m
             self._close_loops(node.index)
-        if self._dirty and self._nodes_since_opt >= self.p.optimize_every:
+        if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
         self._spill(node.index - max(self.p.local_links, 1))
 
@@ -261,8 +262,17 @@ class PoseGraphBackend:
                  for i in range(lo, hi)]
         return voxel_downsample(np.concatenate(parts), SUBMAP_VOXEL)
 
+    def _optimize_period(self) -> int:
+        """New nodes between two re-optimisations: ``optimize_every``, or ``optimize_share`` of the
+        graph's nodes where that is more (a re-solve costs more the larger the graph: a share keeps
+        their total linear in the log's length)."""
+        return max(self.p.optimize_every, int(self.p.optimize_share * len(self.nodes)))
+
     def _optimize(self, final: bool = False) -> None:
-        self.graph.optimize(final=final)
+        """Re-solve the graph and take its estimates; a solve before the last stops at
+        ``optimize_tolerance`` (its estimates only place the next candidates' searches, which
+        reach 1.5 m and more around them), the last one runs to gtsam's default."""
+        self.graph.optimize(final=final, relative_tolerance=None if final else self.p.optimize_tolerance)
         self._estimates = self.graph.estimates()
         self._nodes_since_opt = 0
         self._dirty = False

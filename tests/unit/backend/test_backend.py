@@ -501,3 +501,26 @@ def test_isam2_fed_as_the_pipeline_feeds_it_ends_where_a_batch_solve_and_the_tru
 def test_an_unknown_solver_is_refused():
     with pytest.raises(ValueError, match="solver"):
         PoseGraph(3.0, "gauss-seidel")
+
+
+def test_a_looser_tolerance_stops_a_solve_sooner_and_the_final_solve_ends_where_the_default_does():
+    truth = _square_loop()
+    last = len(truth) - 1
+    closure = Edge(0, last, between(truth[0], truth[last]), np.diag([0.01**2, 0.01**2, 0.002**2]))
+    default, loose = _drifting_graph(truth, 3.0), _drifting_graph(truth, 3.0)
+    for g in (default, loose):
+        g.add_closure(closure)
+    default.optimize()
+    loose.optimize(relative_tolerance=0.5)  # stops after the first iteration that gains less than half
+    assert np.abs(loose.estimates() - default.estimates()).max() > 1e-6
+    loose.optimize(final=True)
+    assert np.abs(loose.estimates()[:, :2] - default.estimates()[:, :2]).max() < 1e-3
+
+
+@pytest.mark.parametrize(("share", "nodes", "period"), [(0.0, 5000, 10), (0.05, 100, 10), (0.05, 2000, 100)])
+def test_re_optimisations_come_every_optimize_every_nodes_or_a_share_of_the_graph_where_that_is_more(share, nodes, period):
+    from fmcwlog.backend.pipeline import PoseGraphBackend
+
+    backend = PoseGraphBackend(dataclasses.replace(BackendParams(), optimize_share=share), np.zeros(3))
+    backend.nodes = [None] * nodes  # only their count is read
+    assert backend._optimize_period() == period

@@ -16,7 +16,9 @@ because the parent still writes every one of them, in the same order:
   by each process where its methods reach it, the parent's own (:class:`_InputFeed`), and the
   warnings of the reading are said where one process says them;
 - per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s, which join
-  the parent's in the order of ``methods`` before the outputs take the sweep; a back end's
+  the parent's in the order of ``methods`` before the outputs take the sweep; each carries its
+  ``processed.mcap`` messages encoded in the child (:class:`EncodedResult`) instead of its points,
+  so the parent only writes their bytes; a back end's
   error on that sweep comes with them and is raised where the parent would have added the
   result to that back end (:class:`ChildBackend`); where both processes fail on the same
   sweep, the error raised is that of the method that comes first, which one process runs first;

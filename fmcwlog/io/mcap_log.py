@@ -731,11 +731,18 @@ class LogReader(ContentsReader):
         schemas: dict[int, Schema] = dict(summary.schemas) if summary is not None else {}
         channels: dict[int, Channel] = dict(summary.channels) if summary is not None else {}
         skip = self._without_wanted(summary, wanted) if indexed and summary is not None and wanted is not None else None
-        for rec in self._scan.records(skip):
+        # channels known to be on other topics: their messages are not made into records (a channel
+        # defined inside a chunk counts from the next chunk on; until then it is filtered below)
+        unwanted = {i for i, ch in channels.items() if ch.topic not in wanted} if wanted is not None else set()
+        for rec in self._scan.records(skip, unwanted):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
             elif isinstance(rec, Channel):
                 channels[rec.id] = rec
+                if wanted is not None and rec.topic not in wanted:
+                    unwanted.add(rec.id)
+                else:
+                    unwanted.discard(rec.id)
                 self.contents.topics.setdefault(rec.topic, schemas[rec.schema_id].name if rec.schema_id in schemas else "")
             elif isinstance(rec, Metadata):
                 if metadata:

@@ -130,6 +130,7 @@ class LogInputs:
 
     def __init__(self, reader: Log, topics: InputTopics, cal: Calibration, reading: CloudReading = CloudReading()):
         self.reader = reader
+        self._decode = getattr(reader, "decode_input", reader.decode)  # an MCAP log's fast path
         self.reading = reading
         self.path = reader.path
         self.topics = topics
@@ -176,7 +177,7 @@ class LogInputs:
             stream = self.scan if channel.topic == self.topics.scan else self.prior
             assert stream is not None
             try:
-                m = self.reader.decode(schema, channel, rec)
+                m = self._decode(schema, channel, rec)
                 ns, fields = self._read_sweep(m) if stream is self.scan else self._read_prior(m)
                 if rec.log_time != ns and not self.reader.receive_times:  # the log format has them equal; a
                     # bag's are receive times. Estimation goes by header.stamp

@@ -31,7 +31,7 @@ from __future__ import annotations
 import io
 import struct
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Container, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -125,8 +125,9 @@ def _decompress(chunk: Chunk, partial: bool) -> bytes:
     raise Damaged(f"unknown compression {chunk.compression!r}")
 
 
-def _chunk_records(data: bytes, partial: bool) -> list[Schema | Channel | Message]:
-    """The schema, channel and message records in a chunk's decompressed bytes; ``partial``: stop at
+def _chunk_records(data: bytes, partial: bool, unwanted: Container[int] = ()) -> list[Schema | Channel | Message]:
+    """The schema, channel and message records in a chunk's decompressed bytes, but the messages on
+    ``unwanted`` channel ids (checked as the others, not made into records); ``partial``: stop at
     the first record the bytes end inside, else that is damage."""
     out: list[Schema | Channel | Message] = []
     pos = 0
@@ -147,25 +148,30 @@ def _chunk_records(data: bytes, partial: bool) -> list[Schema | Channel | Messag
             if length < _MESSAGE_HEAD.size:
                 raise Damaged("a message record shorter than its fields")
             channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, start)
-            out.append(Message(channel_id=channel_id, log_time=log_time, publish_time=publish_time,
-                               sequence=sequence, data=data[start + _MESSAGE_HEAD.size:end]))
+            if channel_id not in unwanted:
+                out.append(Message(channel_id=channel_id, log_time=log_time, publish_time=publish_time,
+                                   sequence=sequence, data=data[start + _MESSAGE_HEAD.size:end]))
         elif op == Opcode.CHANNEL:
-            out.append(parse(Channel, data[start:end]))
+            channel = parse(Channel, data[start:end])
+            if channel.id in unwanted:  # defined anew here: its messages from here on are the caller's to judge
+                unwanted = set(unwanted) - {channel.id}
+            out.append(channel)
         elif op == Opcode.SCHEMA:
             out.append(parse(Schema, data[start:end]))
         pos = end
     return out
 
 
-def read_chunk(body: bytes) -> list[Schema | Channel | Message]:
-    """The records of a whole chunk record's body; :class:`Damaged` if it fails its checks."""
+def read_chunk(body: bytes, unwanted: Container[int] = ()) -> list[Schema | Channel | Message]:
+    """The records of a whole chunk record's body, but messages on ``unwanted`` channel ids;
+    :class:`Damaged` if it fails its checks."""
     chunk = parse(Chunk, body)
     data = _decompress(chunk, partial=False)
     if len(data) != chunk.uncompressed_size:
         raise Damaged(f"it decompresses to {len(data)} bytes, not the {chunk.uncompressed_size} it declares")
     if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
         raise Damaged("its data fails its CRC")
-    return _chunk_records(data, partial=False)
+    return _chunk_records(data, partial=False, unwanted=unwanted)
 
 
 def read_partial_chunk(body: bytes) -> list[Schema | Channel | Message]:
@@ -269,14 +275,16 @@ class McapScan:
                     self.report(index.offset, f"the metadata record {index.name!r} at byte {index.offset} "
                                               f"is damaged ({exc})", "skipped it")
 
-    def records(self, skip_chunk: Callable[[frozenset[int]], bool] | None = None
-                ) -> Iterator[Schema | Channel | Message | Metadata]:
+    def records(self, skip_chunk: Callable[[frozenset[int]], bool] | None = None,
+                unwanted: Container[int] = ()) -> Iterator[Schema | Channel | Message | Metadata]:
         """Schema, channel, message and metadata records of the data section, in file order.
 
         Returns at the data section's end, at a cut, or at damage it cannot step over (reported);
         :attr:`complete` then says whether it read to the data section's end. ``skip_chunk(channels)``:
         a chunk the summary's index lists, with the ids of the channels it holds, is stepped over
-        unread (not decompressed, its damage unseen by this pass) where it says True.
+        unread (not decompressed, its damage unseen by this pass) where it says True. ``unwanted``:
+        channel ids whose messages inside chunks are left out (read and checked, not returned); the
+        caller may add to it as it goes, for the chunks after.
         """
         self.complete = False
         if self.summary is not None:
@@ -299,7 +307,7 @@ class McapScan:
                         return
                     if op >= _EXTENSION:  # said by the caller: a damaged opcode may read as one too
                         self.extensions[pos] = op
-                    records = self._records(op, body)
+                    records = self._records(op, body, unwanted)
                 except _Cut as cut:
                     yield from cut.records
                     kept = f", and the {len(cut.records)} records of that chunk that came whole" if cut.records else ""
@@ -352,9 +360,9 @@ class McapScan:
         return op, fh.read(length)
 
     @staticmethod
-    def _records(op: int, body: bytes) -> list[Schema | Channel | Message | Metadata]:
+    def _records(op: int, body: bytes, unwanted: Container[int] = ()) -> list[Schema | Channel | Message | Metadata]:
         if op == Opcode.CHUNK:
-            return list(read_chunk(body))
+            return read_chunk(body, unwanted)
         if op == Opcode.MESSAGE:
             return [parse(Message, body, len(body))]
         if op == Opcode.CHANNEL:

@@ -46,12 +46,21 @@ from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 from ..kernels.growing import GrowingArray
 from ..kernels.occupancy import OccupancyGrid
 from ..types import SweepResult
-from .mcap_log import LogWriter, Pose7, Stamp, float32_cloud_cdr, odometry_cdr, path_cdr, stamp_pair, tf_cdr
+from .mcap_log import (
+    LogWriter,
+    Pose7,
+    Stamp,
+    float32_cloud_cdr,
+    odometry_cdr,
+    path_cdr,
+    point_labels_cdr,
+    stamp_pair,
+    tf_cdr,
+)
 from .messages import (
     occupancy_grid_message,
     planar_covariance,
     pose7,
-    stamp,
     tf_message,
     transform_dict,
 )
@@ -314,7 +323,34 @@ class _WholePath:
 
 
 ODOMETRY, POINTCLOUD2 = "nav_msgs/msg/Odometry", "sensor_msgs/msg/PointCloud2"
+POINT_LABELS = "fmcwlog_msgs/msg/PointLabels"
 PUBLISH_BYTES_PER_S = 1e6  # paths and maps put into processed.mcap, at most, per second of log (before compression)
+
+
+SweepMessages = list[tuple[str, str, bytes]]  # (topic, type, CDR bytes) of processed.mcap
+
+
+def sweep_messages(r: SweepResult, pose: Pose7 | None = None) -> SweepMessages:
+    """What ``processed.mcap`` holds of one method's result for one sweep, in its order: ``/M/odom``
+    (Odometry with the twist and the registration's covariance), ``/M/points/static`` and
+    ``/M/points/moving`` (in ``M/odom``, with their ``velocity``), and where the method segmented
+    the sweep ``/M/moving_labels`` (in ``M/lidar``, index for index with the input sweep, 1 = moving).
+    ``pose``: :func:`~fmcwlog.io.messages.pose7` of ``r.pose``, where the caller has it."""
+    at, frame = stamp_pair(r.stamp_ns), odom_frame(r.method)
+    pose = pose7(r.pose) if pose is None else pose
+    twist_cov = None
+    if r.twist_covariance is not None:  # (v, ω) -> (vx, vy, wz); vy is 0 by the rear axle's constraint
+        twist_cov = np.zeros((3, 3))
+        twist_cov[np.ix_([0, 2], [0, 2])] = r.twist_covariance
+    out = [(f"/{r.method}/odom", ODOMETRY, odometry_cdr(
+               at, frame, base_frame(r.method), pose, planar_covariance(r.pose_covariance),
+               _planar_twist(r.twist[0], r.twist[1]), planar_covariance(twist_cov))),
+           (f"/{r.method}/points/static", POINTCLOUD2, _cloud(at, frame, r.static_map_xy, r.static_velocity)),
+           (f"/{r.method}/points/moving", POINTCLOUD2, _cloud(at, frame, r.moving_map_xy, r.moving_velocity))]
+    if r.segmented:
+        out.append((f"/{r.method}/moving_labels", POINT_LABELS, point_labels_cdr(
+            at, lidar_frame(r.method), np.asarray(r.moving_mask, np.uint8).tobytes())))
+    return out
 
 
 class ProcessOutputs:
@@ -379,8 +415,9 @@ class ProcessOutputs:
                                                     transform_dict(stamp_ns, base_frame(n), lidar_frame(n),
                                                                    self.mount))]), stamp_ns)
 
-    def add(self, r: SweepResult) -> None:
-        """One method's result for one sweep."""
+    def add(self, r: SweepResult, messages: SweepMessages | None = None) -> None:
+        """One method's result for one sweep; ``messages``: its :func:`sweep_messages` where they were
+        encoded already (by the process that ran the method), else they are encoded here."""
         self._static(r.stamp_ns)
         if self._next_publish is None:  # the first sweep
             self._next_publish = r.stamp_ns + self.publish_period_ns
@@ -388,23 +425,9 @@ class ProcessOutputs:
                   omega=r.twist[1], icp_iterations=r.iterations, correspondences=r.correspondences,
                   moving_points=r.moving_points, keyframe=r.keyframe, ms=r.ms, x_frontend=r.pose[0],
                   y_frontend=r.pose[1], yaw_frontend=r.pose[2])
-        at, pose = self._track(r.method, r.stamp_ns, r.pose)
-        w, frame, base = self.writer, odom_frame(r.method), base_frame(r.method)
-        twist_cov = None
-        if r.twist_covariance is not None:  # (v, ω) -> (vx, vy, wz); vy is 0 by the rear axle's constraint
-            twist_cov = np.zeros((3, 3))
-            twist_cov[np.ix_([0, 2], [0, 2])] = r.twist_covariance
-        w.write_cdr(f"/{r.method}/odom", ODOMETRY, odometry_cdr(
-            at, frame, base, pose, planar_covariance(r.pose_covariance), _planar_twist(r.twist[0], r.twist[1]),
-            planar_covariance(twist_cov)), r.stamp_ns)
-        w.write_cdr(f"/{r.method}/points/static", POINTCLOUD2, _cloud(at, frame, r.static_map_xy, r.static_velocity),
-                    r.stamp_ns)
-        w.write_cdr(f"/{r.method}/points/moving", POINTCLOUD2, _cloud(at, frame, r.moving_map_xy, r.moving_velocity),
-                    r.stamp_ns)
-        if r.segmented:  # the method's per-point verdict, index for index with the input sweep (1 = moving)
-            w.write(f"/{r.method}/moving_labels", "fmcwlog_msgs/msg/PointLabels",
-                    {"header": {"stamp": stamp(r.stamp_ns), "frame_id": lidar_frame(r.method)},
-                     "moving": np.asarray(r.moving_mask, np.uint8).tobytes()}, r.stamp_ns)
+        _, pose = self._track(r.method, r.stamp_ns, r.pose)
+        for topic, datatype, data in sweep_messages(r, pose) if messages is None else messages:
+            self.writer.write_cdr(topic, datatype, data, r.stamp_ns)
 
     def add_pose(self, name: str, stamp_ns: int, pose: np.ndarray, twist: tuple[float, float] | None) -> None:
         """A pose of a trajectory that is not a method's (the motion prior's), and its twist if known."""

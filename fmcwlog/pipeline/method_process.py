@@ -16,7 +16,9 @@ because the parent still writes every one of them, in the same order:
   by each process where its methods reach it, the parent's own (:class:`_InputFeed`), and the
   warnings of the reading are said where one process says them;
 - per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s, which join
-  the parent's in the order of ``methods`` before the outputs take the sweep; a back end's
+  the parent's in the order of ``methods`` before the outputs take the sweep; each carries its
+  ``processed.mcap`` messages encoded in the child (:class:`EncodedResult`) instead of its points,
+  so the parent only writes their bytes; a back end's
   error on that sweep comes with them and is raised where the parent would have added the
   result to that back end (:class:`ChildBackend`); where both processes fail on the same
   sweep, the error raised is that of the method that comes first, which one process runs first;
@@ -55,6 +57,7 @@ interpreter importing numpy, scipy and the stages: about 1.2 s more a run).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import pickle
@@ -76,7 +79,7 @@ import numpy as np
 from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
-from ..io.outputs import ProcessOutputs
+from ..io.outputs import ProcessOutputs, SweepMessages, sweep_messages
 from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid
 from ..types import BASELINE, IMPROVED, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
@@ -151,6 +154,26 @@ class GridSnapshot:
 
     def to_ros_int8(self) -> np.ndarray:
         return self.data
+
+
+_NO_POINTS, _NO_LABELS = np.zeros((0, 2)), np.zeros(0, bool)
+
+
+@dataclass(frozen=True)
+class EncodedResult(SweepResult):
+    """A result of the child's with its ``processed.mcap`` messages encoded there
+    (:func:`~fmcwlog.io.outputs.sweep_messages`), in place of the points and covariances they
+    came from: the parent writes the bytes, and neither encodes nor pickles the clouds twice."""
+
+    messages: SweepMessages = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def of(cls, r: SweepResult) -> EncodedResult:
+        light = dataclasses.replace(r, twist_covariance=None, pose_covariance=None, static_map_xy=_NO_POINTS,
+                                    static_velocity=None, moving_map_xy=_NO_POINTS, moving_velocity=None,
+                                    moving_mask=_NO_LABELS)
+        return cls(**{f.name: getattr(light, f.name) for f in dataclasses.fields(SweepResult)},
+                   messages=sweep_messages(r))
 
 
 @dataclass
@@ -518,6 +541,7 @@ def _run(task: ChildTask, out: Connection, schedule: Connection, inputs: Connect
                 except Exception as exc:  # noqa: BLE001 (raised in the parent where it adds the result)
                     msg.backend_error = (r.method, exc)
                     break
+            msg.results = [EncodedResult.of(r) for r in step.results]  # after the back ends took them whole
             if publish.due(step.sweep.stamp_ns):
                 msg.maps = {fe.name: GridSnapshot.of(fe.grid) for fe in runner.fronts}
             msg.warnings = _taken(caught)

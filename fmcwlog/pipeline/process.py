@@ -39,7 +39,7 @@ from ..io.logs import Log, open_log
 from ..io.outputs import ProcessOutputs, odom_frame
 from ..io.topic_choice import choose_topics, odometry_instead_of_ticks
 from ..types import BASELINE, IMPROVED, WHEEL_ODOMETRY, Calibration, InputTopics
-from .method_process import ChildBackend, ChildTask, MethodProcess, child_methods, merge_diagnostics
+from .method_process import ChildBackend, ChildTask, EncodedResult, MethodProcess, child_methods, merge_diagnostics
 from .options import BACKENDS, ProcessOptions, options_digest
 from .run_record import RunRecord
 from .runner import LogRunner, SweepStep
@@ -274,7 +274,7 @@ def _feed(methods: Sequence[str], steps: Iterator[SweepStep], outputs: ProcessOu
     searches = {m: [0, 0] for m in methods}
     for step in steps:
         for r in step.results:
-            outputs.add(r)
+            outputs.add(r, r.messages if isinstance(r, EncodedResult) else None)  # the child's, encoded there
             searches[r.method][0] += r.searched
             searches[r.method][1] += r.recovered
             if r.method in backends:

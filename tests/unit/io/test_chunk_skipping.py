@@ -26,7 +26,7 @@ def _plain(topic: str) -> list[tuple[int, bytes]]:
 def _chunks_read(monkeypatch) -> list[int]:
     read: list[int] = []
     real = mcap_scan.read_chunk
-    monkeypatch.setattr(mcap_scan, "read_chunk", lambda body: read.append(len(body)) or real(body))
+    monkeypatch.setattr(mcap_scan, "read_chunk", lambda body, *rest: read.append(len(body)) or real(body, *rest))
     return read
 
 

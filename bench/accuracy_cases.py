@@ -13,7 +13,10 @@ also keeps, per sweep, what its front end used (``ImprovedFrontEnd.estimate_moti
 
 and compares each with the truth over the same interval: ``/ground_truth/odom``'s poses at the
 sweep's stamp and at ``stamp + span``, the motion between them in base_link at the start over the
-span (the wheels' own definition). Errors are RMS over the sweeps where all three exist.
+span (the wheels' own definition). Errors are RMS over the sweeps where all three exist, and
+again over the *steady* ones only: where the truth's yaw rate over the first half of the span is
+within 0.05 rad/s of that over the second (the routes join straights and arcs with a step in
+curvature, so a sweep across a joint sees two twists, and no one ``(v, ω)`` fits it).
 
 Recall is split by the log's labels (``/ground_truth/point_labels``): a point on a mover is
 *Doppler-invisible* where its measured radial velocity is within ``--invisible`` (0.25 m/s) of
@@ -58,6 +61,7 @@ from fmcwlog.io.topic_choice import choose_topics  # noqa: E402
 from fmcwlog.sim.recorder import record  # noqa: E402
 
 DEFAULT_SECONDS = {"warehouse": 120.0}  # a case's log length unless --duration; others 60 s
+STEADY_YAW_RATE = 0.05  # rad/s: a sweep whose two halves' true yaw rates differ less is steady
 METHODS = ("improved", "improved_frontend", "baseline", "kiss_icp", "wheel_odometry")
 
 # The improved method alone (no child of its own), each sweep's twists kept: stamp (ns), span (s),
@@ -107,14 +111,18 @@ def twist_errors(kept: np.ndarray, log: Path, mount: np.ndarray) -> dict:
     t0 = kept[:, 0]
     t1 = t0 + kept[:, 1] * 1e9
     truth = _truth_motion(stamps.astype(float), poses, t0, t1)
+    mid = 0.5 * (t0 + t1)
+    first, second = (_truth_motion(stamps.astype(float), poses, a, b) for a, b in ((t0, mid), (mid, t1)))
+    steady = np.abs(first[:, 1] - second[:, 1]) < STEADY_YAW_RATE
     fused, dop_vs, wheels = kept[:, 2:4], kept[:, 4:6], kept[:, 6:8]
     dop = np.linalg.solve(doppler_design(mount), dop_vs.T).T  # A x = v_s
     ok = np.all(np.isfinite(np.hstack([fused, dop, wheels, truth])), axis=1) & (kept[:, 1] > 0)
-    out: dict = {"sweeps": int(ok.sum()), "sweeps_total": len(kept)}
+    out: dict = {"sweeps": int(ok.sum()), "sweeps_total": len(kept), "steady_sweeps": int((ok & steady).sum())}
     for name, est in (("fused", fused), ("doppler", dop), ("wheels", wheels)):
-        err = est[ok] - truth[ok]
-        out[name] = {"v_rms": float(np.sqrt(np.mean(err[:, 0] ** 2))), "w_rms": float(np.sqrt(np.mean(err[:, 1] ** 2))),
-                     "v_max": float(np.abs(err[:, 0]).max()), "w_max": float(np.abs(err[:, 1]).max())}
+        for key, sel in ((name, ok), (f"{name}_steady", ok & steady)):
+            err = est[sel] - truth[sel]
+            out[key] = {"v_rms": float(np.sqrt(np.mean(err[:, 0] ** 2))), "w_rms": float(np.sqrt(np.mean(err[:, 1] ** 2))),
+                        "v_max": float(np.abs(err[:, 0]).max()), "w_max": float(np.abs(err[:, 1]).max())}
     return out
 
 
@@ -225,9 +233,11 @@ def markdown(runs: list[dict], meta: dict) -> str:
             mx = np.max([m[src][f"{comp}_max"] for m in mine]) * scale
             return f"{rms:.2f} ({mx:.1f})"
 
-        sweeps = f"{sum(m['sweeps'] for m in mine)}/{sum(m['sweeps_total'] for m in mine)}"
-        lines.append(f"| {case} | {sweeps} | " + " | ".join(cell(s, "v", 100) for s in ("fused", "doppler", "wheels"))
-                     + " | " + " | ".join(cell(s, "w", 1000) for s in ("fused", "doppler", "wheels")) + " |")
+        for tail, count in (("", "sweeps"), ("_steady", "steady_sweeps")):
+            sweeps = f"{sum(m[count] for m in mine)}/{sum(m['sweeps_total'] for m in mine)}"
+            srcs = [f"{s}{tail}" for s in ("fused", "doppler", "wheels")]
+            lines.append(f"| {case}{' steady' if tail else ''} | {sweeps} | " + " | ".join(cell(s, "v", 100) for s in srcs)
+                         + " | " + " | ".join(cell(s, "w", 1000) for s in srcs) + " |")
     lines += ["", f"Moving-point recall split by Doppler visibility (invisible: |ε_true| < {meta['invisible']} m/s), "
               "per seed:", "",
               "| case | seed | mover points invisible % | recall visible | recall invisible | recall | precision |",

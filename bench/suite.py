@@ -16,7 +16,7 @@ measures how `process` scales with the log's length.
 A case is a built-in scenario, optionally ``+SENSOR``: the sensor parameters of
 bench/sensors/SENSOR.toml over the defaults (``crowd+worse-doppler``: Doppler noise 0.1 m/s,
 resolution 0.25 m/s); ``--sensor SENSOR`` adds it to every case. ``warehouse`` is driven at
-its own speed (``scenarios.WH_SPEED``, 3 m/s: its 343 m route in 120 s).
+its own speed (3 m/s: its 343 m route in 120 s, ``SCENARIO_ROBOT``).
 
 Writes bench/results/suite.md and suite.json (or --out DIR).
 """
@@ -68,7 +68,8 @@ METRICS = ("ate_rmse_m", "rpe_1m_pct", "rpe_10m_pct", "feature_avg_rel_error_pct
 
 
 SENSORS = HERE / "sensors"  # SENSOR.toml: [sensor] parameters of a case SCENARIO+SENSOR
-SCENARIO_ROBOT = {"warehouse": {"speed": scenarios.WH_SPEED}}  # [robot] parameters a scenario is driven with
+# [robot] parameters a scenario is driven with: the warehouse's 343 m route in 120 s
+SCENARIO_ROBOT = {"warehouse": {"speed": 3.0}}
 
 
 def case_config(case: str, duration: float, seed: int) -> tuple[World, SimConfig]:

@@ -196,7 +196,6 @@ WH_W, WH_H = 60.0, 30.0  # floor, m
 WH_SHELF_X = (5.0, 55.0)  # the rows' ends: cross-aisles 5 m wide at both ends
 WH_SHELF_DEPTH = 1.2  # m, each row's depth (y)
 WH_SHELF_Y0 = (3.0, 7.4, 11.8, 16.2, 20.6, 25.0)  # each row's south face, m
-WH_SPEED = 3.0  # m/s: the cruise speed at which the route takes 120 s (``record --speed 3``)
 
 
 def warehouse_aisles() -> list[tuple[float, float]]:
@@ -211,7 +210,7 @@ def warehouse() -> World:
 
     The route runs the first six aisles end to end, east, west, east..., turning through the
     cross-aisles: about 343 m, open (the robot stops at its end), never back in an aisle it has
-    left, so nothing closes a loop. At ``--speed 3`` (:data:`WH_SPEED`) it takes 120 s; at the
+    left, so nothing closes a loop. At ``--speed 3`` (m/s) it takes 120 s; at the
     default 1 m/s a 120 s log covers the first two aisles. Between the cross-aisles the scanner
     sees two parallel walls 50 m long: the aisle's axis is what geometry fixes worst.
     """

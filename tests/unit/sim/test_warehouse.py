@@ -13,6 +13,7 @@ from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import RobotConfig, SimConfig, apply_overrides
 from fmcwlog.sim.route import SpeedProfile
 
+SPEED = 3.0  # m/s: the speed the scenario is documented to be driven at (record --speed 3)
 LONG = 40.0  # m: a horizontal wall this long inside the floor is a shelf row's face
 
 
@@ -77,7 +78,7 @@ def test_route_stays_in_free_space_and_takes_120_s(world):
     assert _distance_to_walls(p, world.walls).min() >= 1.0
     for x0, y0, x1, y1 in _shelves(world.walls):  # never inside a rack
         assert not np.any((x > x0) & (x < x1) & (y > y0) & (y < y1))
-    robot = apply_overrides(SimConfig(), {"robot": {"speed": scenarios.WH_SPEED}}).robot
+    robot = apply_overrides(SimConfig(), {"robot": {"speed": SPEED}}).robot
     profile = SpeedProfile(robot.speed, robot.acceleration, route.total_length)
     t = np.arange(0.0, 130.0, 0.01)
     dist, speed, _ = profile.distance_speed_accel(t)

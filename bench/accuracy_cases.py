@@ -122,7 +122,8 @@ def twist_errors(kept: np.ndarray, log: Path, mount: np.ndarray) -> dict:
         for key, sel in ((name, ok), (f"{name}_steady", ok & steady)):
             err = est[sel] - truth[sel]
             out[key] = {"v_rms": float(np.sqrt(np.mean(err[:, 0] ** 2))), "w_rms": float(np.sqrt(np.mean(err[:, 1] ** 2))),
-                        "v_max": float(np.abs(err[:, 0]).max()), "w_max": float(np.abs(err[:, 1]).max())}
+                        "v_max": float(np.abs(err[:, 0]).max()), "w_max": float(np.abs(err[:, 1]).max()),
+                        "v_mean": float(np.mean(err[:, 0])), "w_mean": float(np.mean(err[:, 1]))}
     return out
 
 
@@ -238,6 +239,14 @@ def markdown(runs: list[dict], meta: dict) -> str:
             srcs = [f"{s}{tail}" for s in ("fused", "doppler", "wheels")]
             lines.append(f"| {case}{' steady' if tail else ''} | {sweeps} | " + " | ".join(cell(s, "v", 100) for s in srcs)
                          + " | " + " | ".join(cell(s, "w", 1000) for s in srcs) + " |")
+    lines += ["", "Mean twist error (bias: what integrates into drift) over the steady sweeps, mean over seeds: "
+              "v in cm/s, ω in mrad/s:", "",
+              "| case | fused v | Doppler v | wheels v | fused ω | Doppler ω | wheels ω |", "|---|---|---|---|---|---|---|"]
+    for case in cases:
+        mine = [r["twist"] for r in runs if r["case"] == case]
+        srcs = [f"{s}_steady" for s in ("fused", "doppler", "wheels")]
+        lines.append(f"| {case} | " + " | ".join(f"{100 * np.mean([m[s]['v_mean'] for m in mine]):+.3f}" for s in srcs)
+                     + " | " + " | ".join(f"{1000 * np.mean([m[s]['w_mean'] for m in mine]):+.2f}" for s in srcs) + " |")
     lines += ["", f"Moving-point recall split by Doppler visibility (invisible: |ε_true| < {meta['invisible']} m/s), "
               "per seed:", "",
               "| case | seed | mover points invisible % | recall visible | recall invisible | recall | precision |",

@@ -9,7 +9,7 @@ method), and writes one table, averaged over the seeds, as Markdown and JSON. Th
 measures how `process` scales with the log's length.
 
     pip install -e '.[bench]'
-    python bench/suite.py              # every scenario (6) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
+    python bench/suite.py              # every scenario (7) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
     python bench/suite.py --quick      # every scenario x 1 seed x 20 s + scaling 0.25/0.5/1 min (~1.5 min)
     python bench/suite.py --scenarios warehouse crowd crowd+worse-doppler --seeds 0 1 2 --duration 60 --scaling
 

@@ -9,8 +9,14 @@ method), and writes one table, averaged over the seeds, as Markdown and JSON. Th
 measures how `process` scales with the log's length.
 
     pip install -e '.[bench]'
-    python bench/suite.py              # every scenario (6) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
+    python bench/suite.py              # every scenario (7) x 3 seeds x 2 min + scaling 1/5/20 min (~30 min)
     python bench/suite.py --quick      # every scenario x 1 seed x 20 s + scaling 0.25/0.5/1 min (~1.5 min)
+    python bench/suite.py --scenarios warehouse crowd crowd+worse-doppler --seeds 0 1 2 --duration 60 --scaling
+
+A case is a built-in scenario, optionally ``+SENSOR``: the sensor parameters of
+bench/sensors/SENSOR.toml over the defaults (``crowd+worse-doppler``: Doppler noise 0.1 m/s,
+resolution 0.25 m/s); ``--sensor SENSOR`` adds it to every case. ``warehouse`` is driven at
+its own speed (3 m/s: its 343 m route in 120 s, ``SCENARIO_ROBOT``).
 
 Writes bench/results/suite.md and suite.json (or --out DIR).
 """
@@ -34,10 +40,12 @@ sys.path.insert(0, str(HERE.parent))
 
 from results_io import kiss_icp_available, write_results  # noqa: E402
 
+from fmcwlog.config import read_config_file  # noqa: E402
 from fmcwlog.evaluation.evaluate import evaluate  # noqa: E402
 from fmcwlog.sim import scenarios  # noqa: E402
 from fmcwlog.sim.config import SimConfig, apply_overrides  # noqa: E402
 from fmcwlog.sim.recorder import record  # noqa: E402
+from fmcwlog.sim.world import World  # noqa: E402
 
 CHILD_PROCESS = r"""
 import json, resource, sys
@@ -59,6 +67,29 @@ METRICS = ("ate_rmse_m", "rpe_1m_pct", "rpe_10m_pct", "feature_avg_rel_error_pct
            "ms_per_sweep_p95", "peak_rss_mb")
 
 
+SENSORS = HERE / "sensors"  # SENSOR.toml: [sensor] parameters of a case SCENARIO+SENSOR
+# [robot] parameters a scenario is driven with: the warehouse's 343 m route in 120 s
+SCENARIO_ROBOT = {"warehouse": {"speed": 3.0}}
+
+
+def case_config(case: str, duration: float, seed: int) -> tuple[World, SimConfig]:
+    """The world and the recording parameters of ``case`` (``SCENARIO`` or ``SCENARIO+SENSOR``):
+    the defaults, the sensor file's values, the scenario's robot values, then ``duration`` (s) and ``seed``."""
+    name, _, sensor = case.partition("+")
+    if name not in scenarios.SCENARIOS:
+        raise SystemExit(f"unknown scenario {name!r} in case {case!r} (known: {', '.join(scenarios.SCENARIOS)})")
+    cfg = SimConfig()
+    if sensor:
+        path = SENSORS / f"{sensor}.toml"
+        if not path.is_file():
+            raise SystemExit(f"no sensor file {path} for case {case!r}")
+        cfg = apply_overrides(cfg, read_config_file(path))
+    overrides: dict[str, dict] = {"run": {"duration": duration, "seed": seed}}
+    if name in SCENARIO_ROBOT:
+        overrides["robot"] = SCENARIO_ROBOT[name]
+    return scenarios.SCENARIOS[name](), apply_overrides(cfg, overrides).validate()
+
+
 def _child(code: str, *args: str) -> dict:
     res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True)
     if res.returncode != 0:
@@ -76,8 +107,8 @@ def _row(result: dict, method: str, peak: float | None) -> dict:
 
 def run_one(scenario: str, seed: int, duration: float, tmp: Path, with_kiss: bool) -> dict[str, dict]:
     log = tmp / f"{scenario}_{seed}.mcap"
-    cfg = apply_overrides(SimConfig(), {"run": {"duration": duration, "seed": seed}})
-    record(scenarios.SCENARIOS[scenario](), cfg, log)
+    world, cfg = case_config(scenario, duration, seed)
+    record(world, cfg, log)
     rows: dict[str, dict] = {}
     for method in ("improved", "baseline"):
         out = tmp / f"{scenario}_{seed}_{method}"
@@ -156,7 +187,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="1 seed, 20 s logs, scaling 0.25/0.5/1 min")
     ap.add_argument("--seeds", type=int, nargs="+", default=None)
     ap.add_argument("--duration", type=float, default=None, help="seconds per log")
-    ap.add_argument("--scenarios", nargs="+", default=list(scenarios.SCENARIOS))
+    ap.add_argument("--scenarios", nargs="+", default=list(scenarios.SCENARIOS), help="SCENARIO or SCENARIO+SENSOR")
+    ap.add_argument("--sensor", default=None, help="bench/sensors/SENSOR.toml for every case")
     ap.add_argument("--scaling", type=float, nargs="*", default=None, help="minutes")
     ap.add_argument("--no-kiss", action="store_true", help="skip the KISS-ICP peer")
     ap.add_argument("--out", type=Path, default=HERE / "results")
@@ -165,6 +197,8 @@ def main() -> None:
     duration = args.duration or (20.0 if args.quick else 120.0)
     scale_minutes = args.scaling if args.scaling is not None else ([0.25, 0.5, 1.0] if args.quick else [1.0, 5.0, 20.0])
     with_kiss = kiss_icp_available(not args.no_kiss)
+    if args.sensor:
+        args.scenarios = [f"{c}+{args.sensor}" for c in args.scenarios]
     started = time.perf_counter()
     per_run: dict[tuple[str, str], list[dict]] = {}
     with tempfile.TemporaryDirectory() as tmp_name:

@@ -28,6 +28,8 @@ Scenarios (--scenario, default {DEFAULT_SCENARIO}):
   dense-crowd    the same hall packed: about half of the returns on movers, many crossing the beams
   long-corridor  100 m bare corridor: geometry alone cannot fix the along-axis position
   ring           a ring of corridors around a solid block: a lap's drift is left to loop closure
+  warehouse      60 x 30 m, six shelf rows 50 m long, forklifts in the aisles; a 343 m open
+                 route through six aisles (120 s at --speed 3), no loop to close
 Or --world FILE: your own walls, features, movers and route (YAML/JSON; docs/commands/record.md).
 
 \b

@@ -1,4 +1,5 @@
-"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``dense-crowd``, ``long-corridor``, ``ring``.
+"""Built-in worlds: ``corridor`` (the default), ``static``, ``crowd``, ``dense-crowd``, ``long-corridor``, ``ring``,
+``warehouse``.
 
 ``corridor`` stands in for the paper's Figure 3: a floor of 26.681 m by
 25.534 m, a ring corridor 3 m wide around a hall, with the nine labelled
@@ -190,12 +191,72 @@ def ring() -> World:
     return World("ring", np.array(walls, dtype=float), route, features, movers)
 
 
+# The warehouse: a 60 m x 30 m floor, six shelf rows 50 m long along x, aisles between them.
+WH_W, WH_H = 60.0, 30.0  # floor, m
+WH_SHELF_X = (5.0, 55.0)  # the rows' ends: cross-aisles 5 m wide at both ends
+WH_SHELF_DEPTH = 1.2  # m, each row's depth (y)
+WH_SHELF_Y0 = (3.0, 7.4, 11.8, 16.2, 20.6, 25.0)  # each row's south face, m
+
+
+def warehouse_aisles() -> list[tuple[float, float]]:
+    """The aisles along x as ``(y_low, y_high)`` bands of free space (m): south wall to the first
+    row, between rows, last row to the north wall."""
+    edges = [0.0] + [e for y0 in WH_SHELF_Y0 for e in (y0, y0 + WH_SHELF_DEPTH)] + [WH_H]
+    return [(edges[i], edges[i + 1]) for i in range(0, len(edges), 2)]
+
+
+def warehouse() -> World:
+    """Long aisles between six solid shelf rows (each 50 m x 1.2 m), forklifts and people in them.
+
+    The route runs the first six aisles end to end, east, west, east..., turning through the
+    cross-aisles: about 343 m, open (the robot stops at its end), never back in an aisle it has
+    left, so nothing closes a loop. At ``--speed 3`` (m/s) it takes 120 s; at the
+    default 1 m/s a 120 s log covers the first two aisles. Between the cross-aisles the scanner
+    sees two parallel walls 50 m long: the aisle's axis is what geometry fixes worst.
+    """
+    walls = _box(0.0, 0.0, WH_W, WH_H)
+    x0, x1 = WH_SHELF_X
+    for y0 in WH_SHELF_Y0:
+        walls += _box(x0, y0, x1, y0 + WH_SHELF_DEPTH)
+    aisles = warehouse_aisles()
+    mid = [0.5 * (lo + hi) for lo, hi in aisles]
+    features = [
+        Feature(1, "south outer wall", (0.0, 0.0), (WH_W, 0.0)),
+        Feature(2, "west outer wall", (0.0, 0.0), (0.0, WH_H)),
+        Feature(3, "shelf row 1, south face", (x0, WH_SHELF_Y0[0]), (x1, WH_SHELF_Y0[0])),
+        Feature(4, "shelf row 1, west end", (x0, WH_SHELF_Y0[0]), (x0, WH_SHELF_Y0[0] + WH_SHELF_DEPTH)),
+        Feature(5, "shelf rows 1 to 2, west ends (aisle width)", (x0, WH_SHELF_Y0[0] + WH_SHELF_DEPTH), (x0, WH_SHELF_Y0[1])),
+    ]
+    west, east = 2.5, WH_W - 2.5  # the route's lines in the cross-aisles
+    pts: list[tuple[float, float]] = [(3.0, mid[0])]
+    for i in range(6):
+        far = east if i % 2 == 0 else west
+        pts.append((far, mid[i]))
+        if i < 5:
+            pts.append((far, mid[i + 1]))
+    pts[-1] = (3.0, mid[5])  # the sixth aisle run out to x = 3, where the first began
+    route = RouteSpec(np.array(pts), False, 2.0)
+    rng = np.random.default_rng(2026)  # a fixed fleet: the scenario is data, not randomness
+    movers: list[Mover] = []
+    for i, y in enumerate(mid):  # a forklift in every aisle, in a lane beside its centre line
+        lane = 0.8 if i % 2 else -0.8
+        path = [[7.0, y + lane], [53.0, y + lane]] if i % 2 else [[53.0, y + lane], [7.0, y + lane]]
+        movers.append(Mover("cart", path, rng.uniform(1.5, 2.5), phase=rng.uniform(0, 92), length=2.4, width=0.8))
+    for i, y in enumerate(mid[1:6]):  # a cart pushed along five of them, the other lane
+        lane = -0.8 if i % 2 else 0.8
+        movers.append(Mover("cart", [[10.0, y + lane], [50.0, y + lane]], rng.uniform(0.6, 1.0),
+                            phase=rng.uniform(0, 80), length=1.2, width=0.7))
+    for x in (1.0, 4.2, WH_W - 4.2, WH_W - 1.0):  # people walking the cross-aisles
+        movers.append(Mover("person", [[x, 1.0], [x, WH_H - 1.0]], rng.uniform(0.9, 1.4), phase=rng.uniform(0, 56)))
+    return World("warehouse", np.array(walls, dtype=float), route, features, movers)
+
+
 SCENARIOS = {"corridor": corridor, "static": static, "crowd": crowd, "dense-crowd": dense_crowd,
-             "long-corridor": long_corridor, "ring": ring}
+             "long-corridor": long_corridor, "ring": ring, "warehouse": warehouse}
 DEFAULT_SCENARIO = "corridor"
 
 
 def scenario(name: str = DEFAULT_SCENARIO) -> World:
     """A built-in world by name (one of :data:`SCENARIOS`: ``corridor``, ``static``, ``crowd``,
-    ``dense-crowd``, ``long-corridor``, ``ring``)."""
+    ``dense-crowd``, ``long-corridor``, ``ring``, ``warehouse``)."""
     return SCENARIOS[name]()

@@ -17,7 +17,7 @@ OPEN = (np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 4.0], [9.0, 7.0]]), False, 1.0) 
 
 
 def _cases():
-    for name in ("corridor", "crowd", "long-corridor", "ring"):
+    for name in ("corridor", "crowd", "long-corridor", "ring", "warehouse"):
         spec = scenarios.SCENARIOS[name]().route
         yield name, np.asarray(spec.waypoints, float), spec.loop, spec.corner_radius
     yield "open", *OPEN

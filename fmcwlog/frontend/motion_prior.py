@@ -22,7 +22,7 @@ class PoseTrack:
 
     def __init__(self, keep_seconds: float = 5.0):
         self.keep = keep_seconds
-        self.hold_from = -np.inf  # s: poses from this time on are kept too (the last sweep's stamp, across a gap)
+        self.hold_from = np.inf  # s: poses from this time on are kept too (the last sweep's stamp, across a gap); inf: none
         self._t = np.empty(256)
         self._p = np.empty((256, 3))
         self._k = np.full((256, 2), np.nan)  # cumulative ticks (left, right) at each pose; NaN from poses

@@ -98,7 +98,7 @@ class Evaluation:
 _RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
                                           "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
                                           "doppler": (bool, type(None)), "prior": (str, type(None)),
-                                          "many_skipped_sweeps": (dict,)}
+                                          "many_skipped_sweeps": (dict,), "gaps": (list,)}
 _PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
 
 
@@ -250,9 +250,11 @@ def params_digest(params: Any) -> str | None:
 def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str]) -> dict[str, Any]:
     """What was run: versions, date (UTC), log, scenario and seed (from the log's ``fmcwlog.sim``
     record, absent from a real log), methods and the parameters' digest; and, only where the run
-    skipped more than 5 % of the log's sweeps, how many and why (run.json's ``many_skipped_sweeps``)."""
+    skipped more than 5 % of the log's sweeps, how many and why (run.json's ``many_skipped_sweeps``); only
+    where the sweeps had gaps, run.json's ``gaps``."""
     seed = sim.get("seed")
     skipped = run.get("many_skipped_sweeps")
+    gaps = run.get("gaps")
     return {
         "fmcwlog_version_processed": run.get("fmcwlog_version"),
         "fmcwlog_version_report": __version__,
@@ -264,6 +266,7 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
         "trajectories": list(present),
         "params_sha256_12": params_digest(run.get("params")),
         **({"many_skipped_sweeps": skipped} if skipped is not None else {}),
+        **({"gaps": gaps} if gaps else {}),
     }
 
 

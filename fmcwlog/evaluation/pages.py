@@ -14,6 +14,8 @@ reason in ``notes`` or ``methods.M.notes``):
   canonical JSON: ``json.dumps(params, sort_keys=True, separators=(",", ":"))``, UTF-8);
   ``many_skipped_sweeps``, only where the run skipped more than 5 % of the log's sweeps as
   damaged: run.json's record of it (``skipped``, ``read``, ``share``, ``main_reason``, ...);
+  ``gaps``, only where the sweeps had gaps (none, or none with a usable point, for more than a few
+  sweep periods): run.json's list of them (``start_s``, ``length_s``);
 - ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry`` (and any other
   ``*.tum`` in the folder, e.g. a peer's):
   ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (SE(2)-aligned,
@@ -177,6 +179,7 @@ def header_rows(result: dict) -> list[tuple[str, str]]:
     return [
         ("log", str(h.get("log", result.get("log")))),
         *_skipped_rows(h.get("many_skipped_sweeps")),
+        *_gap_rows(h.get("gaps")),
         ("scenario", none if h.get("scenario") is None else str(h["scenario"])),
         ("seed", none if h.get("seed") is None else str(h["seed"])),
         ("methods", ", ".join(h.get("methods") or []) or "—"),
@@ -198,6 +201,20 @@ def _skipped_rows(skipped: Any) -> list[tuple[str, str]]:
     went_on = ", processed on past half as asked (--keep-going)" if skipped.get("kept_going") else ""
     return [("sweeps skipped", f"{share}{went_on}: the results stand on the rest; the main reason: "
                                f"{skipped.get('main_reason', '— (not in run.json)')}")]
+
+
+def _gap_rows(gaps: Any) -> list[tuple[str, str]]:
+    """The header's row for a run whose sweeps had gaps (none otherwise): how many, how long, where."""
+    if not isinstance(gaps, list) or not gaps:
+        return []
+    try:
+        spans = [(float(g["start_s"]), float(g["length_s"])) for g in gaps]
+    except (KeyError, TypeError, ValueError):
+        return [("gaps in the sweeps", f"{len(gaps)} (bridged by the motion prior)")]
+    listed = ", ".join(f"{length:.1f} s at {start:.3f} s" for start, length in spans[:5])
+    more = f" and {len(spans) - 5} more" if len(spans) > 5 else ""
+    return [("gaps in the sweeps", f"{len(spans)}, {sum(s[1] for s in spans):.1f} s in all ({listed}{more}): "
+                                   "bridged by the motion prior, the poses across them are as good as it is")]
 
 
 DISAGREEMENT_HEADER = ["method", "RMSE m", "mean m", "median m", "max m", "at the end m", "over path m"]

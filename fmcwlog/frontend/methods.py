@@ -62,12 +62,13 @@ import numpy as np
 
 from ..geometry import _is_pose, between, between_floats, compose, transform_points, wrap_angle
 from ..kernels import compiled
-from ..kernels.correlative import LikelihoodGrid, correlative_match
+from ..kernels.correlative import LikelihoodGrid, correlative_match, grid_for
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskew_placed
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
+from .gaps import bridge_covariance, gap_prior_information, gap_window, to_map, within_bridge
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
@@ -105,6 +106,7 @@ class PriorMotion:
     turns: how far each rear wheel turned over ``span`` (rad; left, right), from the
         ticks alone (no radii); None without ticks.
     turns_since_last: the same from the previous sweep's stamp to this one's.
+    gap: the length (s) of the gap in the sweeps before this one (:mod:`.gaps`), 0 where none.
     """
 
     twist: tuple[float, float] | None = None
@@ -112,6 +114,7 @@ class PriorMotion:
     span: float = 0.0
     turns: tuple[float, float] | None = None
     turns_since_last: tuple[float, float] | None = None
+    gap: float = 0.0
 
 
 @dataclass
@@ -188,6 +191,7 @@ class FrontEnd(ABC):
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
         # (xy, its ranges, ranges < min_range) of the sweep in step
         self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._gap_information: np.ndarray | None = None  # the ICP's soft prior while a gap is bridged
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -263,6 +267,9 @@ class FrontEnd(ABC):
         near = ranges < p.min_range
         self._ranges = (xy, ranges, near)  # for this sweep's stages (the tracker's free-space test, the body mask)
         motion = self.estimate_motion(sweep, prior)
+        bridge = None
+        if prior.gap > 0 and p.gaps.bridge and self.pose is not None:
+            motion, bridge = self._bridge(prior, motion)
         v, omega = motion.twist
         n_moving = int(np.count_nonzero(motion.moving))
         use = ~(near | motion.moving) if n_moving else ~near  # neither inside the body mask nor moving
@@ -280,12 +287,18 @@ class FrontEnd(ABC):
             # correlative search has nothing to place, so the motion prior stands for this sweep.
             pose, iterations, kept = motion.predicted, 0, 0
         else:
-            if self.scan_prior(prior, motion):
+            if bridge is not None:
+                res, searched, recovered = self._match_after_gap(source, motion, ts, bridge)
+            elif self.scan_prior(prior, motion):
                 res, searched, recovered = self._scan_to_map(source, motion, ts)
             else:
                 res, searched, recovered = self._register_or_recover(source, motion, ts)
             pose, iterations, kept = res.pose, res.iterations, res.n_correspondences_kept
             pose_cov = registration_covariance(res.hessian, p.residual_sigma)
+            if bridge is not None and not within_bridge(pose, motion.predicted, bridge, p.gaps.max_mahalanobis):
+                pose, iterations, kept, pose_cov = motion.predicted, 0, 0, None  # another peak: the bridge stands
+        if bridge is not None:  # the back end's edge across the gap is as loose as the bridge
+            pose_cov = bridge if pose_cov is None else pose_cov + bridge
         pose = _wrapped(pose)
         if self.pose is not None:
             self.path_m += _step_length(self.pose, pose)
@@ -327,6 +340,36 @@ class FrontEnd(ABC):
         window = search_window(self.hold.twist, stamp - self.last_stamp, base)
         found = correlative_match(grid, source, motion.predicted, window, with_second=False)
         return self._register_or_recover(source, motion, stamp, found.pose)
+
+    def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
+        """The motion prior's motion (x, y, yaw) across a gap before this sweep; None without one."""
+        return prior.since_last
+
+    def _bridge(self, prior: PriorMotion, motion: MotionEstimate) -> tuple[MotionEstimate, np.ndarray]:
+        """The sweep after a gap (:mod:`.gaps`): predicted by the motion prior's motion over the gap
+        (else the estimate's own hold), and the bridge's covariance (3, 3) in the map frame."""
+        assert self.pose is not None
+        since = self.gap_motion(prior)
+        predicted = motion.predicted if since is None else compose(self.pose, since)
+        chord = 0.0 if since is None or not np.hypot(since[0], since[1]) > 0 else math.atan2(since[1], since[0])
+        cov = to_map(bridge_covariance(since, prior.gap, self.params.wheel_noise), float(self.pose[2]) + chord)
+        return MotionEstimate(motion.twist, predicted, motion.moving, motion.doppler, motion.segmented,
+                              motion.twist_covariance, motion.fused), cov
+
+    def _match_after_gap(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
+                         covariance: np.ndarray) -> tuple[ICPResult, bool, bool]:
+        """The sweep after a gap: a correlative search around the bridged pose over a window that
+        widens with the bridge's ``covariance`` (map frame), then the ICP from its best pose with that
+        covariance as its soft prior, then the recovery as usual (:mod:`.gaps`)."""
+        p = self.params
+        window = gap_window(covariance, p.recovery.correlative, p.gaps)
+        found = correlative_match(grid_for(self.map.points, window), source, motion.predicted, window, with_second=False)
+        self._gap_information = gap_prior_information(covariance, p.residual_sigma)
+        try:
+            res, _, recovered = self._register_or_recover(source, motion, stamp, found.pose)
+        finally:
+            self._gap_information = None
+        return res, True, recovered
 
     def _register_or_recover(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                              start: np.ndarray | None = None) -> tuple[ICPResult, bool, bool]:
@@ -591,7 +634,9 @@ class ImprovedFrontEnd(FrontEnd):
                  initial: np.ndarray | None = None) -> ICPResult:
         prior_info = None
         f = motion.fused
-        if f is not None and self.params.doppler_prior:
+        if self._gap_information is not None:
+            prior_info = self._gap_information
+        elif f is not None and self.params.doppler_prior:
             prior_info = doppler_prior_information(motion.predicted[2], f.covariance[0, 0], f.covariance[1, 1],
                                                    stamp - self.last_stamp, self.params)
             if initial is None:  # a recovery's second ICP is the same sweep
@@ -616,9 +661,14 @@ class ImprovedFrontEnd(FrontEnd):
         d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
-        if registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels:
+        if (registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels
+                and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
         self._registered_last = registered
+
+    def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
+        """The wheels' motion across a gap, unless the sensor checks dropped them as faulty."""
+        return prior.since_last if self.checks.use_wheels else None
 
     def calibration_estimate(self) -> CalibrationEstimate | None:
         """The mount and wheels the log shows (:mod:`.self_calibration`); None when it cannot say

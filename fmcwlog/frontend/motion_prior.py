@@ -14,12 +14,15 @@ from ..geometry import between, interpolate_poses
 from ..types import WheelCalibration
 from .odometry import body_increments, integrate_arc
 
+MAX_HOLD_S = 120.0  # s: the longest gap in the sweeps the track is kept for (:attr:`PoseTrack.hold_from`)
+
 
 class PoseTrack:
     """Time-stamped poses (odometry frame) with interpolation; stamps in seconds."""
 
     def __init__(self, keep_seconds: float = 5.0):
         self.keep = keep_seconds
+        self.hold_from = np.inf  # s: poses from this time on are kept too (the last sweep's stamp, across a gap); inf: none
         self._t = np.empty(256)
         self._p = np.empty((256, 3))
         self._k = np.full((256, 2), np.nan)  # cumulative ticks (left, right) at each pose; NaN from poses
@@ -43,7 +46,7 @@ class PoseTrack:
                 return False
             raise ValueError(f"motion prior stamps go backwards ({t:.9f} s after {self._t[n - 1]:.9f} s)")
         if n == len(self._t):  # full: drop what is older than the kept window, or grow
-            old = int(np.searchsorted(self._t[:n], self._t[n - 1] - self.keep)) - 1
+            old = int(np.searchsorted(self._t[:n], self._keep_from())) - 1
             if old > 0:
                 self._t[: n - old] = self._t[old:n]
                 self._p[: n - old] = self._p[old:n]
@@ -58,6 +61,13 @@ class PoseTrack:
         self._k[n] = np.nan
         self._n = n + 1
         return True
+
+    def _keep_from(self) -> float:
+        """The time (s) from which the poses are kept: the last ``keep`` seconds, and from
+        :attr:`hold_from` on (at most :data:`MAX_HOLD_S` back), so that a gap in the sweeps longer than
+        ``keep`` can still be bridged from the last sweep before it."""
+        latest = float(self._t[self._n - 1])
+        return min(latest - self.keep, max(self.hold_from, latest - MAX_HOLD_S))
 
     def add_ticks(self, t: float, left: int, right: int, calib: WheelCalibration) -> bool:
         """Integrate one encoder reading (cumulative counts) onto the last pose, exactly along an arc."""

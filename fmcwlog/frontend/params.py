@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..config import Checked, param
+from .gaps import GapParams
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
 from .recovery import RecoveryParams
@@ -66,6 +67,7 @@ class FrontEndParams(Checked):
     deskew: move every point to the sweep's stamp; False matches them where they were seen.
     doppler_twist: deskew and predict with the Doppler twist; False uses the wheels'.
     doppler_prior: hold the ICP to the Doppler-predicted motion along the path.
+    gaps: what a gap in the sweeps is and how it is bridged (:class:`fmcwlog.frontend.gaps.GapParams`).
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
@@ -107,3 +109,4 @@ class FrontEndParams(Checked):
     # the map scans are matched against, and the recovery from a poor prior (not in the paper)
     local_map: LocalMapParams = field(default_factory=LocalMapParams)
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
+    gaps: GapParams = field(default_factory=GapParams)

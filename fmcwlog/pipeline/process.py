@@ -158,7 +158,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 correlative_searches={m: {"run": n, "kept": k, "sweeps": summary.sweeps} for m, (n, k) in searches.items()},
                 backend={"kind": opts.backend, **summary.backend},
                 wall_seconds=round(time.perf_counter() - started, 3),
-                many_skipped_sweeps=_many_skipped_record(skipped, opts.keep_going))
+                many_skipped_sweeps=_many_skipped_record(skipped, opts.keep_going),
+                gaps=[g.to_json() for g in runner.gaps.gaps])
             write_json(tmp / "run.json", record.to_json(), sort_keys=True)
     return summary
 
@@ -340,6 +341,8 @@ def _process_notes(runner: LogRunner, inputs: LogInputs, topics: InputTopics) ->
     if runner.beyond_prior:
         notes.append(f"{runner.beyond_prior} sweeps on {topics.scan} began after the last message on {topics.prior}: "
                      "processed with the motion prior held at its last pose")
+    if (gaps := runner.gaps.warning(topics.scan)) is not None:
+        notes.append(gaps)
     if runner.before_prior:
         notes.append(f"{runner.before_prior} sweeps on {topics.scan} began before the first message on {topics.prior}: "
                      "processed with the motion prior held at its first pose")

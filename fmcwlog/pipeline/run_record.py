@@ -35,6 +35,9 @@ class RunRecord:
     sweeps: sweeps processed; skipped_sweeps: sweeps left out as damaged; repeated_prior_stamps:
         motion-prior messages with a stamp already seen; skipped_inputs: messages skipped per kind.
     truncated_log: the log ends without its summary (a recording cut off).
+    gaps: each gap in the sweeps (:mod:`fmcwlog.frontend.gaps`: no sweep, or none with a usable point,
+        for more than ``frontend.gaps.min_periods`` sweep periods): ``start_s`` (log time, s, where the
+        first missing sweep was due) and ``length_s`` (s).
     warnings: every warning of the run, one line each.
     ms_per_sweep_median: per method, the median CPU time of a sweep (ms).
     correlative_searches: per method, ``run`` (searches run), ``kept`` (matches they replaced), ``sweeps``.
@@ -73,6 +76,7 @@ class RunRecord:
     wall_seconds: float
     calibration_check: CalibrationCheck | None = field(default=None)
     many_skipped_sweeps: dict[str, Any] | None = field(default=None)
+    gaps: list[dict[str, float]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
@@ -102,6 +106,7 @@ class RunRecord:
             "skipped_inputs": self.skipped_inputs,
             **skipped,
             "truncated_log": self.truncated_log,
+            "gaps": self.gaps,
             "warnings": self.warnings,
             "ms_per_sweep_median": self.ms_per_sweep_median,
             "correlative_searches": self.correlative_searches,

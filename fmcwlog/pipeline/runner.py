@@ -27,6 +27,7 @@ corridor log (improved ATE 3.6 cm, 0.4 cm with ``t``).
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -35,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LogError
+from ..frontend.gaps import GapFinder
 from ..frontend.methods import METHODS, FrontEnd, PriorMotion
 from ..frontend.motion_prior import PoseTrack
 from ..frontend.params import FrontEndParams
@@ -84,6 +86,7 @@ class LogRunner:
         self._last_queued_ns: int | None = None
         self._last_stamp: float | None = None  # of the last sweep processed, s
         self._wheel0: np.ndarray | None = None
+        self.gaps = GapFinder(params.gaps.min_periods, cal.scan_rate)  # gaps in the sweeps (:mod:`fmcwlog.frontend.gaps`)
 
     def run(self, inputs: Iterable[SweepInput | TicksInput | OdomInput]) -> Iterator[SweepStep]:
         """Process every sweep of ``inputs``; raises :class:`LogError` for input that cannot be."""
@@ -169,6 +172,11 @@ class LogRunner:
         if self._prior_first is not None and ts < self._prior_first:
             self.before_prior += 1
         prior = self._prior_motion(ts, max(float(sweep.t.max()), MIN_SPAN_S))
+        gap = self.gaps.observe(ts)
+        if gap:
+            prior = dataclasses.replace(prior, gap=gap)
+        if self.prior is not None:
+            self.prior.hold_from = ts  # a gap after this sweep is bridged from it
         results = [fe.step(sweep, prior) for fe in self.fronts]
         wheel_pose = None
         if self.prior is not None and len(self.prior):

@@ -63,7 +63,3 @@ path_message  # fmcwlog/io/messages.py
 find_correspondences  # fmcwlog/kernels/nearest.py
 _.cell_of  # fmcwlog/kernels/occupancy.py
 _.path_length  # fmcwlog/sim/movers.py
-
-# mcap's records and statistics, set as mcap's writer sets them (read by mcap when it writes them)
-_.chunk_count  # fmcwlog/io/mcap_log.py
-_.message_index_length  # fmcwlog/io/mcap_log.py

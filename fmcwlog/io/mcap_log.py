@@ -17,9 +17,7 @@ from __future__ import annotations
 import heapq
 import os
 import struct
-import threading
 import warnings
-import zlib
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -30,10 +28,9 @@ from types import SimpleNamespace
 from typing import IO, Any, Protocol
 
 import numpy as np
-from mcap import writer as mcap_writer
-from mcap.records import Channel, Chunk, ChunkIndex, Message, Metadata, Schema
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.well_known import SchemaEncoding
-from mcap.writer import CompressionType, IndexType
+from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from mcap_ros2._dynamic import serialize_dynamic  # the CDR encoder mcap_ros2's own Writer uses
 from mcap_ros2.decoder import DecoderFactory
@@ -325,110 +322,6 @@ _ENCODERS: dict[str, Callable[[dict], bytes]] = {
 }
 
 
-class _OverlappedWriter(McapWriter):
-    """``mcap``'s writer, the same bytes, with each chunk's compression and checksum done in a thread
-    while the next chunk fills: zstd and zlib's CRC release the GIL, so that work (0.2-0.3 s CPU of
-    ``process``'s 23 MB ``processed.mcap`` of a 2-minute log, in the process that also runs a method)
-    runs beside the caller's Python instead of in it.
-
-    A full chunk is handed to the thread (:meth:`_Writer__finalize_chunk`, the hook ``mcap`` calls)
-    and written, exactly as ``mcap`` writes it, when the next chunk is full or before anything else
-    goes to the file (:meth:`flush`, :meth:`finish`, metadata, attachments): the file's records,
-    offsets and indexes are ``mcap``'s, in ``mcap``'s order. At most one chunk waits. Built on the
-    private state of ``mcap``'s :class:`~mcap.writer.Writer` (:func:`overlapped_writer` checks it
-    is there, else the plain writer is used)."""
-
-    def __init__(self, *args: Any, **kwargs: Any):
-        super().__init__(*args, **kwargs)
-        self._pending: tuple[threading.Thread, list, Any] | None = None  # (thread, [compressed, crc] | error, chunk)
-
-    def _Writer__finalize_chunk(self) -> None:  # noqa: N802 (mcap's name, mangled: its calls come here)
-        builder = self._Writer__chunk_builder
-        if not builder or builder.num_messages == 0:
-            return
-        self._write_pending()
-        self._Writer__statistics.chunk_count += 1
-        data = builder.end()
-        chunk = (data, builder.message_start_time, builder.message_end_time, dict(builder.message_indices))
-        done: list = []
-        thread = threading.Thread(target=self._compress, args=(data, done), daemon=True)
-        thread.start()
-        self._pending = (thread, done, chunk)
-        builder.reset()
-
-    def _compress(self, data: bytes, done: list) -> None:
-        try:
-            kind = self._Writer__compression
-            compressed = mcap_writer.zstandard.compress(data) if kind == CompressionType.ZSTD else \
-                mcap_writer.lz4.frame.compress(data) if kind == CompressionType.LZ4 else data  # mcap's compressors
-            done[:] = [compressed, zlib.crc32(data) if self._Writer__enable_crcs else 0]
-        except BaseException as exc:  # noqa: BLE001 (raised in the writing thread, in _write_pending)
-            done[:] = [exc]
-
-    def _write_pending(self) -> None:
-        """The chunk in the thread, once compressed, and its message indexes: ``mcap``'s
-        ``Writer.__finalize_chunk`` from the compressed bytes on."""
-        if self._pending is None:
-            return
-        thread, done, (data, start, end, indices) = self._pending
-        self._pending = None
-        thread.join()
-        if len(done) == 1:
-            raise done[0]
-        compressed, crc = done
-        kind = self._Writer__compression
-        name = "zstd" if kind == CompressionType.ZSTD else "lz4" if kind == CompressionType.LZ4 else ""
-        chunk = Chunk(compression=name, data=compressed, message_start_time=start, message_end_time=end,
-                      uncompressed_crc=crc, uncompressed_size=len(data))
-        records, stream = self._Writer__record_builder, self._Writer__stream
-        self._Writer__flush()
-        chunk_start_offset = stream.tell()
-        chunk.write(records)
-        index = ChunkIndex(message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start_offset,
-                           chunk_length=records.count, message_index_offsets={}, message_index_length=0,
-                           compression=name, compressed_size=len(compressed), uncompressed_size=len(data))
-        self._Writer__flush()
-        message_index_start_offset = stream.tell()
-        if self._Writer__index_types & IndexType.MESSAGE:
-            for channel_id, message_index in indices.items():
-                index.message_index_offsets[channel_id] = message_index_start_offset + records.count
-                message_index.write(records)
-        index.message_index_length = records.count
-        self._Writer__flush()
-        self._Writer__chunk_indices.append(index)
-
-    def flush(self) -> None:
-        self._Writer__finalize_chunk()
-        self._write_pending()
-        super().flush()
-
-    def finish(self) -> None:
-        self._Writer__finalize_chunk()
-        self._write_pending()
-        super().finish()
-
-    def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        self._write_pending()
-        super().add_metadata(name, data)
-
-    def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str, data: bytes) -> None:
-        self._write_pending()
-        super().add_attachment(create_time, log_time, name, media_type, data)
-
-
-_MCAP_STATE = ("chunk_builder", "statistics", "compression", "enable_crcs", "record_builder", "stream", "flush",
-               "index_types", "chunk_indices")
-
-
-def overlapped_writer(stream: IO[bytes], **kwargs: Any) -> McapWriter:
-    """:class:`_OverlappedWriter` on ``stream``, or ``mcap``'s own writer where this ``mcap`` lacks
-    the state it builds on (the same bytes either way)."""
-    writer = _OverlappedWriter(stream, **kwargs)
-    if all(hasattr(writer, f"_Writer__{name}") for name in _MCAP_STATE):
-        return writer
-    return McapWriter(stream, **kwargs)
-
-
 # --------------------------------------------------------------------------- the inputs' fast decoders
 
 # The two types ``process`` reads in bulk, decoded straight from their CDR bytes when a channel's
@@ -518,8 +411,8 @@ class LogWriter:
         self._tmp = partial_path(self.path)
         self._file: IO[bytes] = open(self._tmp, "wb")
         try:
-            self._writer = overlapped_writer(self._file, chunk_size=chunk_size,
-                                             compression=CompressionType[compression.upper() or "NONE"])
+            self._writer = McapWriter(self._file, chunk_size=chunk_size,
+                                      compression=CompressionType[compression.upper() or "NONE"])
             self._writer.start(profile="ros2", library=f"fmcwlog {__version__}")
         except BaseException:  # the header could not be written (a full disk): leave nothing behind
             self.abort()

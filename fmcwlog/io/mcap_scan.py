@@ -31,7 +31,7 @@ from __future__ import annotations
 import io
 import struct
 import zlib
-from collections.abc import Callable, Container, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -125,7 +125,7 @@ def _decompress(chunk: Chunk, partial: bool) -> bytes:
     raise Damaged(f"unknown compression {chunk.compression!r}")
 
 
-def _chunk_records(data: bytes, partial: bool, unwanted: Container[int] = ()) -> list[Schema | Channel | Message]:
+def _chunk_records(data: bytes, partial: bool, unwanted: Collection[int] = ()) -> list[Schema | Channel | Message]:
     """The schema, channel and message records in a chunk's decompressed bytes, but the messages on
     ``unwanted`` channel ids (checked as the others, not made into records); ``partial``: stop at
     the first record the bytes end inside, else that is damage."""
@@ -162,7 +162,7 @@ def _chunk_records(data: bytes, partial: bool, unwanted: Container[int] = ()) ->
     return out
 
 
-def read_chunk(body: bytes, unwanted: Container[int] = ()) -> list[Schema | Channel | Message]:
+def read_chunk(body: bytes, unwanted: Collection[int] = ()) -> list[Schema | Channel | Message]:
     """The records of a whole chunk record's body, but messages on ``unwanted`` channel ids;
     :class:`Damaged` if it fails its checks."""
     chunk = parse(Chunk, body)
@@ -276,7 +276,7 @@ class McapScan:
                                               f"is damaged ({exc})", "skipped it")
 
     def records(self, skip_chunk: Callable[[frozenset[int]], bool] | None = None,
-                unwanted: Container[int] = ()) -> Iterator[Schema | Channel | Message | Metadata]:
+                unwanted: Collection[int] = ()) -> Iterator[Schema | Channel | Message | Metadata]:
         """Schema, channel, message and metadata records of the data section, in file order.
 
         Returns at the data section's end, at a cut, or at damage it cannot step over (reported);
@@ -360,9 +360,9 @@ class McapScan:
         return op, fh.read(length)
 
     @staticmethod
-    def _records(op: int, body: bytes, unwanted: Container[int] = ()) -> list[Schema | Channel | Message | Metadata]:
+    def _records(op: int, body: bytes, unwanted: Collection[int] = ()) -> list[Schema | Channel | Message | Metadata]:
         if op == Opcode.CHUNK:
-            return read_chunk(body, unwanted)
+            return list(read_chunk(body, unwanted))
         if op == Opcode.MESSAGE:
             return [parse(Message, body, len(body))]
         if op == Opcode.CHANNEL:

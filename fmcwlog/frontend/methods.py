@@ -66,7 +66,7 @@ from ..kernels.correlative import LikelihoodGrid, correlative_match
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
-from .deskew import advance, deskew_placed
+from .deskew import advance, deskewed_source
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
@@ -265,12 +265,18 @@ class FrontEnd(ABC):
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         n_moving = int(np.count_nonzero(motion.moving))
-        use = ~(near | motion.moving) if n_moving else ~near  # neither inside the body mask nor moving
-        if p.deskew:  # base_link at t_k
-            pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
+        vel = sweep.velocity
+        # the points used (neither inside the body mask nor moving) in base_link at t_k, deskewed, and
+        # their thinning for registration
+        centroid = p.source_thinning == "centroid"
+        if p.deskew:
+            use, pts, source, vel_use = deskewed_source(xy, t, v, omega, self.mount, near,
+                                                        motion.moving if n_moving else None, vel, p.source_voxel,
+                                                        centroid)
         else:
-            pts = _transform(self.mount, xy[use])
-        source = (voxel_centroids if p.source_thinning == "centroid" else voxel_downsample)(pts, p.source_voxel)
+            use = ~(near | motion.moving) if n_moving else ~near
+            pts, vel_use = _transform(self.mount, xy[use]), None if vel is None else vel[use]
+            source = (voxel_centroids if centroid else voxel_downsample)(pts, p.source_voxel)
 
         pose_cov = None
         searched = recovered = False
@@ -299,7 +305,6 @@ class FrontEnd(ABC):
         if prior.twist is None:
             self.hold.update(pose, ts, (v, omega), 0.5 * duration)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
-        vel = sweep.velocity
         if n_moving:
             moving = motion.moving > near  # moving and not near (True > False only)
             moving_xy = xy[moving]
@@ -309,7 +314,7 @@ class FrontEnd(ABC):
             moving_map, moving_vel = np.empty((0, 2)), None if vel is None else vel[:0].copy()
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
-                           iterations, kept, n_moving, ms, static_map, None if vel is None else vel[use],
+                           iterations, kept, n_moving, ms, static_map, vel_use,
                            moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered)
 
     @staticmethod

@@ -299,9 +299,8 @@ def deskewed_source(
     bits as the compiled :func:`deskew_placed` and thinning one after the other), else
     :func:`deskewed_source_numpy`."""
     core = compiled.core()
-    if (core is not None and _is_pose(mount) and _floats(v, omega) and type(xy) is np.ndarray
-            and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2 and xy.flags.c_contiguous
-            and _column_of(t, np.float64, len(xy)) and _column_of(near, np.bool_, len(xy))
+    if (core is not None and _is_pose(mount) and _floats(v, omega) and sweep_columns(xy, t)
+            and _column_of(near, np.bool_, len(xy))
             and (moving is None or _column_of(moving, np.bool_, len(xy)))):
         mx, my, myaw = mount.tolist()
         if math.isfinite(myaw):
@@ -333,6 +332,13 @@ def deskewed_source_numpy(
     points = deskew_placed_numpy(xy, t, v, omega, mount, mount, use)
     source = (voxel_centroids_numpy if centroid else voxel_downsample_numpy)(points, voxel_size)
     return use, points, source, None if velocity is None else velocity[use]
+
+
+def sweep_columns(xy: object, t: object) -> bool:
+    """Whether ``xy`` and ``t`` are what the compiled de-skew kernels take as they are: contiguous
+    float64 arrays (N, 2) and (N,)."""
+    return (type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2
+            and xy.flags.c_contiguous and _column_of(t, np.float64, len(xy)))
 
 
 def _column_of(a: object, dtype: type, n: int) -> bool:

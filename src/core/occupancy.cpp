@@ -585,6 +585,44 @@ inline double summed(const std::vector<View>& grids, int64_t ix, int64_t iy) {
     return sum;
 }
 
+// occupancy.scan_cells_numpy: the lattice cells (ix, iy) of the lower-left and upper-right corners of the
+// box holding the sensor (ox, oy) and every beam's end (occupancy.rays: cut at max_range where
+// has_max_range), floor(corner / resolution). None where a coordinate is not finite or a cell is
+// beyond +-2^62 (numpy's conversion decides there).
+nb::object occupancy_scan_cells(Points points, double ox, double oy, bool has_max_range, double max_range,
+                                double resolution) {
+    const size_t n = points.shape(0);
+    const double* p = points.data();
+    double x0 = ox, y0 = oy, x1 = ox, y1 = oy;
+    bool finite = std::isfinite(ox) && std::isfinite(oy);
+    {
+        nb::gil_scoped_release release;
+        for (size_t i = 0; i < n && finite; ++i) {
+            double dx = p[2 * i] - ox, dy = p[2 * i + 1] - oy;
+            if (has_max_range) {
+                const double length = std::hypot(dx, dy);
+                if (length > max_range) {
+                    const double k = max_range / length;
+                    dx *= k;
+                    dy *= k;
+                }
+            }
+            const double ex = ox + dx, ey = oy + dy;
+            finite = std::isfinite(ex) && std::isfinite(ey);
+            x0 = std::min(x0, ex);
+            y0 = std::min(y0, ey);
+            x1 = std::max(x1, ex);
+            y1 = std::max(y1, ey);
+        }
+    }
+    const double lim = 4611686018427387904.0;
+    const double c[4] = {std::floor(x0 / resolution), std::floor(y0 / resolution), std::floor(x1 / resolution),
+                         std::floor(y1 / resolution)};
+    for (double q : c)
+        if (!finite || !(std::fabs(q) < lim)) return nb::none();
+    return nb::make_tuple(int64_t(c[0]), int64_t(c[1]), int64_t(c[2]), int64_t(c[3]));
+}
+
 // RecentOccupancy.seen_free of one candidate point (x, y): the summed log-odds of its cell and of
 // each of its 8 neighbours are all <= threshold.
 inline bool seen_free_at(const std::vector<View>& v, double x, double y, double threshold, double resolution) {
@@ -735,6 +773,8 @@ void bind_occupancy(nb::module_& m) {
     m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));
+    m.def("occupancy_scan_cells", &occupancy_scan_cells, nb::arg("points"), nb::arg("ox"), nb::arg("oy"),
+          nb::arg("has_max_range"), nb::arg("max_range"), nb::arg("resolution"));
     m.def("occupancy_placed_free", &occupancy_placed_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("xy"), nb::arg("t"), nb::arg("ranges").none(), nb::arg("v"), nb::arg("omega"), nb::arg("mx"),
           nb::arg("my"), nb::arg("myaw"), nb::arg("c"), nb::arg("s"), nb::arg("tx"), nb::arg("ty"),

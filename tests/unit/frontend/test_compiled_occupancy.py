@@ -167,6 +167,35 @@ def test_generated_casts_agree(simd, scan, max_range, protect_hits, step_fractio
 
 
 @needs_core
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(scan=scans(far=True), max_range=st.sampled_from([None, 3.0, 0.01]), odd=st.sampled_from([None, 0, 1]))
+def test_generated_scan_cells_agree(use, scan, max_range, odd):
+    """The cells a grid must hold for a scan: the same as numpy's; with ``odd``, a point or the sensor
+    not finite, where the kernel declines and numpy answers."""
+    res, origin, points = scan
+    params = OccupancyParams(resolution=res, max_range=max_range)
+    if odd is not None:
+        (points if odd else origin)[0] = np.nan
+    core = use("compiled")
+    with np.errstate(invalid="ignore"):
+        ref = occ.scan_cells_numpy(origin, points, params)
+        assert occ.scan_cells(origin, points, params) == ref
+    direct = core.occupancy_scan_cells(points, *origin.tolist(), max_range is not None, max_range or 0.0, res)
+    assert (direct is None) == (odd is not None)
+    if direct is not None:
+        assert direct == ref
+
+
+@needs_core
+def test_recorded_scan_cells_agree(recorded, use):
+    casts, _ = recorded
+    use("compiled")
+    for origin, points, params in casts:
+        for p in (params, OccupancyParams(resolution=params.resolution, max_range=4.0)):
+            assert occ.scan_cells(origin, points, p) == occ.scan_cells_numpy(origin, points, p)
+
+
+@needs_core
 def test_recorded_casts_agree_in_every_loop(recorded, simd):
     casts, _ = recorded
     for origin, points, params in casts[::4]:

@@ -299,12 +299,12 @@ def deskewed_source(
     bits as the compiled :func:`deskew_placed` and thinning one after the other), else
     :func:`deskewed_source_numpy`."""
     core = compiled.core()
-    if (core is not None and _is_pose(mount) and _floats(v, omega) and sweep_columns(xy, t)
-            and _column_of(near, np.bool_, len(xy))
-            and (moving is None or _column_of(moving, np.bool_, len(xy)))):
+    if (core is not None and near is not None and _is_pose(mount) and _floats(v, omega)
+            and sweep_columns(xy, t, near, moving)):
         mx, my, myaw = mount.tolist()
         if math.isfinite(myaw):
-            fast_velocity = velocity is not None and _column_of(velocity, np.float64, len(xy))
+            fast_velocity = (type(velocity) is np.ndarray and velocity.dtype == np.float64
+                             and velocity.shape == t.shape and velocity.flags.c_contiguous)
             use = np.empty(len(xy), bool)
             points, source, kept = core.deskew_source(
                 xy, t, near, moving, velocity if fast_velocity else None, v, omega, mx, my, myaw, math.cos(myaw),
@@ -334,16 +334,20 @@ def deskewed_source_numpy(
     return use, points, source, None if velocity is None else velocity[use]
 
 
-def sweep_columns(xy: object, t: object) -> bool:
-    """Whether ``xy`` and ``t`` are what the compiled de-skew kernels take as they are: contiguous
-    float64 arrays (N, 2) and (N,)."""
-    return (type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2
-            and xy.flags.c_contiguous and _column_of(t, np.float64, len(xy)))
-
-
-def _column_of(a: object, dtype: type, n: int) -> bool:
-    """Whether ``a`` is a contiguous (n,) numpy array of ``dtype``."""
-    return type(a) is np.ndarray and a.dtype == dtype and a.shape == (n,) and a.flags.c_contiguous
+def sweep_columns(xy: object, t: object, *masks: object) -> bool:
+    """Whether ``xy``, ``t`` and the ``masks`` are what the compiled de-skew kernels take as they are:
+    contiguous arrays, float64 (N, 2) and (N,), each mask bool (N,) or None (one call for all)."""
+    if not (type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2
+            and xy.flags.c_contiguous):
+        return False
+    n = xy.shape[:1]
+    if not (type(t) is np.ndarray and t.dtype == np.float64 and t.shape == n and t.flags.c_contiguous):
+        return False
+    for m in masks:
+        if m is not None and not (type(m) is np.ndarray and m.dtype == np.bool_ and m.shape == n
+                                  and m.flags.c_contiguous):
+            return False
+    return True
 
 
 def deskew_numpy(

@@ -602,9 +602,10 @@ class ImprovedFrontEnd(FrontEnd):
             if initial is None:  # a recovery's second ICP is the same sweep
                 self.sources.prior_sweeps += 1
         start = motion.predicted if initial is None else initial
+        rp = self.params.recovery
         res = register(source, self.map.tree, self.map.points, start, self.params.icp,
                        mixture=self.mixture, prior_pose=motion.predicted if prior_info is not None else None,
-                       prior_information=prior_info)
+                       prior_information=prior_info, inlier_distance=rp.inlier_distance if rp.enabled else None)
         self.mixture = res.mixture
         return res
 

@@ -500,10 +500,9 @@ def placed_free_space(recent: RecentOccupancy, xy: np.ndarray, t: np.ndarray, tw
         mx, my, myaw = mount.tolist()
         x, y, yaw = lidar.tolist()
         if math.isfinite(myaw) and math.isfinite(yaw):
-            log_odds = [grid.log_odds for grid in recent.grids]  # read first: it flushes each grid's queue
+            log_odds, ix0, iy0 = zip(*[grid.lattice_view() for grid in recent.grids]) if recent.grids else ((), (), ())
             map_xy, out = np.empty(xy.shape), np.empty(len(xy), bool)
-            core.occupancy_placed_free(log_odds, [grid.ix0 for grid in recent.grids],
-                                       [grid.iy0 for grid in recent.grids], xy, t, ranges, v, omega, mx, my, myaw,
+            core.occupancy_placed_free(list(log_odds), list(ix0), list(iy0), xy, t, ranges, v, omega, mx, my, myaw,
                                        math.cos(yaw), math.sin(yaw), x, y, float(yaw_error), float(tolerance),
                                        float(threshold), float(recent.resolution), map_xy, out)
             return map_xy, out

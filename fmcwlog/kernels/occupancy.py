@@ -320,6 +320,11 @@ class OccupancyGrid:
         self.flush()
         return self._observed
 
+    def lattice_view(self) -> tuple[np.ndarray, int, int]:
+        """``(log_odds, ix0, iy0)`` read together (the queued scans cast first, once)."""
+        self.flush()
+        return self._log_odds, self._ix0, self._iy0
+
     @property
     def ix0(self) -> int:
         """Global lattice column of array column 0."""

@@ -138,12 +138,8 @@ void nearest(const TargetGrid& grid, Points source, double x, double y, double t
     double* m = moved.data();
     int64_t* idx = index.data();
     double* dist = distance.data();
-    for (size_t i = 0; i < n; ++i) {
-        const double px = s[2 * i], py = s[2 * i + 1];
-        m[2 * i] = c * px + (-sn) * py + x;
-        m[2 * i + 1] = c * py + sn * px + y;
-        idx[i] = grid.nearest(m[2 * i], m[2 * i + 1], dist[i]);
-    }
+    for (size_t i = 0; i < n; ++i)
+        idx[i] = nearest_moved(grid, c, sn, x, y, s[2 * i], s[2 * i + 1], m[2 * i], m[2 * i + 1], dist[i]);
 }
 
 }  // namespace

@@ -708,7 +708,9 @@ class BaselineFrontEnd(FrontEnd):
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:
         start = motion.predicted if initial is None else initial
-        return register_point_to_point(source, self.map.tree, self.map.points, start, self.params.icp)
+        rp = self.params.recovery
+        return register_point_to_point(source, self.map.tree, self.map.points, start, self.params.icp,
+                                       rp.inlier_distance if rp.enabled else None)
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}

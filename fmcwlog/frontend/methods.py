@@ -67,7 +67,7 @@ from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskewed_source
-from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
+from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, ranges_and_bearings, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
@@ -172,6 +172,7 @@ class FrontEnd(ABC):
 
     name: ClassVar[str]
     segments: ClassVar[bool] = False  # judges points moving or static (writes moving labels)
+    bearings: ClassVar[bool] = False  # uses the points' unit bearings (the Doppler stages)
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         self.params = params
@@ -187,7 +188,7 @@ class FrontEnd(ABC):
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
         # (xy, its ranges, ranges < min_range) of the sweep in step
-        self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -259,9 +260,9 @@ class FrontEnd(ABC):
         p = self.params
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
-        ranges = np.hypot(xy[:, 0], xy[:, 1])  # (N,) m from the lidar
-        near = ranges < p.min_range
-        self._ranges = (xy, ranges, near)  # for this sweep's stages (the tracker's free-space test, the body mask)
+        # (N,) m from the lidar, the body mask, and the Doppler stages' unit bearings where they run
+        ranges, near, bearings = ranges_and_bearings(xy, p.min_range, self.bearings and sweep.velocity is not None)
+        self._ranges = (xy, ranges, near, bearings)  # for this sweep's stages (free-space test, body mask, Doppler)
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         n_moving = int(np.count_nonzero(motion.moving))
@@ -436,6 +437,7 @@ class ImprovedFrontEnd(FrontEnd):
 
     name = IMPROVED
     segments = True
+    bearings = True
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         super().__init__(params, cal)
@@ -473,7 +475,9 @@ class ImprovedFrontEnd(FrontEnd):
         """
         if sweep.velocity is None or not self.checks.use_doppler:
             return None
-        bearings = unit_bearings(sweep.xy)  # for the fit and for ε
+        found = self._ranges  # the step's bearings of this sweep, else computed here; for the fit and for ε
+        bearings = found[3] if found is not None and found[0] is sweep.xy and found[3] is not None else (
+            unit_bearings(sweep.xy))
         ego = self.doppler_fit(sweep, prior_twist, bearings)
         if ego is None:
             return Doppler(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(len(sweep.xy), bool))

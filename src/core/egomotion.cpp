@@ -31,11 +31,14 @@ T* owned(size_t count, nb::capsule& owner) {
     return data;
 }
 
-// egomotion.unit_bearings: xy / hypot(x, y), (0, 0) where the range is not > 0.
-void bearings_into(const double* xy, size_t n, double* u) {
+// egomotion.unit_bearings: xy / hypot(x, y), (0, 0) where the range is not > 0 (u null: none); the
+// ranges hypot(x, y) into `ranges` where given.
+void bearings_into(const double* xy, size_t n, double* u, double* ranges = nullptr) {
     for (size_t i = 0; i < n; ++i) {
         const double x = xy[2 * i], y = xy[2 * i + 1];
         const double r = std::hypot(x, y);
+        if (ranges) ranges[i] = r;
+        if (!u) continue;
         if (r > 0.0) {
             u[2 * i] = x / r;
             u[2 * i + 1] = y / r;
@@ -54,6 +57,24 @@ PyArray unit_bearings(Points xy) {
         bearings_into(xy.data(), n, u);
     }
     return PyArray(u, {n, 2}, owner);
+}
+
+// egomotion.ranges_and_bearings_numpy: the ranges np.hypot(x, y) (N,), the mask ranges < min_range
+// (N,) and, where `bearings`, unit_bearings(xy) (N, 2) (else None).
+nb::tuple ranges_and_bearings(Points xy, double min_range, bool bearings) {
+    const size_t n = xy.shape(0);
+    nb::capsule range_owner, near_owner, u_owner;
+    double* r = owned<double>(n, range_owner);
+    bool* near = owned<bool>(n, near_owner);
+    double* u = bearings ? owned<double>(2 * n, u_owner) : nullptr;
+    {
+        nb::gil_scoped_release release;
+        bearings_into(xy.data(), n, u, r);
+        for (size_t i = 0; i < n; ++i) near[i] = r[i] < min_range;
+    }
+    nb::object u_out = bearings ? nb::cast(PyArray(u, {n, 2}, u_owner)) : nb::none();
+    return nb::make_tuple(nb::ndarray<nb::numpy, double, nb::shape<-1>>(r, {n}, range_owner),
+                          nb::ndarray<nb::numpy, bool, nb::shape<-1>>(near, {n}, near_owner), u_out);
 }
 
 // A hypothesis' score: how many of the n points have |r + (hx x + hy y)| < threshold (the row sum of
@@ -308,6 +329,7 @@ Answer fit_sensor_velocity(
 
 void bind_egomotion(nb::module_& m) {
     m.def("unit_bearings", &unit_bearings, nb::arg("xy"));
+    m.def("ranges_and_bearings", &ranges_and_bearings, nb::arg("xy"), nb::arg("min_range"), nb::arg("bearings"));
     m.def("fit_sensor_velocity", &fit_sensor_velocity, nb::arg("xy"), nb::arg("v_r"), nb::arg("bearings").none(),
           nb::arg("draws"), nb::arg("inlier_threshold"), nb::arg("min_pair_sine"), nb::arg("refinements"),
           nb::arg("score_points"), nb::arg("prior").none(), nb::arg("prior_gate"));

@@ -95,27 +95,6 @@ def unit_bearings_numpy(xy: np.ndarray) -> np.ndarray:
     return u
 
 
-def ranges_and_bearings(xy: np.ndarray, min_range: float, bearings: bool
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """A sweep's ranges (N,) ``np.hypot`` of the points ``xy`` (N, 2) (m), which of them lie within
-    ``min_range`` (m; the body mask, (N,) bool) and, where ``bearings``, :func:`unit_bearings` (N, 2)
-    (else None).
-
-    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call: the same
-    ``hypot``, comparison and division, the same bits), else :func:`ranges_and_bearings_numpy`."""
-    core = compiled.core()
-    if core is not None and _points(xy):
-        return core.ranges_and_bearings(xy, float(min_range), bool(bearings))
-    return ranges_and_bearings_numpy(xy, min_range, bearings)
-
-
-def ranges_and_bearings_numpy(xy: np.ndarray, min_range: float, bearings: bool
-                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """:func:`ranges_and_bearings` in numpy: the reference."""
-    ranges = np.hypot(xy[:, 0], xy[:, 1])
-    return ranges, ranges < min_range, unit_bearings_numpy(xy) if bearings else None
-
-
 def compensated_velocity(xy: np.ndarray, v_r: np.ndarray, v_sensor: np.ndarray,
                           bearings: np.ndarray | None = None) -> np.ndarray:
     """Ego-motion-compensated radial velocity ``ε = v_r + uᵀ v_s`` (N,), m/s: ~0 for a static point.

@@ -67,7 +67,7 @@ from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskewed_source
-from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, ranges_and_bearings, unit_bearings
+from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
@@ -79,6 +79,7 @@ from .scan_prior import GRID_REUSE_KEYFRAMES, MidSweepHold, search_window
 from .segmentation import segment_moving
 from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
 from .sensor_checks import DOPPLER, WHEELS, SensorChecks
+from .sweep_geometry import SweepGeometry, sweep_geometry
 from .tracking import MoverTracker
 from .twist_fusion import (
     FusedTwist,
@@ -187,8 +188,8 @@ class FrontEnd(ABC):
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
-        # (xy, its ranges, ranges < min_range) of the sweep in step
-        self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        # the geometry of the sweep in step
+        self._sweep: SweepGeometry | None = None
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -260,9 +261,11 @@ class FrontEnd(ABC):
         p = self.params
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
-        # (N,) m from the lidar, the body mask, and the Doppler stages' unit bearings where they run
-        ranges, near, bearings = ranges_and_bearings(xy, p.min_range, self.bearings and sweep.velocity is not None)
-        self._ranges = (xy, ranges, near, bearings)  # for this sweep's stages (free-space test, body mask, Doppler)
+        # ranges and the body mask, the Doppler stages' bearings and the tracker's middle time where they
+        # run, the last capture time: for this sweep's stages
+        with_doppler = self.bearings and sweep.velocity is not None
+        self._sweep = geometry = sweep_geometry(xy, t, p.min_range, with_doppler, with_doppler and p.tracking.enabled)
+        near = geometry.near
         motion = self.estimate_motion(sweep, prior)
         v, omega = motion.twist
         n_moving = int(np.count_nonzero(motion.moving))
@@ -298,7 +301,7 @@ class FrontEnd(ABC):
             self.path_m += _step_length(self.pose, pose)
 
         static_map = _transform(pose, pts)
-        duration = float(np.maximum.reduce(t, initial=0.0))  # s, the sweep's last capture time (t.max's reduction)
+        duration = geometry.last_time  # s, the sweep's last capture time
         skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
         lidar = compose(pose, self.mount)
         keyframe = self._update_maps(pose, static_map, skew, lidar)
@@ -475,8 +478,8 @@ class ImprovedFrontEnd(FrontEnd):
         """
         if sweep.velocity is None or not self.checks.use_doppler:
             return None
-        found = self._ranges  # the step's bearings of this sweep, else computed here; for the fit and for ε
-        bearings = found[3] if found is not None and found[0] is sweep.xy and found[3] is not None else (
+        found = self._sweep  # the step's bearings of this sweep, else computed here; for the fit and for ε
+        bearings = found.bearings if found is not None and found.xy is sweep.xy and found.bearings is not None else (
             unit_bearings(sweep.xy))
         ego = self.doppler_fit(sweep, prior_twist, bearings)
         if ego is None:
@@ -562,16 +565,17 @@ class ImprovedFrontEnd(FrontEnd):
             dt = ts - self.last_stamp
             base = advance(self.pose, self.last_twist[0], self.last_twist[1], dt)
             yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
-        ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
+        found = self._sweep  # the step's ranges and middle time of this sweep, else the tracker computes them
+        ranges, middle = (found.ranges, found.middle_time) if found is not None and found.xy is sweep.xy else (None, None)
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
-                                    p.segmentation, yaw_error, ranges)
+                                    p.segmentation, yaw_error, ranges, middle)
 
     def _near_of(self, xy: np.ndarray) -> np.ndarray | None:
         """The step's ``near`` mask (ranges below ``min_range``) of ``xy`` if this is the sweep in
         :meth:`step`, else None. The same points as ``x² + y² < min_range²`` but for a point within
         a rounding of the circle (``np.hypot`` against the squares)."""
-        found = self._ranges
-        return found[2] if found is not None and found[0] is xy else None
+        found = self._sweep
+        return found.near if found is not None and found.xy is xy else None
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9

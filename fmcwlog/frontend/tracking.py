@@ -381,7 +381,8 @@ class MoverTracker:
 
     def segment(self, xy: np.ndarray, t: np.ndarray, epsilon: np.ndarray, stamp: float, base_pose: np.ndarray,
                 twist: tuple[float, float], mount: np.ndarray, grid: OccupancyGrid | None,
-                seg_params: SegmentationParams, yaw_error: float = 0.0, ranges: np.ndarray | None = None) -> np.ndarray:
+                seg_params: SegmentationParams, yaw_error: float = 0.0, ranges: np.ndarray | None = None,
+                middle: float | None = None) -> np.ndarray:
         """The moving mask (N,) of one sweep: DBSCAN's Doppler verdict (eq. 17-19), the clusters in
         space the map has seen free, and what the tracks claim; the tracks are updated.
 
@@ -392,11 +393,11 @@ class MoverTracker:
         for the structure check; free space comes from the scans given to :meth:`add_scan`);
         ``yaw_error``: how far (rad) ``base_pose``'s yaw may be off: free space is only looked up
         where it moves a point by at most ``map_tolerance``; ``ranges`` (N,): ``np.hypot`` of ``xy``'s
-        rows (m) if already computed.
+        rows (m) and ``middle``: :func:`middle_time` of ``t`` (s), if already computed.
         """
         p = self.params
         lidar = compose(base_pose, mount)
-        when = stamp + middle_time(t)
+        when = stamp + (middle_time(t) if middle is None else middle)
         if p.free_log_odds < 0:  # the sweep in the map, and which of its points lie in space seen free
             map_xy, seen_free = placed_free_space(self.recent, xy, t, twist, mount, lidar, ranges, yaw_error,
                                                   p.map_tolerance, p.free_log_odds)

@@ -172,17 +172,6 @@ def test_fit_failures_and_bearings(use):
         assert_same_fit(fast, ref)
     xy = np.concatenate([rng.uniform(-20, 20, (500, 2)), np.zeros((3, 2)), [[np.nan, 1.0], [np.inf, 2.0]]])
     assert eg.unit_bearings(xy).tobytes() == eg.unit_bearings_numpy(xy).tobytes()
-    for min_range in (0.0, 0.3, 15.0, np.nan):
-        for bearings in (True, False):
-            got = eg.ranges_and_bearings(xy, min_range, bearings)
-            ref = eg.ranges_and_bearings_numpy(xy, min_range, bearings)
-            for a, b in zip(got[:2], ref[:2], strict=True):
-                assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
-            assert (got[2] is None) == (not bearings)
-            if bearings:
-                assert got[2].shape == ref[2].shape and got[2].tobytes() == ref[2].tobytes()
-    empty = eg.ranges_and_bearings(np.zeros((0, 2)), 0.3, True)
-    assert [a.shape for a in empty] == [(0,), (0,), (0, 2)]
 
 
 @needs_core

@@ -76,7 +76,7 @@ def register_point_to_point(
     h = np.array(((h00, 0.0, h02), (0.0, h11, h12), (h02, h12, h22)))
     search = compiled.CompiledNearest(core, source, target_tree, grid, params.max_correspondence_distance)
     final = np.array(pose)
-    if count:
+    if count and inlier_distance is not None:
         search.counted = (final, inlier_distance, inliers)
     return ICPResult(final, iterations, n_kept, converged, rmse, h, 0, None, search)
 

@@ -196,7 +196,7 @@ def _register_compiled(
         mixture = DistanceMixture(np.array(means), np.array(sigmas), np.array(mix), overlap, median_m) if has else None
     search = compiled.CompiledNearest(core, source, target_tree, grid, gate)
     final = np.array(pose)
-    if count:
+    if count and inlier_distance is not None:
         search.counted = (final, inlier_distance, inliers)
     return ICPResult(final, iterations, n_kept, converged, rmse, np.array(h).reshape(3, 3), n_fits, mixture, search)
 

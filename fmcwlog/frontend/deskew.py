@@ -33,6 +33,7 @@ import numpy as np
 
 from ..geometry import _is_pose, _wrap, compose, inverse, rotate_translate, transform_points, wrap_angle
 from ..kernels import compiled
+from ..kernels.voxel import voxel_centroids_numpy, voxel_downsample_numpy
 
 _EPS = float(np.finfo(np.float64).eps)  # np.sinc's stand-in for an argument of 0
 
@@ -269,6 +270,84 @@ def deskew_placed_numpy(
     if keep is not None:
         xy, t = xy[keep], t[keep]
     return transform_points(pose, deskew(xy, t, v, omega, mount))
+
+
+def deskewed_source(
+    xy: np.ndarray,
+    t: np.ndarray,
+    v: float,
+    omega: float,
+    mount: np.ndarray,
+    near: np.ndarray,
+    moving: np.ndarray | None,
+    velocity: np.ndarray | None,
+    voxel_size: float,
+    centroid: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """A sweep's points for matching and mapping, in one pass: ``(use, points, source, velocity)``.
+
+    ``use`` (N,, bool): the points neither in the body mask ``near`` (N,, bool) nor ``moving`` (N,,
+    bool; None: none moving); ``points`` (K, 2): those de-skewed (``v`` m/s, ``omega`` rad/s) and
+    placed in base_link at the sweep's stamp (:func:`deskew_placed` with the ``mount`` (3,) as the
+    pose); ``source`` (M, 2): ``points`` thinned to one per ``voxel_size`` (m) voxel, the first in
+    beam order (:func:`~fmcwlog.kernels.voxel.voxel_downsample`) or, with ``centroid``, each voxel's
+    centroid (:func:`~fmcwlog.kernels.voxel.voxel_centroids`); ``points`` itself where ``voxel_size``
+    <= 0 or none is used; ``velocity``: the used points' radial Doppler (K,; None without).
+    ``xy`` (N, 2) m and ``t`` (N,) s as for :func:`deskew`.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call: the same
+    bits as the compiled :func:`deskew_placed` and thinning one after the other), else
+    :func:`deskewed_source_numpy`."""
+    core = compiled.core()
+    if (core is not None and near is not None and _is_pose(mount) and _floats(v, omega)
+            and sweep_columns(xy, t, near, moving)):
+        mx, my, myaw = mount.tolist()
+        if math.isfinite(myaw):
+            fast_velocity = (type(velocity) is np.ndarray and velocity.dtype == np.float64
+                             and velocity.shape == t.shape and velocity.flags.c_contiguous)
+            use = np.empty(len(xy), bool)
+            points, source, kept = core.deskew_source(
+                xy, t, near, moving, velocity if fast_velocity else None, v, omega, mx, my, myaw, math.cos(myaw),
+                math.sin(myaw), mx, my, float(voxel_size), bool(centroid), use)
+            if velocity is not None and not fast_velocity:
+                kept = velocity[use]
+            return use, points, source, kept
+    return deskewed_source_numpy(xy, t, v, omega, mount, near, moving, velocity, voxel_size, centroid)
+
+
+def deskewed_source_numpy(
+    xy: np.ndarray,
+    t: np.ndarray,
+    v: float,
+    omega: float,
+    mount: np.ndarray,
+    near: np.ndarray,
+    moving: np.ndarray | None,
+    velocity: np.ndarray | None,
+    voxel_size: float,
+    centroid: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`deskewed_source` as its steps: the reference the compiled kernel is tested against."""
+    use = ~(near | moving) if moving is not None else ~near
+    points = deskew_placed_numpy(xy, t, v, omega, mount, mount, use)
+    source = (voxel_centroids_numpy if centroid else voxel_downsample_numpy)(points, voxel_size)
+    return use, points, source, None if velocity is None else velocity[use]
+
+
+def sweep_columns(xy: object, t: object, *masks: object) -> bool:
+    """Whether ``xy``, ``t`` and the ``masks`` are what the compiled de-skew kernels take as they are:
+    contiguous arrays, float64 (N, 2) and (N,), each mask bool (N,) or None (one call for all)."""
+    if not (type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2
+            and xy.flags.c_contiguous):
+        return False
+    n = xy.shape[:1]
+    if not (type(t) is np.ndarray and t.dtype == np.float64 and t.shape == n and t.flags.c_contiguous):
+        return False
+    for m in masks:
+        if m is not None and not (type(m) is np.ndarray and m.dtype == np.bool_ and m.shape == n
+                                  and m.flags.c_contiguous):
+            return False
+    return True
 
 
 def deskew_numpy(

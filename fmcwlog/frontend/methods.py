@@ -66,7 +66,7 @@ from ..kernels.correlative import LikelihoodGrid, correlative_match, grid_for
 from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
-from .deskew import advance, deskew_placed
+from .deskew import advance, deskewed_source
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gaps import bridge_covariance, gap_prior_information, gap_window, to_map, within_bridge
 from .gmmsc import DistanceMixture
@@ -80,6 +80,7 @@ from .scan_prior import GRID_REUSE_KEYFRAMES, MidSweepHold, search_window
 from .segmentation import segment_moving
 from .self_calibration import CalibrationEstimate, CalibrationSamples, calibration_report, estimate_calibration
 from .sensor_checks import DOPPLER, WHEELS, SensorChecks
+from .sweep_geometry import SweepGeometry, sweep_geometry
 from .tracking import MoverTracker
 from .twist_fusion import (
     FusedTwist,
@@ -175,6 +176,7 @@ class FrontEnd(ABC):
 
     name: ClassVar[str]
     segments: ClassVar[bool] = False  # judges points moving or static (writes moving labels)
+    bearings: ClassVar[bool] = False  # uses the points' unit bearings (the Doppler stages)
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         self.params = params
@@ -189,8 +191,8 @@ class FrontEnd(ABC):
         self.last_grid: np.ndarray | None = None
         self.last_twist = (0.0, 0.0)
         self.hold = MidSweepHold()  # the constant-velocity hold where no motion prior is given
-        # (xy, its ranges, ranges < min_range) of the sweep in step
-        self._ranges: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # the geometry of the sweep in step
+        self._sweep: SweepGeometry | None = None
         self._gap_information: np.ndarray | None = None  # the ICP's soft prior while a gap is bridged
 
     # --- what the methods do differently -------------------------------------------------
@@ -263,21 +265,29 @@ class FrontEnd(ABC):
         p = self.params
         ts = sweep.stamp_ns * 1e-9
         xy, t = sweep.xy, sweep.t
-        ranges = np.hypot(xy[:, 0], xy[:, 1])  # (N,) m from the lidar
-        near = ranges < p.min_range
-        self._ranges = (xy, ranges, near)  # for this sweep's stages (the tracker's free-space test, the body mask)
+        # ranges and the body mask, the Doppler stages' bearings and the tracker's middle time where they
+        # run, the last capture time: for this sweep's stages
+        with_doppler = self.bearings and sweep.velocity is not None
+        self._sweep = geometry = sweep_geometry(xy, t, p.min_range, with_doppler, with_doppler and p.tracking.enabled)
+        near = geometry.near
         motion = self.estimate_motion(sweep, prior)
         bridge = None
         if prior.gap > 0 and p.gaps.bridge and self.pose is not None:
             motion, bridge = self._bridge(prior, motion)
         v, omega = motion.twist
         n_moving = int(np.count_nonzero(motion.moving))
-        use = ~(near | motion.moving) if n_moving else ~near  # neither inside the body mask nor moving
-        if p.deskew:  # base_link at t_k
-            pts = deskew_placed(xy, t, v, omega, self.mount, self.mount, use)
+        vel = sweep.velocity
+        # the points used (neither inside the body mask nor moving) in base_link at t_k, deskewed, and
+        # their thinning for registration
+        centroid = p.source_thinning == "centroid"
+        if p.deskew:
+            use, pts, source, vel_use = deskewed_source(xy, t, v, omega, self.mount, near,
+                                                        motion.moving if n_moving else None, vel, p.source_voxel,
+                                                        centroid)
         else:
-            pts = _transform(self.mount, xy[use])
-        source = (voxel_centroids if p.source_thinning == "centroid" else voxel_downsample)(pts, p.source_voxel)
+            use = ~(near | motion.moving) if n_moving else ~near
+            pts, vel_use = _transform(self.mount, xy[use]), None if vel is None else vel[use]
+            source = (voxel_centroids if centroid else voxel_downsample)(pts, p.source_voxel)
 
         pose_cov = None
         searched = recovered = False
@@ -304,7 +314,7 @@ class FrontEnd(ABC):
             self.path_m += _step_length(self.pose, pose)
 
         static_map = _transform(pose, pts)
-        duration = float(np.maximum.reduce(t, initial=0.0))  # s, the sweep's last capture time (t.max's reduction)
+        duration = geometry.last_time  # s, the sweep's last capture time
         skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
         lidar = compose(pose, self.mount)
         keyframe = self._update_maps(pose, static_map, skew, lidar)
@@ -312,7 +322,6 @@ class FrontEnd(ABC):
         if prior.twist is None:
             self.hold.update(pose, ts, (v, omega), 0.5 * duration)
         self.pose, self.last_stamp, self.last_twist = pose, ts, (v, omega)
-        vel = sweep.velocity
         if n_moving:
             moving = motion.moving > near  # moving and not near (True > False only)
             moving_xy = xy[moving]
@@ -322,7 +331,7 @@ class FrontEnd(ABC):
             moving_map, moving_vel = np.empty((0, 2)), None if vel is None else vel[:0].copy()
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
-                           iterations, kept, n_moving, ms, static_map, None if vel is None else vel[use],
+                           iterations, kept, n_moving, ms, static_map, vel_use,
                            moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered)
 
     @staticmethod
@@ -474,6 +483,7 @@ class ImprovedFrontEnd(FrontEnd):
 
     name = IMPROVED
     segments = True
+    bearings = True
 
     def __init__(self, params: FrontEndParams, cal: Calibration):
         super().__init__(params, cal)
@@ -511,7 +521,9 @@ class ImprovedFrontEnd(FrontEnd):
         """
         if sweep.velocity is None or not self.checks.use_doppler:
             return None
-        bearings = unit_bearings(sweep.xy)  # for the fit and for ε
+        found = self._sweep  # the step's bearings of this sweep, else computed here; for the fit and for ε
+        bearings = found.bearings if found is not None and found.xy is sweep.xy and found.bearings is not None else (
+            unit_bearings(sweep.xy))
         ego = self.doppler_fit(sweep, prior_twist, bearings)
         if ego is None:
             return Doppler(np.full(2, np.nan), np.full((2, 2), np.nan), np.zeros(len(sweep.xy), bool))
@@ -596,16 +608,17 @@ class ImprovedFrontEnd(FrontEnd):
             dt = ts - self.last_stamp
             base = advance(self.pose, self.last_twist[0], self.last_twist[1], dt)
             yaw_error = abs(omega - self.last_twist[1]) * dt  # a step in ω since the last sweep (a corner's end)
-        ranges = self._ranges[1] if self._ranges is not None and self._ranges[0] is sweep.xy else None
+        found = self._sweep  # the step's ranges and middle time of this sweep, else the tracker computes them
+        ranges, middle = (found.ranges, found.middle_time) if found is not None and found.xy is sweep.xy else (None, None)
         return self.tracker.segment(sweep.xy, sweep.t, eps, ts, base, (v, omega), self.mount, self.grid,
-                                    p.segmentation, yaw_error, ranges)
+                                    p.segmentation, yaw_error, ranges, middle)
 
     def _near_of(self, xy: np.ndarray) -> np.ndarray | None:
         """The step's ``near`` mask (ranges below ``min_range``) of ``xy`` if this is the sweep in
         :meth:`step`, else None. The same points as ``x² + y² < min_range²`` but for a point within
         a rounding of the circle (``np.hypot`` against the squares)."""
-        found = self._ranges
-        return found[2] if found is not None and found[0] is xy else None
+        found = self._sweep
+        return found.near if found is not None and found.xy is xy else None
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
@@ -642,9 +655,10 @@ class ImprovedFrontEnd(FrontEnd):
             if initial is None:  # a recovery's second ICP is the same sweep
                 self.sources.prior_sweeps += 1
         start = motion.predicted if initial is None else initial
+        rp = self.params.recovery
         res = register(source, self.map.tree, self.map.points, start, self.params.icp,
                        mixture=self.mixture, prior_pose=motion.predicted if prior_info is not None else None,
-                       prior_information=prior_info)
+                       prior_information=prior_info, inlier_distance=rp.inlier_distance if rp.enabled else None)
         self.mixture = res.mixture
         return res
 
@@ -752,7 +766,9 @@ class BaselineFrontEnd(FrontEnd):
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:
         start = motion.predicted if initial is None else initial
-        return register_point_to_point(source, self.map.tree, self.map.points, start, self.params.icp)
+        rp = self.params.recovery
+        return register_point_to_point(source, self.map.tree, self.map.points, start, self.params.icp,
+                                       rp.inlier_distance if rp.enabled else None)
 
 
 METHODS: dict[str, type[FrontEnd]] = {cls.name: cls for cls in (ImprovedFrontEnd, BaselineFrontEnd)}

@@ -52,11 +52,13 @@ def register_point_to_point(
     target_xy: np.ndarray,
     initial_pose: np.ndarray,
     params: ICPParams = ICPParams(),
+    inlier_distance: float | None = None,
 ) -> ICPResult:
     """Baseline: classic point-to-point ICP, all gated pairs, unit weights, closed form.
 
     Same correspondence search and gate as :func:`register`; no GMMSC, no Huber.
     Each iteration solves the pose exactly for the current pairs (2-D Kabsch).
+    ``inlier_distance``: as :func:`~.robust_icp.register`'s (the compiled kernel counts those inliers).
     The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the
     same pairs and iterations; ``target_tree`` a :class:`~fmcwlog.kernels.compiled.MapIndex` lends
     it its grid), else :func:`register_point_to_point_numpy`.
@@ -67,12 +69,16 @@ def register_point_to_point(
     source = np.ascontiguousarray(source_xy, dtype=float)
     grid = compiled.target_grid(core, target_tree, target_xy, params.max_correspondence_distance)
     x, y, th = np.asarray(initial_pose, dtype=float).tolist()
-    pose, iterations, n_kept, converged, rmse, (h00, h02, h11, h12, h22) = core.point_to_point_icp(
+    count = inlier_distance is not None and 0.0 < inlier_distance <= params.max_correspondence_distance
+    pose, iterations, n_kept, converged, rmse, (h00, h02, h11, h12, h22), inliers = core.point_to_point_icp(
         grid, source, x, y, th, params.max_iterations, params.translation_tol, params.rotation_tol,
-        params.min_correspondences)
+        params.min_correspondences, inlier_distance if count else -1.0)
     h = np.array(((h00, 0.0, h02), (0.0, h11, h12), (h02, h12, h22)))
     search = compiled.CompiledNearest(core, source, target_tree, grid, params.max_correspondence_distance)
-    return ICPResult(np.array(pose), iterations, n_kept, converged, rmse, h, 0, None, search)
+    final = np.array(pose)
+    if count and inlier_distance is not None:
+        search.counted = (final, inlier_distance, inliers)
+    return ICPResult(final, iterations, n_kept, converged, rmse, h, 0, None, search)
 
 
 def register_point_to_point_numpy(

@@ -50,10 +50,15 @@ def inlier_fraction(source_xy: np.ndarray, pose: np.ndarray, tree: cKDTree, dist
     again only about the points that moved since (the ICP's last steps are sub-millimetre);
     without it (or for a ``distance`` beyond its reach), the compiled kernels' grid that ``tree``
     keeps (a :class:`~fmcwlog.kernels.compiled.MapIndex` the registration used), else one KD-tree
-    query. A point counts where its nearest map point is closer than ``distance``."""
+    query; where the registration counted them already at this ``pose`` array and ``distance``
+    (:func:`~.robust_icp.register`'s ``inlier_distance``), that count. A point counts where its nearest map
+    point is closer than ``distance``."""
     if len(source_xy) == 0:
         return 0.0
     usable = search is not None and search.source is source_xy and search.tree is tree and distance <= search.bound
+    counted = search.counted if usable and type(search) is CompiledNearest else None
+    if counted is not None and counted[0] is pose and counted[1] == distance:  # counted by the registration
+        return float(counted[2] / len(source_xy))
     if not usable:
         search = covering_nearest(tree, source_xy, distance)
     if search is not None:

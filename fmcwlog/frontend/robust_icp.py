@@ -104,6 +104,7 @@ def register(
     mixture: DistanceMixture | None = None,
     prior_pose: np.ndarray | None = None,
     prior_information: np.ndarray | None = None,
+    inlier_distance: float | None = None,
 ) -> ICPResult:
     """Robust ICP: GMMSC weights × Huber weights, Gauss-Newton on SE(2) (eq. 22-26).
 
@@ -133,6 +134,10 @@ def register(
     directions the scan leaves unconstrained (e.g. along a corridor). The
     returned ``hessian`` then includes ``Λ``.
 
+    ``inlier_distance`` (m): the caller will ask :func:`~.recovery.inlier_fraction` about it at the
+    returned pose; the compiled kernel then counts those inliers in the same call (kept on the
+    result's ``search``), the numpy path leaves them to it.
+
     The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the same
     pairs, iterations and EM fits; ``target_tree`` a :class:`~fmcwlog.kernels.compiled.MapIndex`
     lends it its grid), else :func:`register_numpy`.
@@ -142,7 +147,7 @@ def register(
         return register_numpy(source_xy, target_tree, target_xy, initial_pose, params, mixture, prior_pose,
                               prior_information)
     return _register_compiled(core, source_xy, target_tree, target_xy, initial_pose, params, mixture, prior_pose,
-                              prior_information)
+                              prior_information, inlier_distance)
 
 
 @lru_cache(maxsize=8)
@@ -169,9 +174,11 @@ def _register_compiled(
     mixture: DistanceMixture | None,
     prior_pose: np.ndarray | None,
     prior_information: np.ndarray | None,
+    inlier_distance: float | None = None,
 ) -> ICPResult:
     """:func:`register` by the compiled module's ``robust_icp``: one call; the mixture goes in and
-    comes out as plain numbers (the given object is returned where no fit replaced it)."""
+    comes out as plain numbers (the given object is returned where no fit replaced it); the inliers
+    within ``inlier_distance`` (where given and within the gate) counted on the way."""
     source = np.ascontiguousarray(source_xy, dtype=float)
     gate = params.max_correspondence_distance
     grid = compiled.target_grid(core, target_tree, target_xy, gate)
@@ -181,13 +188,17 @@ def _register_compiled(
     has_prior = prior_pose is not None and prior_information is not None
     prior = (np.asarray(prior_pose, dtype=float).tolist(), np.asarray(prior_information, dtype=float).ravel().tolist()
              ) if has_prior else ([0.0] * 3, [0.0] * 9)
-    pose, iterations, n_kept, converged, rmse, h, n_fits, replaced, (has, means, sigmas, mix, overlap, median_m) = (
-        core.robust_icp(grid, source, x, y, th, _core_params(core, params), given, has_prior, *prior))
+    count = inlier_distance is not None and 0.0 < inlier_distance <= gate
+    (pose, iterations, n_kept, converged, rmse, h, n_fits, replaced, (has, means, sigmas, mix, overlap, median_m),
+     inliers) = core.robust_icp(grid, source, x, y, th, _core_params(core, params), given, has_prior, *prior,
+                                inlier_distance if count else -1.0)
     if replaced:
         mixture = DistanceMixture(np.array(means), np.array(sigmas), np.array(mix), overlap, median_m) if has else None
     search = compiled.CompiledNearest(core, source, target_tree, grid, gate)
-    return ICPResult(np.array(pose), iterations, n_kept, converged, rmse, np.array(h).reshape(3, 3), n_fits, mixture,
-                     search)
+    final = np.array(pose)
+    if count and inlier_distance is not None:
+        search.counted = (final, inlier_distance, inliers)
+    return ICPResult(final, iterations, n_kept, converged, rmse, np.array(h).reshape(3, 3), n_fits, mixture, search)
 
 
 def register_numpy(

@@ -81,15 +81,16 @@ against 0.05 rad with this sweep's own twist, which puts pillars into free space
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import Checked, param
-from ..geometry import compose, inverse, transform_points
+from ..geometry import _is_pose, compose, inverse, transform_points
 from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid, Scan
-from .deskew import deskew_placed
+from .deskew import _floats, deskew_placed, deskew_placed_numpy, sweep_columns
 from .recent_grid import RecentOccupancy, local_max_log_odds
 from .segmentation import SegmentationParams, segment_clusters
 
@@ -380,7 +381,8 @@ class MoverTracker:
 
     def segment(self, xy: np.ndarray, t: np.ndarray, epsilon: np.ndarray, stamp: float, base_pose: np.ndarray,
                 twist: tuple[float, float], mount: np.ndarray, grid: OccupancyGrid | None,
-                seg_params: SegmentationParams, yaw_error: float = 0.0, ranges: np.ndarray | None = None) -> np.ndarray:
+                seg_params: SegmentationParams, yaw_error: float = 0.0, ranges: np.ndarray | None = None,
+                middle: float | None = None) -> np.ndarray:
         """The moving mask (N,) of one sweep: DBSCAN's Doppler verdict (eq. 17-19), the clusters in
         space the map has seen free, and what the tracks claim; the tracks are updated.
 
@@ -391,18 +393,16 @@ class MoverTracker:
         for the structure check; free space comes from the scans given to :meth:`add_scan`);
         ``yaw_error``: how far (rad) ``base_pose``'s yaw may be off: free space is only looked up
         where it moves a point by at most ``map_tolerance``; ``ranges`` (N,): ``np.hypot`` of ``xy``'s
-        rows (m) if already computed.
+        rows (m) and ``middle``: :func:`middle_time` of ``t`` (s), if already computed.
         """
         p = self.params
         lidar = compose(base_pose, mount)
-        when = stamp + middle_time(t)
-        map_xy = deskew_placed(xy, t, twist[0], twist[1], mount, lidar)
-        if p.free_log_odds < 0:
-            if ranges is None:
-                ranges = np.hypot(xy[:, 0], xy[:, 1])
-            placed = ranges * yaw_error <= p.map_tolerance
-            seen_free = self.recent.seen_free(map_xy, placed, p.free_log_odds)
+        when = stamp + (middle_time(t) if middle is None else middle)
+        if p.free_log_odds < 0:  # the sweep in the map, and which of its points lie in space seen free
+            map_xy, seen_free = placed_free_space(self.recent, xy, t, twist, mount, lidar, ranges, yaw_error,
+                                                  p.map_tolerance, p.free_log_odds)
         else:
+            map_xy = deskew_placed(xy, t, twist[0], twist[1], mount, lidar)
             seen_free = np.zeros(len(xy), bool)
         core = compiled.core()
         if core is not None:
@@ -476,3 +476,46 @@ class MoverTracker:
         """Where confirmed tracks are expected at ``when`` (s), in the lidar frame ``lidar_pose``
         (K, 2): DBSCAN clusters around them too."""
         return transform_points(inverse(lidar_pose), self.predicted(when))
+
+
+def placed_free_space(recent: RecentOccupancy, xy: np.ndarray, t: np.ndarray, twist: tuple[float, float],
+                      mount: np.ndarray, lidar: np.ndarray, ranges: np.ndarray | None, yaw_error: float,
+                      tolerance: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """A sweep placed in the map and its points in space seen free: ``(map_xy, seen_free)``.
+
+    ``map_xy`` (N, 2): ``xy`` (N, 2, lidar frame at each capture time ``t`` (N,) s) de-skewed by
+    ``twist`` ``(v, ω)`` (m/s, rad/s; ``mount`` (3,) the lidar in base_link) and placed by the lidar's
+    pose ``lidar`` (3,) in ``map`` (:func:`~.deskew.deskew_placed`); ``seen_free`` (N,):
+    :meth:`~.recent_grid.RecentOccupancy.seen_free` (``threshold``) of the points whose placement a
+    yaw error of ``yaw_error`` (rad) moves by at most ``tolerance`` (m), at ``ranges`` (N,, m: the
+    points' ``np.hypot``; computed where None).
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call: the same
+    points as the compiled :func:`~.deskew.deskew_placed`, the same answers as the compiled lookup),
+    else :func:`placed_free_space_numpy`."""
+    core = compiled.core()
+    v, omega = twist
+    if (core is not None and sweep_columns(xy, t) and _is_pose(mount) and _is_pose(lidar) and _floats(v, omega)
+            and (ranges is None or (type(ranges) is np.ndarray and ranges.dtype == np.float64
+                                    and ranges.shape == t.shape and ranges.flags.c_contiguous))):
+        mx, my, myaw = mount.tolist()
+        x, y, yaw = lidar.tolist()
+        if math.isfinite(myaw) and math.isfinite(yaw):
+            log_odds, ix0, iy0 = zip(*[grid.lattice_view() for grid in recent.grids]) if recent.grids else ((), (), ())
+            map_xy, out = np.empty(xy.shape), np.empty(len(xy), bool)
+            core.occupancy_placed_free(list(log_odds), list(ix0), list(iy0), xy, t, ranges, v, omega, mx, my, myaw,
+                                       math.cos(yaw), math.sin(yaw), x, y, float(yaw_error), float(tolerance),
+                                       float(threshold), float(recent.resolution), map_xy, out)
+            return map_xy, out
+    return placed_free_space_numpy(recent, xy, t, twist, mount, lidar, ranges, yaw_error, tolerance, threshold)
+
+
+def placed_free_space_numpy(recent: RecentOccupancy, xy: np.ndarray, t: np.ndarray, twist: tuple[float, float],
+                            mount: np.ndarray, lidar: np.ndarray, ranges: np.ndarray | None, yaw_error: float,
+                            tolerance: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`placed_free_space` as its steps: the reference the compiled kernel is tested against."""
+    map_xy = deskew_placed_numpy(xy, t, twist[0], twist[1], mount, lidar)
+    if ranges is None:
+        ranges = np.hypot(xy[:, 0], xy[:, 1])
+    placed = ranges * yaw_error <= tolerance
+    return map_xy, recent.seen_free_numpy(map_xy, placed, threshold)

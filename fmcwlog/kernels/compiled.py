@@ -123,6 +123,9 @@ class CompiledNearest:
 
     def __init__(self, module: ModuleType, source_xy: np.ndarray, tree: cKDTree, grid: object, bound: float):
         self._module, self.source, self.tree, self.grid, self.bound = module, source_xy, tree, grid, bound
+        # (pose, distance, count): the source points nearer than distance (m) to the target under that
+        # pose array, where the registration counted them on the way (robust_icp's inlier_distance)
+        self.counted: tuple[np.ndarray, float, int] | None = None
 
     def nearest(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Under ``pose``: the moved source (N, 2), each point's nearest target index (N,; -1 where none

@@ -50,12 +50,14 @@ scan takes about a third of :func:`cast_numpy`'s time.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..errors import MapSizeError
 from . import compiled
 
+Cells = tuple[Any, Any, Any, Any]  # lattice cells (ix_lo, iy_lo, ix_hi, iy_hi): ints, or numpy int64 from numpy
 PENDING_SCANS = 32  # scans queued at most before they are cast (about 1 MB of points)
 
 
@@ -114,6 +116,7 @@ class Scan:
         self.origin = np.array(sensor_origin_xy, float).reshape(2)
         self.points = np.array(points_map_xy, float).reshape(-1, 2)
         self._updates: dict[OccupancyParams, ScanUpdate] = {}
+        self._cells: dict[tuple[float | None, float], Cells] = {}
         self._waiting = 0  # grids that hold the scan queued, not yet applied
 
     def queued(self) -> None:
@@ -133,6 +136,14 @@ class Scan:
             self._updates[params] = cast(self.origin, self.points, params)
         return self._updates[params]
 
+    def cells(self, params: OccupancyParams) -> Cells:
+        """:func:`scan_cells` of the scan with ``params`` (computed on the first call, then kept)."""
+        key = (params.max_range, params.resolution)
+        found = self._cells.get(key)
+        if found is None:
+            found = self._cells[key] = scan_cells(self.origin, self.points, params)
+        return found
+
     def cast_already(self, params: OccupancyParams) -> ScanUpdate | None:
         """The scan cast with ``params`` if some grid already had it computed, else None."""
         return self._updates.get(params)
@@ -149,6 +160,34 @@ def rays(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> tuple[np.ndarray
         length[far] = p.max_range
         hit[far] = False
     return d, length, hit
+
+
+def scan_cells(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> Cells:
+    """The lattice cells ``(ix_lo, iy_lo, ix_hi, iy_hi)`` of the corners of the box that holds the sensor
+    ``o`` (2,) and every beam's end (:func:`rays`, cut at ``max_range``) of ``pts`` (N, 2) (both ``map``,
+    m): the cells a grid must hold to take the scan.
+
+    The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it (one call, the same
+    cells), else :func:`scan_cells_numpy`; numpy too for a scan the kernel declines (a coordinate not
+    finite, a cell beyond ±2^62)."""
+    core = compiled.core()
+    if core is not None:
+        ox, oy = o.tolist() if type(o) is np.ndarray and o.shape == (2,) else np.asarray(o, float).reshape(2).tolist()
+        found = core.occupancy_scan_cells(np.ascontiguousarray(pts, dtype=float), ox, oy, p.max_range is not None,
+                                          0.0 if p.max_range is None else p.max_range, p.resolution)
+        if found is not None:
+            return found
+    return scan_cells_numpy(o, pts, p)
+
+
+def scan_cells_numpy(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> Cells:
+    """:func:`scan_cells` in numpy: the reference the compiled kernel is tested against."""
+    d, _, _ = rays(o, pts, p)
+    end = o + d
+    lo, hi = np.minimum(end.min(axis=0), o), np.maximum(end.max(axis=0), o)
+    lo_c = np.floor(lo / p.resolution).astype(np.int64)
+    hi_c = np.floor(hi / p.resolution).astype(np.int64)
+    return lo_c[0], lo_c[1], hi_c[0], hi_c[1]  # int64 (a non-finite corner's cells wrap in int64 as they did)
 
 
 def cast(o: np.ndarray, pts: np.ndarray, p: OccupancyParams) -> ScanUpdate:
@@ -281,6 +320,11 @@ class OccupancyGrid:
         self.flush()
         return self._observed
 
+    def lattice_view(self) -> tuple[np.ndarray, int, int]:
+        """``(log_odds, ix0, iy0)`` read together (the queued scans cast first, once)."""
+        self.flush()
+        return self._log_odds, self._ix0, self._iy0
+
     @property
     def ix0(self) -> int:
         """Global lattice column of array column 0."""
@@ -319,11 +363,10 @@ class OccupancyGrid:
         ix, iy = lattice_cells(xy, self.resolution)
         return np.stack([iy - self.iy0, ix - self.ix0], -1)
 
-    def _ensure(self, lo: np.ndarray, hi: np.ndarray) -> None:
-        """Grow the arrays (keeping content) so that the box [lo, hi] (m) is inside."""
+    def _ensure(self, lo_x: Any, lo_y: Any, hi_x: Any, hi_y: Any) -> None:
+        """Grow the arrays (keeping content) so that the lattice cells [lo, hi] are inside."""
         res = self.resolution
-        lo_c = np.floor(lo / res).astype(np.int64)
-        hi_c = np.floor(hi / res).astype(np.int64)
+        lo_c, hi_c = (lo_x, lo_y), (hi_x, hi_y)
         ix0, iy0 = self._ix0, self._iy0
         height, width = self._log_odds.shape
         if width and (
@@ -370,9 +413,7 @@ class OccupancyGrid:
         (raises :class:`~fmcwlog.errors.MapSizeError` as it does)."""
         if len(scan.points) == 0:
             return
-        d, _, _ = rays(scan.origin, scan.points, self.params)
-        end = scan.origin + d
-        self._ensure(np.minimum(end.min(axis=0), scan.origin), np.maximum(end.max(axis=0), scan.origin))
+        self._ensure(*scan.cells(self.params))
         self._settle()
         self._pending.append(scan)
         scan.queued()

@@ -196,4 +196,28 @@ class TargetGrid {
     std::vector<int32_t> start_, order_;  // per cell + 1: its first point; per point: its index
 };
 
+// A source point (px, py) moved by a pose (c, sn its rotation's cosine and sine; x, y m) as
+// NearestPairs moves it, (mx, my), and the grid's nearest target to it (index and distance dist, or
+// -1 and inf): point_to_point_icp.cpp's nearest, a point at a time.
+inline int64_t nearest_moved(const TargetGrid& grid, double c, double sn, double x, double y, double px, double py,
+                             double& mx, double& my, double& dist) {
+    mx = c * px + (-sn) * py + x;
+    my = c * py + sn * px + y;
+    return grid.nearest(mx, my, dist);
+}
+
+// recovery.inlier_fraction's count: the n source points s (interleaved x, y) whose nearest target
+// under the pose (x, y, theta) is closer than distance (m; at most the grid's radius to be exact).
+inline int64_t count_within(const TargetGrid& grid, const double* s, size_t n, double x, double y, double theta,
+                            double distance) {
+    const double c = std::cos(theta), sn = std::sin(theta);
+    int64_t k = 0;
+    for (size_t i = 0; i < n; ++i) {
+        double mx, my, d;
+        nearest_moved(grid, c, sn, x, y, s[2 * i], s[2 * i + 1], mx, my, d);
+        k += d < distance;
+    }
+    return k;
+}
+
 }  // namespace fmcwlog

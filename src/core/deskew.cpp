@@ -10,11 +10,17 @@
 //   P_i's yaw is th (L's rotations cancel; numpy wraps it twice, which moves neither sin nor cos),
 //   cos(ith + th), sin(ith + th) by the angle-sum formulas.
 // The results agree with numpy's to rounding (~1e-15 m on metre-scale points), not bit for bit.
-// deskew_placed also places the de-skewed points by one rigid transform (deskew.deskew_placed).
+// deskew_placed also places the de-skewed points by one rigid transform (deskew.deskew_placed);
+// deskew_source is the front end's source cloud in one call (deskew.deskewed_source): the mask of
+// the points used, those de-skewed and placed, their voxel thinning and their Doppler velocities.
+// The de-skewing (Deskewer) is in deskew.hpp, the thinning in voxel.hpp.
 #include "common.hpp"
+#include "deskew.hpp"
 #include "kernels.hpp"
+#include "voxel.hpp"
 
 #include <nanobind/stl/optional.h>
+#include <nanobind/stl/tuple.h>
 
 #include <optional>
 
@@ -24,51 +30,6 @@ namespace {
 using Times = nb::ndarray<const double, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 using Mask = nb::ndarray<const bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
-// deskew.deskew on its column path: xy (N, 2) seen at t (N,) s, to the lidar frame at t_ref; twist
-// (v, v_y) m/s and omega rad/s of base_link; mount (mx, my, myaw) the lidar in base_link (m, rad).
-// Lidar-to-reference motion of a sweep (the loop-invariant part of deskew.deskew's column path):
-// L^-1 = (ix, iy, ith) and its rotation's (ci, si), for the mount (mx, my, myaw).
-struct Deskewer {
-    double t_ref, v, v_y, omega, mx, my, ix, iy, ci, si;
-
-    Deskewer(double t_ref_, double v_, double v_y_, double omega_, double mx_, double my_, double myaw)
-        : t_ref(t_ref_), v(v_), v_y(v_y_), omega(omega_), mx(mx_), my(my_) {
-        // geometry.inverse(mount)
-        const double cm = std::cos(myaw), sm = std::sin(myaw);
-        ix = -cm * mx - sm * my;
-        iy = sm * mx - cm * my;
-        const double ith = wrap_angle(-myaw);
-        ci = std::cos(ith);
-        si = std::sin(ith);
-    }
-
-    // The point (x, y) seen at time ti, in the lidar frame at t_ref: (ox, oy).
-    void operator()(double x, double y, double ti, double& ox, double& oy) const {
-        const double dt = ti - t_ref;
-        const double th = omega * dt;
-        const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
-        double a, b;  // sin th / th and (1 - cos th) / th
-        if (std::fabs(th) < 1e-4) {  // their series (next terms < 1e-24 relative): exact at 0, no subnormal halving
-            const double t2 = th * th;
-            a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
-            b = 0.5 * th * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
-        } else {
-            a = 2.0 * sh * ch / th;
-            b = 2.0 * sh * sh / th;
-        }
-        const double sth = 2.0 * sh * ch, cth = 1.0 - 2.0 * sh * sh;
-        // se2_exp: the base's displacement over dt
-        const double bx = (a * v - b * v_y) * dt, by = (b * v + a * v_y) * dt;
-        // compose(L^-1, base): translation ix + R(ith) b, yaw ith + th
-        const double px = ix + ci * bx - si * by, py = iy + si * bx + ci * by;
-        const double c2 = ci * cth - si * sth, s2 = si * cth + ci * sth;
-        // compose(that, L): translation p + R(ith + th) m
-        const double qx = c2 * mx + px - s2 * my, qy = s2 * mx + py + c2 * my;
-        // rotate_translate: R(th) p_i + q
-        ox = cth * x - sth * y + qx;
-        oy = sth * x + cth * y + qy;
-    }
-};
 
 // deskew.deskew on its column path: xy (N, 2) seen at t (N,) s, to the lidar frame at t_ref; twist
 // (v, v_y) m/s and omega rad/s of base_link; mount (mx, my, myaw) the lidar in base_link (m, rad).
@@ -118,6 +79,57 @@ nb::ndarray<nb::numpy, double, nb::shape<-1, 2>> deskew_placed(Points xy, Times 
     return nb::ndarray<nb::numpy, double, nb::shape<-1, 2>>(out, {m, 2}, owner);
 }
 
+// deskew.deskewed_source_numpy: use = ~(near | moving) (moving None: ~near), written into use (N,);
+// the used points de-skewed and placed by (c, s, tx, ty) as deskew_placed places them (pts (K, 2));
+// pts thinned by voxel_size as voxel.voxel_downsample (centroid false) or voxel.voxel_centroids
+// (centroid true) thin them (pts itself where voxel_size <= 0 or K == 0); the used points'
+// velocities (K,) where velocity is given. Returns (pts, source, velocities or None).
+nb::tuple deskew_source(Points xy, Times t, Mask near, std::optional<Mask> moving, std::optional<Times> velocity,
+                        double v, double omega, double mx, double my, double myaw, double c, double s, double tx,
+                        double ty, double voxel_size, bool centroid,
+                        nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu> use) {
+    const size_t n = xy.shape(0);
+    if (t.shape(0) != n || near.shape(0) != n || use.shape(0) != n || (moving && moving->shape(0) != n) ||
+        (velocity && velocity->shape(0) != n))
+        throw nb::value_error("deskew_source: xy, t, near, moving, velocity and use differ in length");
+    const double* p = xy.data();
+    const double* tt = t.data();
+    const bool* nr = near.data();
+    const bool* mv = moving ? moving->data() : nullptr;
+    const double* vel = velocity ? velocity->data() : nullptr;
+    bool* u = use.data();
+    std::vector<double> pts, thinned, speeds;
+    {
+        nb::gil_scoped_release release;
+        const Deskewer at(0.0, v, 0.0, omega, mx, my, myaw);
+        pts.reserve(2 * n);
+        if (vel) speeds.reserve(n);
+        for (size_t i = 0; i < n; ++i) {
+            u[i] = !(nr[i] || (mv && mv[i]));
+            if (!u[i]) continue;
+            double dx, dy;
+            at(p[2 * i], p[2 * i + 1], tt[i], dx, dy);
+            pts.push_back(c * dx - s * dy + tx);
+            pts.push_back(s * dx + c * dy + ty);
+            if (vel) speeds.push_back(vel[i]);
+        }
+        const size_t k = pts.size() / 2;
+        if (voxel_size > 0.0 && k > 0)
+            thinned = centroid ? voxel_means(pts.data(), k, voxel_size) : first_of_voxels(pts.data(), k, voxel_size);
+    }
+    const size_t k = pts.size() / 2;
+    nb::object placed = nb::cast(numpy_points(pts.data(), k));
+    nb::object source = voxel_size > 0.0 && k > 0 ? nb::cast(numpy_points(thinned.data(), thinned.size() / 2)) : placed;
+    nb::object kept_velocity = nb::none();
+    if (vel) {
+        double* out = new double[k + 1];
+        std::copy(speeds.begin(), speeds.end(), out);
+        nb::capsule owner(out, [](void* q) noexcept { delete[] static_cast<double*>(q); });
+        kept_velocity = nb::cast(nb::ndarray<nb::numpy, double, nb::shape<-1>>(out, {k}, owner));
+    }
+    return nb::make_tuple(placed, source, kept_velocity);
+}
+
 }  // namespace
 
 void bind_deskew(nb::module_& m) {
@@ -126,6 +138,10 @@ void bind_deskew(nb::module_& m) {
     m.def("deskew_placed", &deskew_placed, nb::arg("xy"), nb::arg("t"), nb::arg("keep").none(), nb::arg("t_ref"),
           nb::arg("v"), nb::arg("v_y"), nb::arg("omega"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"), nb::arg("c"),
           nb::arg("s"), nb::arg("tx"), nb::arg("ty"));
+    m.def("deskew_source", &deskew_source, nb::arg("xy"), nb::arg("t"), nb::arg("near"), nb::arg("moving").none(),
+          nb::arg("velocity").none(), nb::arg("v"), nb::arg("omega"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"),
+          nb::arg("c"), nb::arg("s"), nb::arg("tx"), nb::arg("ty"), nb::arg("voxel_size"), nb::arg("centroid"),
+          nb::arg("use"));
 }
 
 }  // namespace fmcwlog

@@ -31,11 +31,14 @@ T* owned(size_t count, nb::capsule& owner) {
     return data;
 }
 
-// egomotion.unit_bearings: xy / hypot(x, y), (0, 0) where the range is not > 0.
-void bearings_into(const double* xy, size_t n, double* u) {
+// egomotion.unit_bearings: xy / hypot(x, y), (0, 0) where the range is not > 0 (u null: none); the
+// ranges hypot(x, y) into `ranges` where given.
+void bearings_into(const double* xy, size_t n, double* u, double* ranges = nullptr) {
     for (size_t i = 0; i < n; ++i) {
         const double x = xy[2 * i], y = xy[2 * i + 1];
         const double r = std::hypot(x, y);
+        if (ranges) ranges[i] = r;
+        if (!u) continue;
         if (r > 0.0) {
             u[2 * i] = x / r;
             u[2 * i + 1] = y / r;
@@ -54,6 +57,41 @@ PyArray unit_bearings(Points xy) {
         bearings_into(xy.data(), n, u);
     }
     return PyArray(u, {n, 2}, owner);
+}
+
+// sweep_geometry.sweep_geometry_numpy: the ranges np.hypot(x, y) (N,) of the points xy, the mask ranges <
+// min_range (N,), where `bearings` unit_bearings(xy) (N, 2) (else None); of the times t (N,): the last,
+// np.maximum.reduce(t, initial=0.0), where every time is finite and one is > 0 (else None: numpy
+// decides a NaN's or a zero's sign), and where they are sorted (t[i] >= t[i-1], a NaN fails) and N > 0
+// tracking.middle_time's middle value (or the mean of the two middle values, 0.0 + a + b then / 2.0)
+// (else None: np.median decides).
+nb::tuple sweep_geometry(Points xy, Vector t, double min_range, bool bearings) {
+    const size_t n = xy.shape(0);
+    if (t.shape(0) != n) throw nb::value_error("sweep_geometry: xy and t differ in length");
+    nb::capsule range_owner, near_owner, u_owner;
+    double* r = owned<double>(n, range_owner);
+    bool* near = owned<bool>(n, near_owner);
+    double* u = bearings ? owned<double>(2 * n, u_owner) : nullptr;
+    const double* tt = t.data();
+    double last = 0.0, middle = 0.0;
+    bool finite = true, sorted = n > 0;
+    {
+        nb::gil_scoped_release release;
+        bearings_into(xy.data(), n, u, r);
+        for (size_t i = 0; i < n; ++i) near[i] = r[i] < min_range;
+        for (size_t i = 0; i < n; ++i) {
+            finite = finite && std::isfinite(tt[i]);
+            last = last >= tt[i] ? last : tt[i];
+            if (i > 0) sorted = sorted && tt[i] >= tt[i - 1];
+        }
+        if (sorted) middle = n % 2 ? 0.0 + tt[n / 2] : (0.0 + tt[n / 2 - 1] + tt[n / 2]) / 2.0;
+    }
+    nb::object u_out = bearings ? nb::cast(PyArray(u, {n, 2}, u_owner)) : nb::none();
+    nb::object last_out = finite && last > 0.0 ? nb::cast(last) : nb::none();
+    nb::object middle_out = sorted ? nb::cast(middle) : nb::none();
+    return nb::make_tuple(nb::ndarray<nb::numpy, double, nb::shape<-1>>(r, {n}, range_owner),
+                          nb::ndarray<nb::numpy, bool, nb::shape<-1>>(near, {n}, near_owner), u_out, last_out,
+                          middle_out);
 }
 
 // A hypothesis' score: how many of the n points have |r + (hx x + hy y)| < threshold (the row sum of
@@ -308,6 +346,7 @@ Answer fit_sensor_velocity(
 
 void bind_egomotion(nb::module_& m) {
     m.def("unit_bearings", &unit_bearings, nb::arg("xy"));
+    m.def("sweep_geometry", &sweep_geometry, nb::arg("xy"), nb::arg("t"), nb::arg("min_range"), nb::arg("bearings"));
     m.def("fit_sensor_velocity", &fit_sensor_velocity, nb::arg("xy"), nb::arg("v_r"), nb::arg("bearings").none(),
           nb::arg("draws"), nb::arg("inlier_threshold"), nb::arg("min_pair_sine"), nb::arg("refinements"),
           nb::arg("score_points"), nb::arg("prior").none(), nb::arg("prior_gate"));

@@ -6,8 +6,10 @@
 // reference's operations in its order (no FMA: CMakeLists.txt), so the samples fall in the same
 // cells and the cells, counts and float32 increments are those of the reference, bit for bit.
 #include "common.hpp"
+#include "deskew.hpp"
 #include "kernels.hpp"
 
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
@@ -583,8 +585,57 @@ inline double summed(const std::vector<View>& grids, int64_t ix, int64_t iy) {
     return sum;
 }
 
-// RecentOccupancy.seen_free: out[i] = candidates[i] and the summed log-odds of the point's cell and
-// of each of its 8 neighbours are all <= threshold.
+// occupancy.scan_cells_numpy: the lattice cells (ix, iy) of the lower-left and upper-right corners of the
+// box holding the sensor (ox, oy) and every beam's end (occupancy.rays: cut at max_range where
+// has_max_range), floor(corner / resolution). None where a coordinate is not finite or a cell is
+// beyond +-2^62 (numpy's conversion decides there).
+nb::object occupancy_scan_cells(Points points, double ox, double oy, bool has_max_range, double max_range,
+                                double resolution) {
+    const size_t n = points.shape(0);
+    const double* p = points.data();
+    double x0 = ox, y0 = oy, x1 = ox, y1 = oy;
+    bool finite = std::isfinite(ox) && std::isfinite(oy);
+    {
+        nb::gil_scoped_release release;
+        for (size_t i = 0; i < n && finite; ++i) {
+            double dx = p[2 * i] - ox, dy = p[2 * i + 1] - oy;
+            if (has_max_range) {
+                const double length = std::hypot(dx, dy);
+                if (length > max_range) {
+                    const double k = max_range / length;
+                    dx *= k;
+                    dy *= k;
+                }
+            }
+            const double ex = ox + dx, ey = oy + dy;
+            finite = std::isfinite(ex) && std::isfinite(ey);
+            x0 = std::min(x0, ex);
+            y0 = std::min(y0, ey);
+            x1 = std::max(x1, ex);
+            y1 = std::max(y1, ey);
+        }
+    }
+    const double lim = 4611686018427387904.0;
+    const double c[4] = {std::floor(x0 / resolution), std::floor(y0 / resolution), std::floor(x1 / resolution),
+                         std::floor(y1 / resolution)};
+    for (double q : c)
+        if (!finite || !(std::fabs(q) < lim)) return nb::none();
+    return nb::make_tuple(int64_t(c[0]), int64_t(c[1]), int64_t(c[2]), int64_t(c[3]));
+}
+
+// RecentOccupancy.seen_free of one candidate point (x, y): the summed log-odds of its cell and of
+// each of its 8 neighbours are all <= threshold.
+inline bool seen_free_at(const std::vector<View>& v, double x, double y, double threshold, double resolution) {
+    int64_t ix, iy;
+    bool far;
+    lattice_cell(x, y, resolution, ix, iy, far);
+    bool free = (far ? 0.0 : summed(v, ix, iy)) <= threshold;
+    for (int64_t dr = -1; free && dr <= 1; ++dr)
+        for (int64_t dc = -1; free && dc <= 1; ++dc) free = (far ? 0.0 : summed(v, ix + dc, iy + dr)) <= threshold;
+    return free;
+}
+
+// RecentOccupancy.seen_free: out[i] = candidates[i] and seen_free_at the point.
 void occupancy_seen_free(const std::vector<GridLogOdds>& grids, const std::vector<int64_t>& ix0,
                          const std::vector<int64_t>& iy0, Points map_xy, Flags candidates, double threshold,
                          double resolution, OutFlags out) {
@@ -596,14 +647,38 @@ void occupancy_seen_free(const std::vector<GridLogOdds>& grids, const std::vecto
     const bool* cand = candidates.data();
     bool* o = out.data();
     nb::gil_scoped_release release;
+    for (size_t i = 0; i < n; ++i) o[i] = cand[i] && seen_free_at(v, xy[2 * i], xy[2 * i + 1], threshold, resolution);
+}
+
+using Column = nb::ndarray<const double, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+
+// tracking.placed_free_space_numpy: a sweep's points xy (N, 2) seen at t (N,) s de-skewed (twist v m/s,
+// omega rad/s; mount (mx, my, myaw)) and placed in the map by (c, s, tx, ty) as deskew.deskew_placed
+// places them, written to map_xy (N, 2); and out[i] = the point is a candidate (ranges[i] * yaw_error <=
+// tolerance, ranges (N,) m given or np.hypot of xy's rows) and seen_free_at its placed position.
+void occupancy_placed_free(const std::vector<GridLogOdds>& grids, const std::vector<int64_t>& ix0,
+                           const std::vector<int64_t>& iy0, Points xy, Column t, std::optional<Column> ranges,
+                           double v, double omega, double mx, double my, double myaw, double c, double s, double tx,
+                           double ty, double yaw_error, double tolerance, double threshold, double resolution,
+                           OutPoints map_xy, OutFlags out) {
+    const size_t n = xy.shape(0);
+    if (t.shape(0) != n || map_xy.shape(0) != n || out.shape(0) != n || (ranges && ranges->shape(0) != n))
+        throw nb::value_error("occupancy_placed_free: xy, t, ranges, map_xy and out differ in length");
+    const std::vector<View> views_ = views(grids, ix0, iy0);
+    const double* p = xy.data();
+    const double* tt = t.data();
+    const double* r = ranges ? ranges->data() : nullptr;
+    double* m = map_xy.data();
+    bool* o = out.data();
+    nb::gil_scoped_release release;
+    const Deskewer at(0.0, v, 0.0, omega, mx, my, myaw);
     for (size_t i = 0; i < n; ++i) {
-        int64_t ix, iy;
-        bool far;
-        lattice_cell(xy[2 * i], xy[2 * i + 1], resolution, ix, iy, far);
-        bool free = cand[i] && (far ? 0.0 : summed(v, ix, iy)) <= threshold;
-        for (int64_t dr = -1; free && dr <= 1; ++dr)
-            for (int64_t dc = -1; free && dc <= 1; ++dc) free = (far ? 0.0 : summed(v, ix + dc, iy + dr)) <= threshold;
-        o[i] = free;
+        double dx, dy;
+        at(p[2 * i], p[2 * i + 1], tt[i], dx, dy);
+        m[2 * i] = c * dx - s * dy + tx;
+        m[2 * i + 1] = s * dx + c * dy + ty;
+        const double range = r ? r[i] : std::hypot(p[2 * i], p[2 * i + 1]);
+        o[i] = range * yaw_error <= tolerance && seen_free_at(views_, m[2 * i], m[2 * i + 1], threshold, resolution);
     }
 }
 
@@ -698,6 +773,13 @@ void bind_occupancy(nb::module_& m) {
     m.def("occupancy_ros_int8", &occupancy_ros_int8, nb::arg("log_odds"), nb::arg("observed"), nb::arg("out"));
     m.def("occupancy_seen_free", &occupancy_seen_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("candidates"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("out"));
+    m.def("occupancy_scan_cells", &occupancy_scan_cells, nb::arg("points"), nb::arg("ox"), nb::arg("oy"),
+          nb::arg("has_max_range"), nb::arg("max_range"), nb::arg("resolution"));
+    m.def("occupancy_placed_free", &occupancy_placed_free, nb::arg("grids"), nb::arg("ix0"), nb::arg("iy0"),
+          nb::arg("xy"), nb::arg("t"), nb::arg("ranges").none(), nb::arg("v"), nb::arg("omega"), nb::arg("mx"),
+          nb::arg("my"), nb::arg("myaw"), nb::arg("c"), nb::arg("s"), nb::arg("tx"), nb::arg("ty"),
+          nb::arg("yaw_error"), nb::arg("tolerance"), nb::arg("threshold"), nb::arg("resolution"), nb::arg("map_xy"),
+          nb::arg("out"));
     m.def("occupancy_local_max", &occupancy_local_max, nb::arg("grid"), nb::arg("ix0"), nb::arg("iy0"),
           nb::arg("map_xy"), nb::arg("resolution"), nb::arg("out"));
 }

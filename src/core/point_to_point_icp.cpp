@@ -69,17 +69,20 @@ using Hessian = std::tuple<double, double, double, double, double>;  // h00 h02 
 
 // The baseline's point-to-point ICP (point_to_point_icp.register_point_to_point), whole: the
 // pairs on the target's grid and a closed-form pose each iteration, the information matrix
-// of the last pairs at the final pose; the gate is the grid's radius. Returns (pose, iterations,
-// pairs kept, converged, rmse, hessian terms).
-std::tuple<Pose, int, int64_t, bool, double, Hessian> point_to_point_icp(
+// of the last pairs at the final pose; the gate is the grid's radius. inlier_distance (m, at most the
+// grid's radius): also count the source points within it of the target at the final pose
+// (recovery.inlier_fraction's count; not counted where it is not > 0). Returns (pose, iterations,
+// pairs kept, converged, rmse, hessian terms, the inlier count or -1).
+std::tuple<Pose, int, int64_t, bool, double, Hessian, int64_t> point_to_point_icp(
     const TargetGrid& grid, Points source, double x, double y, double theta, int max_iterations,
-    double translation_tol, double rotation_tol, int64_t min_correspondences) {
+    double translation_tol, double rotation_tol, int64_t min_correspondences, double inlier_distance) {
     const double* s = source.data();
     const size_t n = source.shape(0);
     double pose[3] = {x, y, theta};
     Pairs pairs, used;
     int iterations = 0;
     bool converged = false;
+    int64_t inliers = -1;
     {
         nb::gil_scoped_release release;
         for (iterations = 1; iterations <= max_iterations; ++iterations) {
@@ -99,6 +102,7 @@ std::tuple<Pose, int, int64_t, bool, double, Hessian> point_to_point_icp(
             }
         }
         if (iterations > max_iterations) iterations = max_iterations;
+        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance);
     }
     const size_t k = used.src.size();
     double rmse = std::numeric_limits<double>::quiet_NaN();
@@ -122,7 +126,7 @@ std::tuple<Pose, int, int64_t, bool, double, Hessian> point_to_point_icp(
         }
         h = Hessian{double(k), sax, double(k), say, saa};
     }
-    return {Pose{pose[0], pose[1], pose[2]}, iterations, int64_t(k), converged, rmse, h};
+    return {Pose{pose[0], pose[1], pose[2]}, iterations, int64_t(k), converged, rmse, h, inliers};
 }
 
 // Under a pose: the moved source, each point's nearest target index (-1: none) and its distance
@@ -138,12 +142,8 @@ void nearest(const TargetGrid& grid, Points source, double x, double y, double t
     double* m = moved.data();
     int64_t* idx = index.data();
     double* dist = distance.data();
-    for (size_t i = 0; i < n; ++i) {
-        const double px = s[2 * i], py = s[2 * i + 1];
-        m[2 * i] = c * px + (-sn) * py + x;
-        m[2 * i + 1] = c * py + sn * px + y;
-        idx[i] = grid.nearest(m[2 * i], m[2 * i + 1], dist[i]);
-    }
+    for (size_t i = 0; i < n; ++i)
+        idx[i] = nearest_moved(grid, c, sn, x, y, s[2 * i], s[2 * i + 1], m[2 * i], m[2 * i + 1], dist[i]);
 }
 
 }  // namespace
@@ -151,7 +151,7 @@ void nearest(const TargetGrid& grid, Points source, double x, double y, double t
 void bind_point_to_point_icp(nb::module_& m) {
     m.def("point_to_point_icp", &point_to_point_icp, nb::arg("grid"), nb::arg("source"), nb::arg("x"), nb::arg("y"),
           nb::arg("theta"), nb::arg("max_iterations"), nb::arg("translation_tol"), nb::arg("rotation_tol"),
-          nb::arg("min_correspondences"));
+          nb::arg("min_correspondences"), nb::arg("inlier_distance") = -1.0);
     m.def("nearest", &nearest, nb::arg("grid"), nb::arg("source"), nb::arg("x"), nb::arg("y"), nb::arg("theta"),
           nb::arg("moved"), nb::arg("index"), nb::arg("distance"));
 }

@@ -448,11 +448,14 @@ using Pose = std::tuple<double, double, double>;
 using MixtureOut = std::tuple<bool, std::vector<double>, std::vector<double>, std::vector<double>, double, double>;
 
 // robust_icp.register, whole. mixture_in: the given mixture (has, means, sigmas, mix, merge_overlap,
-// fit_median); prior: has, pose (3), information (3x3 row-major). Returns (pose, iterations, pairs
-// kept, converged, rmse, H row-major, EM fits, whether the mixture was replaced, the mixture).
-std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust_icp(
+// fit_median); prior: has, pose (3), information (3x3 row-major); inlier_distance (m, at most the
+// grid's radius): also count the source points within it of the target at the final pose
+// (recovery.inlier_fraction's count; not counted where it is not > 0). Returns (pose, iterations, pairs
+// kept, converged, rmse, H row-major, EM fits, whether the mixture was replaced, the mixture, the
+// inlier count or -1).
+std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_t> robust_icp(
     const TargetGrid& grid, Points source, double x, double y, double theta, const RobustParams& p,
-    const MixtureOut& mixture_in, bool has_prior, Vec3 prior_pose, Mat3 prior_info) {
+    const MixtureOut& mixture_in, bool has_prior, Vec3 prior_pose, Mat3 prior_info, double inlier_distance) {
     const double* s = source.data();
     const size_t n = source.shape(0);
     double pose[3] = {x, y, theta};
@@ -476,6 +479,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
     std::vector<double> gmm_w, w, last_d, kept_d;
     std::vector<size_t> keep;
     SortedDistances sorted;
+    int64_t inliers = -1;
     {
         nb::gil_scoped_release release;
         for (iterations = 1; iterations <= p.max_iterations; ++iterations) {
@@ -550,6 +554,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
             }
         }
         if (iterations > p.max_iterations) iterations = p.max_iterations;
+        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance);
     }
     double rmse = std::numeric_limits<double>::quiet_NaN();
     if (n_kept > 0) {
@@ -558,7 +563,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut> robust
         rmse = std::sqrt(sq / double(last_d.size()));
     }
     MixtureOut out{has_mix, mix.means, mix.sigmas, mix.mix, mix.merge_overlap, mix.fit_median};
-    return {Pose{pose[0], pose[1], pose[2]}, iterations, n_kept, converged, rmse, h, n_fits, replaced, out};
+    return {Pose{pose[0], pose[1], pose[2]}, iterations, n_kept, converged, rmse, h, n_fits, replaced, out, inliers};
 }
 
 }  // namespace
@@ -591,7 +596,7 @@ void bind_robust_icp(nb::module_& m) {
         .def_rw("max_fit_samples", &RobustParams::max_fit_samples);
     m.def("robust_icp", &robust_icp, nb::arg("grid"), nb::arg("source"), nb::arg("x"), nb::arg("y"),
           nb::arg("theta"), nb::arg("params"), nb::arg("mixture"), nb::arg("has_prior"), nb::arg("prior_pose"),
-          nb::arg("prior_information"));
+          nb::arg("prior_information"), nb::arg("inlier_distance") = -1.0);
 }
 
 }  // namespace fmcwlog

@@ -27,13 +27,13 @@ def _copy(value):
 
 @pytest.fixture(scope="module")
 def recorded():
-    """Every fit, de-skew and thinning the improved front end makes processing the 30 s crowd log:
-    {"fit": [(args, kwargs)], "deskew": [...], "voxel": [...]}, the inputs copied."""
+    """Every fit and source cloud (de-skew and thinning) the improved front end makes processing the
+    30 s crowd log: {"fit": [(args, kwargs)], "source": [...]}, the inputs copied."""
     from fmcwlog.api import ProcessOptions, process
     from fmcwlog.frontend import methods
 
-    seen = {"fit": [], "deskew": [], "voxel": []}
-    originals = {name: getattr(methods, name) for name in ("fit_sensor_velocity", "deskew_placed", "voxel_downsample")}
+    seen = {"fit": [], "source": []}
+    originals = {name: getattr(methods, name) for name in ("fit_sensor_velocity", "deskewed_source")}
 
     def capturing(kind, function):
         def capture(*args, **kwargs):
@@ -42,8 +42,7 @@ def recorded():
         return capture
 
     methods.fit_sensor_velocity = capturing("fit", eg.fit_sensor_velocity_numpy)
-    methods.deskew_placed = capturing("deskew", dk.deskew_placed_numpy)
-    methods.voxel_downsample = capturing("voxel", vx.voxel_downsample_numpy)
+    methods.deskewed_source = capturing("source", dk.deskewed_source_numpy)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             process(str(SAMPLE_LOGS / "crowd_30s.mcap"), tmp + "/out",
@@ -87,18 +86,35 @@ def test_recorded_fits_agree(recorded, use):
 
 @needs_core
 def test_recorded_deskew_and_thinning_agree(recorded, use):
+    """Each sweep's source cloud in one call: the mask and velocities exactly, the points the compiled
+    de-skew's placed by the mount bit for bit and numpy's to rounding, the thinning that of those points
+    (the first per voxel or the centroids, at the front end's voxel and others)."""
     use("compiled")
-    assert len(recorded["deskew"]) > 200 and len(recorded["voxel"]) > 200
-    for args, kwargs in recorded["deskew"]:
-        xy, t, v, omega, mount, pose, keep = args
+    assert len(recorded["source"]) > 200
+    moved = 0
+    for args, _ in recorded["source"]:
+        xy, t, v, omega, mount, near, moving, velocity, size, centroid = args
+        moved += moving is not None
+        keep = ~near if moving is None else ~(near | moving)
         seen = dk.deskew(xy[keep], t[keep], v, omega, mount)
         np.testing.assert_allclose(seen, dk.deskew_numpy(xy[keep], t[keep], v, omega, mount), rtol=0, atol=1e-12)
-        placed = dk.deskew_placed(*args, **kwargs)
-        np.testing.assert_array_equal(placed, transform_points(pose, seen))  # the two compiled steps' bits
-        np.testing.assert_allclose(placed, dk.deskew_placed_numpy(*args, **kwargs), rtol=0, atol=1e-12)
-    for (xy, size), _ in recorded["voxel"]:
+        placed = dk.deskew_placed(xy, t, v, omega, mount, mount, keep)
+        np.testing.assert_array_equal(placed, transform_points(mount, seen))  # the two compiled steps' bits
+        np.testing.assert_allclose(placed, dk.deskew_placed_numpy(xy, t, v, omega, mount, mount, keep),
+                                   rtol=0, atol=1e-12)
+        for s, c in ((size, centroid), (0.03, False), (0.5, False), (size, True), (0.0, False)):
+            use_mask, points, source, kept = dk.deskewed_source(xy, t, v, omega, mount, near, moving, velocity, s, c)
+            ref = dk.deskewed_source_numpy(xy, t, v, omega, mount, near, moving, velocity, s, c)
+            np.testing.assert_array_equal(use_mask, ref[0])
+            np.testing.assert_array_equal(points, placed)
+            np.testing.assert_allclose(points, ref[1], rtol=0, atol=1e-12)
+            thin = vx.voxel_centroids_numpy if c else vx.voxel_downsample_numpy
+            np.testing.assert_array_equal(source, thin(points, s))
+            assert (source is points) == (s <= 0 or len(points) == 0)
+            np.testing.assert_array_equal(kept, ref[3])
         for s in (size, 0.03, 0.5):
-            np.testing.assert_array_equal(vx.voxel_downsample(xy, s), vx.voxel_downsample_numpy(xy, s))
+            np.testing.assert_array_equal(vx.voxel_downsample(placed, s), vx.voxel_downsample_numpy(placed, s))
+    assert moved > 50
 
 
 def _doppler_scene(rng, n, movers, nan_share, zero_share):
@@ -215,6 +231,48 @@ def test_generated_thinning_is_the_same(use, seed, n, spread, size, odd):
         ref = vx.voxel_downsample_numpy(xy, size)
     got = vx.voxel_downsample(xy, size)
     assert got.tobytes() == ref.tobytes() and got.shape == ref.shape
+
+
+@needs_core
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 1500), v=st.floats(-3.0, 3.0), omega=st.floats(-3.0, 3.0),
+       mount=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-4.0, 4.0)),
+       near_share=st.sampled_from([0.0, 0.1, 1.0]), moving_share=st.sampled_from([None, 0.0, 0.3, 1.0]),
+       velocity=st.sampled_from([None, "float64", "float32"]), size=st.sampled_from([0.0, -1.0, 0.03, 0.1, 7.0]),
+       centroid=st.booleans(), odd=st.booleans())
+def test_generated_deskewed_source_agrees(use, seed, n, v, omega, mount, near_share, moving_share, velocity, size,
+                                          centroid, odd):
+    """The fused source cloud against its steps: the mask and velocities exactly (their dtype kept), the
+    points those of the compiled :func:`deskew_placed` bit for bit (numpy's to rounding), the thinning that
+    of those points (the same values; a NaN sum's sign bit aside); with ``odd``, NaN and infinite
+    coordinates."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-40, 40, (n, 2))
+    if odd and n:
+        xy[rng.integers(0, n, 3)] = [np.nan, 1.0]
+        xy[rng.integers(0, n, 2)] = [np.inf, -np.inf]
+    t = np.sort(rng.uniform(0, 0.1, n))
+    near = rng.uniform(size=n) < near_share
+    moving = None if moving_share is None else rng.uniform(size=n) < moving_share
+    vel = None if velocity is None else rng.normal(0, 2, n).astype(velocity)
+    mount = np.array(mount)
+    use("compiled")
+    with np.errstate(invalid="ignore"):
+        got = dk.deskewed_source(xy, t, v, omega, mount, near, moving, vel, size, centroid)
+        ref = dk.deskewed_source_numpy(xy, t, v, omega, mount, near, moving, vel, size, centroid)
+        keep = ref[0]
+        np.testing.assert_array_equal(got[0], keep)
+        assert got[1].tobytes() == dk.deskew_placed(xy, t, v, omega, mount, mount, keep).tobytes()
+        assert got[1].shape == (int(keep.sum()), 2)
+        np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=1e-9)
+        thin = vx.voxel_centroids_numpy if centroid else vx.voxel_downsample_numpy
+        expected = thin(got[1], size)
+        assert got[2].shape == expected.shape
+        np.testing.assert_array_equal(got[2], expected)  # (NaN sums may differ in the NaN's sign bit)
+    if vel is None:
+        assert got[3] is None
+    else:
+        assert got[3].dtype == vel.dtype and got[3].tobytes() == ref[3].tobytes()
 
 
 def _spd(rng, scale):

@@ -60,7 +60,8 @@ def recorded():
 
     seen, original = [], methods.register_point_to_point
 
-    def capture(source, tree, target, start, params):
+    def capture(source, tree, target, start, params, inlier_distance=None):
+        assert inlier_distance == 0.1  # the recovery's, counted by the kernel
         seen.append((source.copy(), target.copy(), np.array(start, float), params))
         return p2p.register_point_to_point_numpy(source, tree, target, start, params)
 
@@ -85,6 +86,22 @@ def test_recorded_registrations_agree(recorded, use):
         for pose in (start, ref.pose):
             assert_same_pairs(fast.search, source, tree, target, pose, params.max_correspondence_distance)
         assert inlier_fraction(source, ref.pose, tree, 0.1, fast.search) == inlier_fraction(source, ref.pose, tree, 0.1)
+        assert_counted_inliers(use, source, tree, target, start, params, 0.1)
+
+
+def assert_counted_inliers(use, source, tree, target, start, params, distance):
+    """The inliers the kernel counts at its final pose (``inlier_distance``) are those the search and the
+    KD-tree count there; none counted beyond the gate."""
+    fast = _register("compiled", use, source, tree, target, start, params, distance)
+    if distance > params.max_correspondence_distance or not len(source):
+        assert fast.search.counted is None or not len(source)
+        return
+    counted = fast.search.counted
+    assert counted is not None and counted[0] is fast.pose and counted[1] == distance
+    fraction = inlier_fraction(source, fast.pose, tree, distance, fast.search)
+    fast.search.counted = None
+    assert fraction == inlier_fraction(source, fast.pose, tree, distance, fast.search)
+    assert fraction == inlier_fraction(source, fast.pose, tree, distance)
 
 
 @needs_core
@@ -104,6 +121,8 @@ def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source
     # the reference's own search gives the same pairs again
     pairs = NearestPairs(source, tree, target, gate).pairs(ref.pose)
     np.testing.assert_array_equal(pairs.source_idx, find_correspondences(source, ref.pose, tree, target, gate).source_idx)
+    for distance in (0.02, 0.1, 0.5):
+        assert_counted_inliers(use, source, tree, target, start, params, distance)
 
 
 @needs_core

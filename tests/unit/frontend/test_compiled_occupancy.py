@@ -56,6 +56,16 @@ def recorded():
         lookups.append(("seen_free", fast, self.seen_free_numpy(map_xy, candidates, threshold)))
         return fast
 
+    def record_placed_free(recent, xy, t, twist, mount, lidar, ranges, yaw_error, tolerance, threshold):
+        map_xy, free = placed_free(recent, xy, t, twist, mount, lidar, ranges, yaw_error, tolerance, threshold)
+        candidates = (np.hypot(xy[:, 0], xy[:, 1]) if ranges is None else ranges) * yaw_error <= tolerance
+        lookups.append(("seen_free", free, recent.seen_free_numpy(map_xy, candidates, threshold)))
+        lookups.append(("placed", map_xy, deskew.deskew_placed(xy, t, twist[0], twist[1], mount, lidar)))
+        ref_xy, _ = tracking.placed_free_space_numpy(recent, xy, t, twist, mount, lidar, ranges, yaw_error, tolerance,
+                                                     threshold)
+        np.testing.assert_allclose(map_xy, ref_xy, rtol=0, atol=1e-9)
+        return map_xy, free
+
     def record_local_max(grid, map_xy):
         fast = local_max(grid, map_xy)
         lookups.append(("local_max", fast, local_max_log_odds_numpy(grid, map_xy)))
@@ -63,8 +73,9 @@ def recorded():
 
     saved = os.environ.get(compiled.ENV), compiled._chosen, compiled._core
     Scan.update, RecentOccupancy.seen_free, recent_grid.local_max_log_odds = record_update, record_seen_free, record_local_max
-    from fmcwlog.frontend import tracking
+    from fmcwlog.frontend import deskew, tracking
     tracking_local_max, tracking.local_max_log_odds = tracking.local_max_log_odds, record_local_max
+    placed_free, tracking.placed_free_space = tracking.placed_free_space, record_placed_free
     os.environ[compiled.ENV], compiled._chosen, compiled._core = "compiled", None, None
     try:
         if compiled.core() is not None:
@@ -73,6 +84,7 @@ def recorded():
     finally:
         Scan.update, RecentOccupancy.seen_free, recent_grid.local_max_log_odds = update, seen_free, local_max
         tracking.local_max_log_odds = tracking_local_max
+        tracking.placed_free_space = placed_free
         if saved[0] is None:
             os.environ.pop(compiled.ENV, None)
         else:
@@ -101,10 +113,12 @@ def test_recorded_grids_agree(recorded, use):
 
 @needs_core
 def test_recorded_lookups_agree(recorded):
-    """Every free-space lookup of the tracker and every structure check: the same answers."""
+    """Every free-space lookup of the tracker (the sweep placed and looked up in one call: the points of
+    the compiled de-skew, the verdicts of the numpy lookup on them) and every structure check: the same
+    answers."""
     _, lookups = recorded
     kinds = [kind for kind, _, _ in lookups]
-    assert kinds.count("seen_free") > 250 and kinds.count("local_max") > 50
+    assert kinds.count("seen_free") > 250 and kinds.count("local_max") > 50 and kinds.count("placed") > 250
     assert any(fast.any() for kind, fast, _ in lookups if kind == "seen_free")
     for kind, fast, ref in lookups:
         assert fast.dtype == ref.dtype and fast.tobytes() == ref.tobytes(), kind
@@ -150,6 +164,35 @@ def test_generated_casts_agree(simd, scan, max_range, protect_hits, step_fractio
     res, origin, points = scan
     params = OccupancyParams(resolution=res, max_range=max_range, protect_hits=protect_hits, step_fraction=step_fraction)
     assert_same_update(occ.cast(origin, points, params), occ.cast_numpy(origin, points, params))
+
+
+@needs_core
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(scan=scans(far=True), max_range=st.sampled_from([None, 3.0, 0.01]), odd=st.sampled_from([None, 0, 1]))
+def test_generated_scan_cells_agree(use, scan, max_range, odd):
+    """The cells a grid must hold for a scan: the same as numpy's; with ``odd``, a point or the sensor
+    not finite, where the kernel declines and numpy answers."""
+    res, origin, points = scan
+    params = OccupancyParams(resolution=res, max_range=max_range)
+    if odd is not None:
+        (points if odd else origin)[0] = np.nan
+    core = use("compiled")
+    with np.errstate(invalid="ignore"):
+        ref = occ.scan_cells_numpy(origin, points, params)
+        assert occ.scan_cells(origin, points, params) == ref
+    direct = core.occupancy_scan_cells(points, *origin.tolist(), max_range is not None, max_range or 0.0, res)
+    assert (direct is None) == (odd is not None)
+    if direct is not None:
+        assert direct == ref
+
+
+@needs_core
+def test_recorded_scan_cells_agree(recorded, use):
+    casts, _ = recorded
+    use("compiled")
+    for origin, points, params in casts:
+        for p in (params, OccupancyParams(resolution=params.resolution, max_range=4.0)):
+            assert occ.scan_cells(origin, points, p) == occ.scan_cells_numpy(origin, points, p)
 
 
 @needs_core
@@ -199,6 +242,23 @@ def test_generated_lookups_agree(use, many, threshold, seed):
     fast_max = local_max_log_odds(grid, map_xy)
     assert fast.tobytes() == ref.tobytes()
     assert fast_max.dtype == ref_max.dtype and fast_max.tobytes() == ref_max.tobytes()
+    # the same points as a sweep seen from a lidar pose, placed and looked up in one call: the compiled
+    # de-skew's points, the numpy lookup's verdicts on them (ranges given or the kernel's own np.hypot)
+    from fmcwlog.frontend.deskew import deskew_placed
+    from fmcwlog.frontend.tracking import placed_free_space
+
+    lidar = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-3, 3)])
+    mount = np.array([0.3, -0.1, rng.uniform(-3, 3)])
+    xy = np.ascontiguousarray(map_xy)
+    t = np.sort(rng.uniform(0, 0.1, len(xy)))
+    twist = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)))
+    with np.errstate(invalid="ignore", over="ignore"):
+        for ranges in (None, np.hypot(xy[:, 0], xy[:, 1])):
+            for yaw_error in (0.0, 0.01, np.inf):
+                placed, free = placed_free_space(recent, xy, t, twist, mount, lidar, ranges, yaw_error, 0.05, threshold)
+                assert placed.tobytes() == deskew_placed(xy, t, twist[0], twist[1], mount, lidar).tobytes()
+                candidates = np.hypot(xy[:, 0], xy[:, 1]) * yaw_error <= 0.05
+                assert free.tobytes() == recent.seen_free_numpy(placed, candidates, threshold).tobytes()
 
 
 @needs_core

@@ -57,14 +57,27 @@ def _agree(a, b, tol):
     return True
 
 
-def _both(use, source, target, start, params, mixture=None, prior_pose=None, prior_information=None):
-    """The numpy reference on a KD-tree, then the compiled kernel through ``register`` on a map index."""
+def _both(use, source, target, start, params, mixture=None, prior_pose=None, prior_information=None,
+          inlier_distance=None):
+    """The numpy reference on a KD-tree, then the compiled kernel through ``register`` on a map index;
+    with ``inlier_distance``, the inliers the kernel counted at its pose are those the search and the
+    KD-tree count there."""
     ref = robust_icp.register_numpy(source, cKDTree(target), target, start, params, mixture, prior_pose,
                                     prior_information)
     use("compiled")
     fast = robust_icp.register(source, compiled.MapIndex(target), target, start, params, mixture, prior_pose,
-                               prior_information)
+                               prior_information, inlier_distance)
     assert isinstance(fast.search, compiled.CompiledNearest)
+    if inlier_distance is not None and inlier_distance <= params.max_correspondence_distance and len(source):
+        counted = fast.search.counted
+        assert counted is not None and counted[0] is fast.pose and counted[1] == inlier_distance
+        fraction = inlier_fraction(source, fast.pose, fast.search.tree, inlier_distance, fast.search)
+        fast.search.counted = None  # the search's own answer, then the tree's
+        assert fraction == inlier_fraction(source, fast.pose, fast.search.tree, inlier_distance, fast.search)
+        assert fraction == inlier_fraction(source, fast.pose, cKDTree(target), inlier_distance)
+        fast.search.counted = counted
+    elif len(source):
+        assert fast.search.counted is None
     return fast, ref
 
 
@@ -79,10 +92,11 @@ def recorded():
 
     seen, original = [], methods.register
 
-    def capture(source, tree, target, start, params, mixture=None, prior_pose=None, prior_information=None):
+    def capture(source, tree, target, start, params, mixture=None, prior_pose=None, prior_information=None,
+                inlier_distance=None):
         seen.append((source.copy(), target.copy(), np.array(start, float), params, mixture,
                      None if prior_pose is None else np.array(prior_pose, float),
-                     None if prior_information is None else np.array(prior_information, float)))
+                     None if prior_information is None else np.array(prior_information, float), inlier_distance))
         return robust_icp.register_numpy(source, tree, target, start, params, mixture, prior_pose, prior_information)
 
     methods.register = capture
@@ -99,8 +113,9 @@ def recorded():
 def test_recorded_registrations_agree(recorded, use):
     assert len(recorded) > 100
     assert any(r[4] is not None for r in recorded) and any(r[6] is not None for r in recorded)
-    for source, target, start, params, mixture, prior_pose, prior_info in recorded[::2]:
-        fast, ref = _both(use, source, target, start, params, mixture, prior_pose, prior_info)
+    assert all(r[7] == 0.1 for r in recorded)  # the recovery's inlier distance, counted by the kernel
+    for source, target, start, params, mixture, prior_pose, prior_info, inlier_distance in recorded[::2]:
+        fast, ref = _both(use, source, target, start, params, mixture, prior_pose, prior_info, inlier_distance)
         assert_same(fast, ref)
         if ref.n_gmm_fits == 0:
             assert fast.mixture is mixture  # no fit: the given mixture, the same object
@@ -117,10 +132,11 @@ def test_recorded_registrations_agree(recorded, use):
        use_huber=st.booleans(), use_gmmsc=st.booleans(), extrapolate=st.booleans(),
        k=st.integers(1, 4), w_th=st.sampled_from([0.05, 0.3, 0.5, 0.9]), merge=st.sampled_from([0.2, 1.0]),
        refit=st.sampled_from([0.25, 0.8, 1.0]), fit_samples=st.sampled_from([7, 50, 500]),
-       em_iter=st.sampled_from([1, 10, 100]), prior=st.booleans(), given_mixture=st.booleans())
+       em_iter=st.sampled_from([1, 10, 100]), prior=st.booleans(), given_mixture=st.booleans(),
+       inlier_distance=st.sampled_from([None, 0.02, 0.1, 0.5]))
 def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source, clutter, dx, dy, dth, gate,
                                        iterations, use_huber, use_gmmsc, extrapolate, k, w_th, merge, refit,
-                                       fit_samples, em_iter, prior, given_mixture):
+                                       fit_samples, em_iter, prior, given_mixture, inlier_distance):
     # w_th > 0: with 0 a mixture can keep pairs of weight down to subnormal numbers, whose step is
     # rounding noise in either implementation.
     source, target = wall_scene(seed, n_segments, n_points, n_source, (dx, dy, dth),
@@ -135,7 +151,7 @@ def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source
                               0.02) if given_mixture else None
     prior_pose = np.array([dx, dy, dth]) * 0.5 if prior else None
     prior_info = np.diag([4.0, 1.0, 9.0]) if prior else None
-    fast, ref = _both(use, source, target, start, params, mixture, prior_pose, prior_info)
+    fast, ref = _both(use, source, target, start, params, mixture, prior_pose, prior_info, inlier_distance)
     # where the reference itself moves by more than 1e-10 for a start 1e-12 away (iterations cut
     # off on a flat cost, extrapolated steps magnifying rounding: a single wall, wide gates, clutter),
     # rounding alone takes any other implementation more than 1e-9 away: such cases are skipped

@@ -120,7 +120,8 @@ class SensorVote:
     window's last sweep is carried into its first sweep's frame by each candidate motion, and the
     one whose points land closer to the first sweep's (:func:`_misfit` below ``witness_ratio`` of
     the other's) is the motion the scans agree with; the other source is outvoted for the sweeps
-    until the next window is judged. Scan matching here is the sweeps themselves, not the improved
+    until a window finds the two agreeing (or the scans side with it); a window the scans cannot
+    decide keeps the last verdict. Scan matching here is the sweeps themselves, not the improved
     method's registration, whose soft prior is the fused twist (a scaled Doppler would pull it along).
 
     :meth:`sweep` records a sweep's points and Doppler forward speed; :meth:`interval` each interval
@@ -187,7 +188,7 @@ class SensorVote:
         first = self._sweeps.get(self._window[0][0])
         last = self._sweeps.get(stamp)
         if first is None or last is None or len(first[1]) < 10 or len(last[1]) < 10:
-            return None
+            return self._undecided()
         m_whl, m_dop = self._motions()
         from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
         tree = cKDTree(first[1])
@@ -197,11 +198,18 @@ class SensorVote:
         elif e_whl < p.witness_ratio * e_dop and e_dop - e_whl > p.witness_min_gap:
             winner, loser = WHEELS, DOPPLER
         else:
-            return None
+            return self._undecided()
         self.agree[winner] += 1
         self.against[loser] += 1
         self.outvoted_s[loser] += self._window[-1][1][0]
         return loser
+
+    def _undecided(self) -> str | None:
+        """The wheels and Doppler still disagree but the scans cannot tell (a scene that fixes no
+        direction): the source outvoted last stays outvoted, for these sweeps too."""
+        if self.outvoted is not None:
+            self.outvoted_s[self.outvoted] += self._window[-1][1][0]
+        return self.outvoted
 
     def _motions(self) -> tuple[np.ndarray, np.ndarray]:
         """base_link's motion over the window (x, y, yaw in its frame at the window's start) by the

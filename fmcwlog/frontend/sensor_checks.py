@@ -314,12 +314,19 @@ class SensorChecks:
         prev, self._prev, self._prev_tree = self._prev, (stamp, xy), None
         if self._t0 is None:
             self._t0 = stamp
-        if self.params.vote:
-            self._vote_doppler(stamp, xy, ego, wheel_twist)
+        decision = self._judge_sweep(prev, stamp, xy, ego, wheel_twist, z_pred)
+        if not self.params.vote:
+            return decision
+        self._vote_doppler(stamp, xy, ego, wheel_twist)
+        if wheel_twist is None or not _finite(ego.v_sensor) or self.vote.outvoted is None:
+            return decision
+        return WHEELS if self.vote.outvoted == DOPPLER else DOPPLER  # for as long as the vote says so
+
+    def _judge_sweep(self, prev: tuple[float, np.ndarray] | None, stamp: float, xy: np.ndarray, ego: EgoMotion,
+                     wheel_twist: tuple[float, float] | None, z_pred: np.ndarray | None) -> str:
+        """The per-sweep check (module docstring): :meth:`judge` without the vote."""
         if wheel_twist is None or not _finite(ego.v_sensor):
             return KEEP
-        if self.params.vote and self.vote.outvoted is not None:
-            return WHEELS if self.vote.outvoted == DOPPLER else DOPPLER  # for as long as the vote says so
         x_w = np.asarray(wheel_twist, dtype=float)
         if z_pred is None:
             z_pred = self.design @ x_w

@@ -136,8 +136,7 @@ def test_held_ticks_are_valid_input(runs):
     assert not any("wheel ticks" in w and ("outvoted" in w or "stopped using" in w) for w in run["warnings"])
 
 
-@pytest.mark.xfail(strict=True, reason="held ticks' per-sweep rates (0, then 5x) still steer the Doppler fit's "
-                   "gate and the fusion: 98 cm against 0.5 cm clean")
+# measured 0.5 cm, as the clean log (the held readings are not stored: frontend/motion_prior.py)
 def test_held_ticks_keep_the_clean_accuracy(runs):
     assert runs["held_ticks"][1] < max(0.02, 2 * runs["none"][1]), (runs["held_ticks"][1], runs["none"][1])
 

@@ -121,7 +121,7 @@ class SensorVote:
     one whose points land closer to the first sweep's (:func:`_misfit` below ``witness_ratio`` of
     the other's) is the motion the scans agree with; the other source is outvoted for the sweeps
     until a window finds the two agreeing (or the scans side with it); a window the scans cannot
-    decide keeps the last verdict. Scan matching here is the sweeps themselves, not the improved
+    decide keeps the last verdict (:meth:`_undecided`). Scan matching here is the sweeps themselves, not the improved
     method's registration, whose soft prior is the fused twist (a scaled Doppler would pull it along).
 
     :meth:`sweep` records a sweep's points and Doppler forward speed; :meth:`interval` each interval
@@ -137,6 +137,7 @@ class SensorVote:
     agree: dict[str, int] = field(default_factory=lambda: {DOPPLER: 0, WHEELS: 0})  # the scans sided with it
     against: dict[str, int] = field(default_factory=lambda: {DOPPLER: 0, WHEELS: 0})  # windows outvoted
     outvoted_s: dict[str, float] = field(default_factory=lambda: {DOPPLER: 0.0, WHEELS: 0.0})  # time outvoted (s)
+    sweep_lean: int = 0  # per-sweep scan checks won by Doppler less those won by the wheels (SensorChecks)
     turns_against_wheels: int = 0  # turning windows where the wheels' heading change and the scans' disagree
     _sweeps: dict[float, tuple[float, np.ndarray]] = field(default_factory=dict)  # stamp -> (speed, points)
     _window: list[tuple[float, _Interval]] = field(default_factory=list)  # (start stamp, interval)
@@ -205,11 +206,17 @@ class SensorVote:
         return loser
 
     def _undecided(self) -> str | None:
-        """The wheels and Doppler still disagree but the scans cannot tell (a scene that fixes no
-        direction): the source outvoted last stays outvoted, for these sweeps too."""
-        if self.outvoted is not None:
-            self.outvoted_s[self.outvoted] += self._window[-1][1][0]
-        return self.outvoted
+        """The wheels and Doppler disagree but the scans cannot tell (a scene that fixes no direction):
+        the source outvoted last stays outvoted, for these sweeps too; with none outvoted yet, the one
+        outvoted more often so far, on a tie the one the per-sweep scan checks sided against more
+        (``sweep_lean``), else Doppler (the wheels are the prior its fit is gated by, :mod:`.egomotion`).
+        Counted as time outvoted, not as a window outvoted."""
+        loser = self.outvoted
+        if loser is None:
+            lean = self.against[DOPPLER] - self.against[WHEELS] or -self.sweep_lean
+            loser = WHEELS if lean < 0 else DOPPLER
+        self.outvoted_s[loser] += self._window[-1][1][0]
+        return loser
 
     def _motions(self) -> tuple[np.ndarray, np.ndarray]:
         """base_link's motion over the window (x, y, yaw in its frame at the window's start) by the
@@ -317,6 +324,7 @@ class SensorChecks:
         decision = self._judge_sweep(prev, stamp, xy, ego, wheel_twist, z_pred)
         if not self.params.vote:
             return decision
+        self.vote.sweep_lean = self.counts.won_doppler - self.counts.won_wheels
         self._vote_doppler(stamp, xy, ego, wheel_twist)
         if wheel_twist is None or not _finite(ego.v_sensor) or self.vote.outvoted is None:
             return decision

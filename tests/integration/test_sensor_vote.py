@@ -8,6 +8,7 @@ rewriting it (tests/helpers.py ``copy_log``):
   and the improved method stays near the clean log's accuracy;
 - wheel ticks counted at 10 Hz and republished at 50 Hz (sample-and-hold: a value repeated, then
   a jump): valid input, no wheel fault;
+- wheel ticks frozen for 5 s: the wheels outvoted while frozen, not dropped for good;
 - ``fmcwlog calibrate`` on the doubled-Doppler log refuses, naming Doppler, and writes no file.
 
 The ablation (``sensor_checks.vote = false``) shows the vote is what keeps the doubled Doppler out.
@@ -61,6 +62,17 @@ def _held_ticks():
     return edit
 
 
+def _frozen_ticks():
+    """The counts of 6 s repeated until 11 s, then the true counts again."""
+    held = {}
+
+    def edit(topic, i, msg):
+        if topic == "/wheel/ticks" and 300 <= i < 550:
+            held.setdefault("ticks", (msg.left, msg.right))
+            msg.left, msg.right = held["ticks"]
+    return edit
+
+
 DOPPLER_FAULTS = {
     "doppler_doubled": _velocities(lambda i, v, s: 2 * v),
     "doppler_zero": _velocities(lambda i, v, s: 0 * v),
@@ -87,7 +99,7 @@ def runs(clean) -> dict[str, tuple[dict, float]]:
     """name -> (run.json, improved ATE in m) for the clean log and each fault."""
     gt = ground_truth(clean)
     out = {"none": _run(clean, gt)}
-    for name, edit in {**DOPPLER_FAULTS, "held_ticks": _held_ticks()}.items():
+    for name, edit in {**DOPPLER_FAULTS, "held_ticks": _held_ticks(), "frozen_ticks": _frozen_ticks()}.items():
         log = clean.with_name(f"{name}.mcap")
         copy_log(clean, log, edit=edit)
         out[name] = _run(log, gt)
@@ -138,6 +150,16 @@ def test_held_ticks_are_valid_input(runs):
 # measured 0.5 cm, as the clean log (the held readings are not stored: frontend/motion_prior.py)
 def test_held_ticks_keep_the_clean_accuracy(runs):
     assert runs["held_ticks"][1] < max(0.02, 2 * runs["none"][1]), (runs["held_ticks"][1], runs["none"][1])
+
+
+def test_frozen_ticks_are_outvoted_while_frozen(runs):
+    """Measured: the wheels outvoted in 18 windows (3.6 s), not dropped for good; ATE 2.4 cm (38 cm without the vote)."""
+    run, ate = runs["frozen_ticks"]
+    checks = run["motion_sources"]["improved"]["sensor_checks"]
+    assert checks["vote"]["wheels_outvoted"] >= 10 and checks["wheels_dropped_at_s"] is None, checks
+    assert any(w.startswith("improved: the wheel ticks outvoted: scan matching agrees with Doppler in")
+               for w in run["warnings"]), run["warnings"]
+    assert ate < 0.05, ate
 
 
 def test_without_the_vote_a_doubled_doppler_ruins_the_path(runs, clean):

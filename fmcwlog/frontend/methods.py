@@ -616,7 +616,7 @@ class ImprovedFrontEnd(FrontEnd):
         d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
-        self.checks.interval(stamp - dt, stamp, prior.since_last, float(d[2]) if registered else None)  # the vote
+        self.checks.interval(self.last_stamp, stamp, prior.since_last, float(d[2]) if registered else None)  # the vote
         if registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels:
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
         self._registered_last = registered

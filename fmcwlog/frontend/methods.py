@@ -625,7 +625,7 @@ class ImprovedFrontEnd(FrontEnd):
         wheels = prior if self.checks.use_wheels else PriorMotion()
         self._drop_wheels, self._raw_fit = False, None
         doppler = self.doppler_stages(sweep, wheels.twist)
-        if self._drop_wheels:
+        if self._drop_wheels or self.checks.vote.outvoted == WHEELS:
             wheels = PriorMotion()
         self._keep_doppler_sample(ts, wheels)
         segmented = doppler is not None and self.params.segment
@@ -675,6 +675,9 @@ class ImprovedFrontEnd(FrontEnd):
         d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
+        # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
+        self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,
+                             float(d[2]) if registered else None)
         if (registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels
                 and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
@@ -687,7 +690,7 @@ class ImprovedFrontEnd(FrontEnd):
     def calibration_estimate(self) -> CalibrationEstimate | None:
         """The mount and wheels the log shows (:mod:`.self_calibration`); None when it cannot say
         (no wheel ticks or Doppler, too little motion, or a source dropped as faulty)."""
-        if self.checks.dropped_at or self.cal.wheels is None:
+        if self.checks.dropped_at or self.cal.wheels is None or self.checks.calibration_veto("") is not None:
             return None
         return estimate_calibration(self.samples, self.cal, self.params.self_calibration)
 
@@ -698,16 +701,19 @@ class ImprovedFrontEnd(FrontEnd):
         out = {"doppler_observes": seen, **self.sources.summary(), "sensor_checks": self.checks.summary()}
         warnings = self.sources.warnings(seen, prior_name) + self.checks.warnings(prior_name)
         check, check_warnings = calibration_report(self.calibration_estimate(), self.cal, p.self_calibration,
-                                                   self._why_no_calibration())
+                                                   self._why_no_calibration(prior_name))
         out["calibration_check"] = check
         return out, warnings + check_warnings
 
-    def _why_no_calibration(self) -> str | None:
+    def _why_no_calibration(self, prior_name: str = "wheel ticks") -> str | None:
         """Why there can be no calibration estimate; None when only too little motion would explain it."""
         if self.cal.wheels is None:
             return "needs wheel ticks (and the calibration's wheels)"
         if self.checks.dropped_at:
             return f"a source was dropped as faulty ({', '.join(sorted(self.checks.dropped_at))})"
+        veto = self.checks.calibration_veto(prior_name)
+        if veto is not None:
+            return veto
         if not self.samples.doppler:
             return "needs Doppler and wheel ticks in the same sweeps"
         return None

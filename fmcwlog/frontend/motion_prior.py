@@ -4,6 +4,12 @@ Fed incrementally, in log order, by wheel ticks (integrated with the
 calibration, paper eq. 9 and 13, see :mod:`fmcwlog.frontend.odometry`) or by the poses
 of an Odometry topic. Only the last few seconds are kept (in a buffer shifted
 when full): memory does not grow with the log.
+
+Ticks counted at a lower rate than they are published (an encoder read at 10 Hz, republished at
+50 Hz: a count repeated, then a jump) are valid input: a reading that repeats the last stored
+counts less than ``hold_seconds`` after it is a sample held, not a measurement of standing still,
+and is not stored, so the motion between two counts is spread over the time between them. A robot
+that stands keeps its pose: a repeat ``hold_seconds`` after the last stored reading is stored.
 """
 
 from __future__ import annotations
@@ -20,9 +26,10 @@ MAX_HOLD_S = 120.0  # s: the longest gap in the sweeps the track is kept for (:a
 class PoseTrack:
     """Time-stamped poses (odometry frame) with interpolation; stamps in seconds."""
 
-    def __init__(self, keep_seconds: float = 5.0):
+    def __init__(self, keep_seconds: float = 5.0, hold_seconds: float = 0.25):
         self.keep = keep_seconds
         self.hold_from = np.inf  # s: poses from this time on are kept too (the last sweep's stamp, across a gap); inf: none
+        self.hold = hold_seconds
         self._t = np.empty(256)
         self._p = np.empty((256, 3))
         self._k = np.full((256, 2), np.nan)  # cumulative ticks (left, right) at each pose; NaN from poses
@@ -77,6 +84,9 @@ class PoseTrack:
         else:
             if self._n and t == self._t[self._n - 1]:
                 self.repeated_stamps += 1
+                return False
+            if (left, right) == self._ticks and self._n >= 2 and t - self._t[self._n - 1] < self.hold:
+                # the same counts again within a hold (module docstring)
                 return False
             ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
             ok = self.add_pose(t, integrate_arc(ds[0], dth[0], self._p[self._n - 1]))

@@ -26,6 +26,27 @@ Each leaves the log self-consistent in one source and at odds with the others:
 
 The cost is nothing on sweeps without a dispute; a dispute costs one KD-tree over the
 previous sweep and two queries, and at most ``max_checks`` per log.
+
+Beside the per-sweep check the three sources vote over a sliding window (:class:`SensorVote`) of
+the last ``vote_sweeps`` intervals between sweeps (1 s at 10 Hz): the distance the wheels say
+(their ticks integrated between the two stamps, :mod:`.motion_prior`, which also takes ticks
+republished faster than they are counted, a value repeated and then a jump, as valid input) and
+the one Doppler says (its forward speed, the mean of the two sweeps' fits, times the interval).
+Where they agree (within ``vote_distance`` plus ``vote_relative`` of the larger) nothing more is
+done. Where they disagree, the scans are the third opinion: the window's last sweep is carried
+into its first sweep's frame by each candidate motion, and the one that lands on the first
+sweep's points (mean capped nearest-neighbour distance below ``witness_ratio`` of the other's)
+wins; the other source is outvoted. It is not used (no Doppler fit, segmentation or fusion; or
+no wheels in the fusion) for the sweeps while it is outvoted, which ends at the next window where
+the two agree or the scans side with it. A window the scans cannot decide (a scene that fixes no
+direction) keeps the last verdict. The per-sweep check still drops a flipped Doppler sign or
+negated ticks for good, but only a source the vote does not back (outvoted in as many windows as
+it agreed in, or, for the wheels, heading changes against the registered ones in turns), so that
+held ticks are not dropped. A source outvoted in ``distrust_share`` of the judged windows is
+distrusted: no calibration is estimated from the log (:mod:`.self_calibration`; ``fmcwlog
+calibrate`` refuses, naming it), and the warning gives the counts ("scan matching agrees with
+the wheel ticks in 160 of 194 checks; Doppler disagrees ..."). The vote costs a few Python float
+operations a sweep; a KD-tree and two queries only in windows where the sources disagree.
 """
 
 from __future__ import annotations
@@ -63,6 +84,15 @@ class CheckParams(Checked):
     min_evidence: decided scan checks against a source before it is dropped (>= 1).
     verdict_fraction: the share of decided checks a source must lose to be dropped, in (0.5, 1].
     max_checks: scan checks per log at most (>= 0; bounds the cost on a log full of disputes).
+    vote: whether the three sources vote over windows (:class:`SensorVote`); off, only the
+        per-sweep check runs.
+    vote_sweeps: intervals between sweeps in a vote's window (>= 2; long enough to span a hold
+        of ticks republished faster than they are counted).
+    vote_distance: two sources' distances over a window agree within this (m, >= 0) ...
+    vote_yaw: ... their heading changes within this (rad, >= 0) ...
+    vote_relative: ... plus this fraction of the larger of the two, in [0, 1].
+    distrust_share: a source outvoted in at least this share of the judged windows (and in
+        ``min_evidence`` of them) is distrusted for the calibration, in (0, 1].
     """
 
     min_speed: float = param(0.2, "m/s", ge=0, le=10)
@@ -73,7 +103,177 @@ class CheckParams(Checked):
     min_evidence: int = param(10, "checks", ge=1, le=1000000)
     verdict_fraction: float = param(0.9, "", gt=0.5, le=1)
     max_checks: int = param(300, "checks", ge=0, le=1000000000)
+    vote: bool = True
+    vote_sweeps: int = param(10, "sweeps", ge=2, le=10000)
+    vote_distance: float = param(0.05, "m", ge=0, le=100)
+    vote_yaw: float = param(0.05, "rad", ge=0, le=10)
+    vote_relative: float = param(0.25, "", ge=0, le=1)
+    distrust_share: float = param(0.2, "", gt=0, le=1)
 
+
+
+# dt (s), wheels' x, y, yaw (m, m, rad), Doppler's distance (m), the registered heading change (rad; NaN: none)
+_Interval = tuple[float, float, float, float, float, float]
+
+
+@dataclass
+class SensorVote:
+    """Doppler, the wheels and scan matching compared over sliding windows (module docstring).
+
+    Each window spans the last ``vote_sweeps`` intervals between sweeps (at least half of them at a
+    log's start or after a gap). Where the wheels' and Doppler's distances (and so their motions)
+    agree, nothing more is done. Where they disagree, scan matching is the third opinion: the
+    window's last sweep is carried into its first sweep's frame by each candidate motion, and the
+    one whose points land closer to the first sweep's (:func:`_misfit` below ``witness_ratio`` of
+    the other's) is the motion the scans agree with; the other source is outvoted for the sweeps
+    until a window finds the two agreeing (or the scans side with it); a window the scans cannot
+    decide keeps the last verdict (:meth:`_undecided`). Scan matching here is the sweeps themselves, not the improved
+    method's registration, whose soft prior is the fused twist (a scaled Doppler would pull it along).
+
+    :meth:`sweep` records a sweep's points and Doppler forward speed; :meth:`interval` each interval
+    as the wheels saw it, and judges the window that ends there. ``outvoted`` is the source the last
+    judged window outvoted (None: none). Python floats and numpy only, the same under both kernels.
+    """
+
+    mount: np.ndarray
+    params: CheckParams = field(default_factory=CheckParams)
+    outvoted: str | None = None
+    judged: int = 0  # windows judged (moving, all three present)
+    checks: int = 0  # ... where the wheels and Doppler disagreed and the scans were asked
+    agree: dict[str, int] = field(default_factory=lambda: {DOPPLER: 0, WHEELS: 0})  # the scans sided with it
+    against: dict[str, int] = field(default_factory=lambda: {DOPPLER: 0, WHEELS: 0})  # windows outvoted
+    outvoted_s: dict[str, float] = field(default_factory=lambda: {DOPPLER: 0.0, WHEELS: 0.0})  # time outvoted (s)
+    sweep_lean: int = 0  # per-sweep scan checks won by Doppler less those won by the wheels (SensorChecks)
+    turns_against_wheels: int = 0  # turning windows where the wheels' heading change and the scans' disagree
+    _sweeps: dict[float, tuple[float, np.ndarray]] = field(default_factory=dict)  # stamp -> (speed, points)
+    _window: list[tuple[float, _Interval]] = field(default_factory=list)  # (start stamp, interval)
+
+    def sweep(self, stamp: float, speed: float, xy: np.ndarray) -> None:
+        """The base's forward speed (m/s) Doppler measured over the sweep at ``stamp`` (s), and its
+        points (N, 2) in the lidar frame (m), a strided subset kept."""
+        if math.isfinite(speed):
+            self._sweeps[stamp] = (speed, xy[:: max(1, len(xy) // self.params.witness_points)])
+        keep = self.params.vote_sweeps + 2
+        while len(self._sweeps) > keep:
+            del self._sweeps[min(self._sweeps)]
+
+    def interval(self, t_prev: float, stamp: float, wheels: np.ndarray | None, scan_yaw: float | None) -> None:
+        """The interval from the sweep at ``t_prev`` to the one at ``stamp`` (s), base_link's motion
+        over it by the wheels (x, y, yaw in its frame at ``t_prev``; None: no ticks) and the heading
+        change registration found (rad; None: not registered). Judges the window of consecutive
+        intervals that ends here."""
+        dt = stamp - t_prev
+        a, b = self._sweeps.get(t_prev), self._sweeps.get(stamp)
+        if wheels is None or a is None or b is None or not dt > 0:
+            self._window.clear()  # a window spans consecutive intervals only
+            self.outvoted = None
+            return
+        x, y, yaw = (float(w) for w in wheels[:3])
+        turn = math.nan if scan_yaw is None else scan_yaw
+        self._window.append((t_prev, (dt, x, y, yaw, 0.5 * (a[0] + b[0]) * dt, turn)))
+        if len(self._window) > self.params.vote_sweeps:
+            del self._window[0]
+        if 2 * len(self._window) >= self.params.vote_sweeps:
+            self.outvoted = self._judge(stamp)
+
+    def _judge(self, stamp: float) -> str | None:
+        """The source the window outvotes, if any; counts the verdict."""
+        p = self.params
+        dts, xs, _, yaws, dops, turns = zip(*(iv for _, iv in self._window))
+        t, d_whl, d_dop = math.fsum(dts), math.fsum(xs), math.fsum(dops)
+        if max(abs(d_dop), abs(d_whl)) < p.min_speed * t:
+            return None
+        self.judged += 1
+        y_whl, y_scan = math.fsum(yaws), math.fsum(turns)  # NaN where a sweep was not registered
+        if max(abs(y_whl), abs(y_scan)) > p.vote_yaw and not _near(y_whl, y_scan, p.vote_yaw, p.vote_relative):
+            self.turns_against_wheels += 1  # e.g. left and right swapped: the distance agrees, the turn not
+        if _near(d_whl, d_dop, p.vote_distance, p.vote_relative):
+            self.agree[DOPPLER] += 1
+            self.agree[WHEELS] += 1
+            return None
+        self.checks += 1
+        first = self._sweeps.get(self._window[0][0])
+        last = self._sweeps.get(stamp)
+        if first is None or last is None or len(first[1]) < 10 or len(last[1]) < 10:
+            return self._undecided()
+        m_whl, m_dop = self._motions()
+        from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
+        tree = cKDTree(first[1])
+        e_whl, e_dop = (self._misfit(tree, last[1], m) for m in (m_whl, m_dop))
+        if e_dop < p.witness_ratio * e_whl and e_whl - e_dop > p.witness_min_gap:
+            winner, loser = DOPPLER, WHEELS
+        elif e_whl < p.witness_ratio * e_dop and e_dop - e_whl > p.witness_min_gap:
+            winner, loser = WHEELS, DOPPLER
+        else:
+            return self._undecided()
+        self.agree[winner] += 1
+        self.against[loser] += 1
+        self.outvoted_s[loser] += self._window[-1][1][0]
+        return loser
+
+    def _undecided(self) -> str | None:
+        """The wheels and Doppler disagree but the scans cannot tell (a scene that fixes no direction):
+        the source outvoted last stays outvoted, for these sweeps too; with none outvoted yet, the one
+        outvoted more often so far, on a tie the one the per-sweep scan checks sided against more
+        (``sweep_lean``), else Doppler (the wheels are the prior its fit is gated by, :mod:`.egomotion`).
+        Counted as time outvoted, not as a window outvoted."""
+        loser = self.outvoted
+        if loser is None:
+            lean = self.against[DOPPLER] - self.against[WHEELS] or -self.sweep_lean
+            loser = WHEELS if lean < 0 else DOPPLER
+        self.outvoted_s[loser] += self._window[-1][1][0]
+        return loser
+
+    def _motions(self) -> tuple[np.ndarray, np.ndarray]:
+        """base_link's motion over the window (x, y, yaw in its frame at the window's start) by the
+        wheels, and by Doppler's distances along the wheels' arcs."""
+        m_whl, m_dop = np.zeros(3), np.zeros(3)
+        for _, (dt, x, y, yaw, d, _) in self._window:
+            m_whl = compose(m_whl, np.array([x, y, yaw]))
+            m_dop = compose(m_dop, se2_exp(d / dt, 0.0, yaw / dt, np.array(dt)))
+        return m_whl, m_dop
+
+    def _misfit(self, tree: cKDTree, pts: np.ndarray, base: np.ndarray) -> float:
+        """Mean distance (m), each capped at ``witness_cap``, from ``pts`` (the window's last sweep,
+        lidar frame) carried by base_link's motion ``base`` into the first sweep's lidar frame, to
+        the first sweep's points (as :meth:`SensorChecks._misfit`)."""
+        lidar = compose(compose(inverse(self.mount), base), self.mount)
+        cap = self.params.witness_cap
+        d, _ = tree.query(transform_points(lidar, pts), k=1, distance_upper_bound=cap)
+        return float(np.mean(np.minimum(d, cap)))
+
+    def may_drop(self, source: str) -> bool:
+        """Whether the per-sweep check may drop ``source`` for good: it was outvoted in as many windows
+        as it agreed in (with the other source, or with the scans where they were asked), or, for the
+        wheels, their heading changes disagreed with the scans' in turning windows."""
+        if source == WHEELS and self.turns_against_wheels >= 3:
+            return True
+        return self.against[source] >= self.agree[source]
+
+    def distrusted(self) -> str | None:
+        """The source outvoted in ``distrust_share`` of the judged windows (and ``min_evidence`` of them)."""
+        p = self.params
+        for source in (DOPPLER, WHEELS):
+            n = self.against[source]
+            if n >= p.min_evidence and n >= p.distrust_share * self.judged:
+                return source
+        return None
+
+    def evidence(self, source: str, prior_name: str) -> str:
+        """The numbers against ``source``: with whom scan matching agreed, in how many checks."""
+        other = WHEELS if source == DOPPLER else DOPPLER
+        name = {DOPPLER: "Doppler", WHEELS: f"the {prior_name}"}
+        won = self.against[source]
+        return (f"scan matching agrees with {name[other]} in {won} of {self.checks} checks; {name[source]} "
+                f"disagrees (outvoted in {won} of {self.judged} windows of {self.params.vote_sweeps} sweeps, "
+                f"{self.outvoted_s[source]:.1f} s in all)")
+
+    def summary(self) -> dict:
+        """The vote's counts, for ``run.json``."""
+        return {"windows": self.judged, "checks": self.checks, "doppler_outvoted": self.against[DOPPLER],
+                "wheels_outvoted": self.against[WHEELS],
+                "doppler_outvoted_s": round(self.outvoted_s[DOPPLER], 3),
+                "wheels_outvoted_s": round(self.outvoted_s[WHEELS], 3)}
 
 
 @dataclass
@@ -103,10 +303,16 @@ class SensorChecks:
     use_doppler: bool = True
     use_wheels: bool = True
     counts: _Counts = field(default_factory=_Counts)
+    vote: SensorVote = field(init=False)
     dropped_at: dict[str, float] = field(default_factory=dict)  # source -> seconds since the first sweep
     _t0: float | None = None
     _prev: tuple[float, np.ndarray] | None = None  # stamp (s) and points (lidar frame) of the last sweep
     _prev_tree: cKDTree | None = None
+
+    def __post_init__(self) -> None:
+        self.vote = SensorVote(self.mount, self.params)
+        (a00, a01), (a10, a11) = self.design.tolist()
+        self._columns = ((a00, a10), (a01, a11))  # the design's columns: the lidar velocity per unit v, per unit ω
 
     def judge(self, stamp: float, xy: np.ndarray, ego: EgoMotion, wheel_twist: tuple[float, float] | None,
               z_pred: np.ndarray | None = None) -> str:
@@ -121,6 +327,18 @@ class SensorChecks:
         prev, self._prev, self._prev_tree = self._prev, (stamp, xy), None
         if self._t0 is None:
             self._t0 = stamp
+        decision = self._judge_sweep(prev, stamp, xy, ego, wheel_twist, z_pred)
+        if not self.params.vote:
+            return decision
+        self.vote.sweep_lean = self.counts.won_doppler - self.counts.won_wheels
+        self._vote_doppler(stamp, xy, ego, wheel_twist)
+        if wheel_twist is None or not _finite(ego.v_sensor) or self.vote.outvoted is None:
+            return decision
+        return WHEELS if self.vote.outvoted == DOPPLER else DOPPLER  # for as long as the vote says so
+
+    def _judge_sweep(self, prev: tuple[float, np.ndarray] | None, stamp: float, xy: np.ndarray, ego: EgoMotion,
+                     wheel_twist: tuple[float, float] | None, z_pred: np.ndarray | None) -> str:
+        """The per-sweep check (module docstring): :meth:`judge` without the vote."""
         if wheel_twist is None or not _finite(ego.v_sensor):
             return KEEP
         x_w = np.asarray(wheel_twist, dtype=float)
@@ -156,6 +374,34 @@ class SensorChecks:
         if ego.n_inliers >= 0.5 * free.n_inliers:
             return KEEP  # the gated fit is a static consensus of its own (a crowd outvoted it)
         return WHEELS  # the gate kept a poor fit: no Doppler for this sweep
+
+    def _vote_doppler(self, stamp: float, xy: np.ndarray, ego: EgoMotion,
+                      wheel_twist: tuple[float, float] | None) -> None:
+        """Doppler's forward speed over the sweep for the vote: the fit free of the wheels' gate, solved
+        for ``v`` with the wheels' ``ω`` (0 without them) taking the lever arm's share."""
+        fit = ego.unconstrained if ego.unconstrained is not None else ego
+        zx, zy = fit.v_sensor.tolist()
+        omega = float(wheel_twist[1]) if wheel_twist is not None else 0.0
+        (c0x, c0y), (c1x, c1y) = self._columns
+        norm = c0x * c0x + c0y * c0y
+        if norm > 0.0:
+            self.vote.sweep(stamp, (c0x * (zx - c1x * omega) + c0y * (zy - c1y * omega)) / norm, xy)
+
+    def interval(self, t_prev: float, stamp: float, wheels: np.ndarray | None, scan_yaw: float | None) -> None:
+        """The interval between two sweeps as the wheels (base_link's x, y, yaw) and registration (the
+        heading change) saw it, for the vote (:meth:`SensorVote.interval`). Call once per sweep after
+        :meth:`judge`, in time order."""
+        if self.params.vote:
+            self.vote.interval(t_prev, stamp, wheels if self.use_wheels else None, scan_yaw)
+
+    def calibration_veto(self, prior_name: str) -> str | None:
+        """Why no calibration may be estimated from this log: scan matching contradicted one source
+        in too many windows (:meth:`SensorVote.distrusted`); None when it did not."""
+        source = self.vote.distrusted() if self.params.vote else None
+        if source is None:
+            return None
+        name = "Doppler" if source == DOPPLER else f"the {prior_name}"
+        return f"scan matching contradicts {name}, which it distrusts: {self.vote.evidence(source, prior_name)}"
 
     def _doppler_twist(self, free: EgoMotion, x_w: np.ndarray) -> np.ndarray:
         """``(v, ω)`` from Doppler alone where it observes them, the wheels (barely weighted) elsewhere."""
@@ -198,14 +444,18 @@ class SensorChecks:
         c, p = self.counts, self.params
         decided = c.won_doppler + c.won_wheels
         t = stamp - (self._t0 or stamp)
+        vote = not p.vote or self.vote.may_drop
         if (self.use_wheels and c.won_doppler >= p.min_evidence and c.won_doppler >= p.verdict_fraction * decided
-                and c.gross_vs_wheels >= p.verdict_fraction * c.won_doppler):
+                and c.gross_vs_wheels >= p.verdict_fraction * c.won_doppler and (vote is True or vote(WHEELS))):
             self.use_wheels = False
             self.dropped_at[WHEELS] = t
         if (self.use_doppler and c.won_wheels >= p.min_evidence and c.won_wheels >= p.verdict_fraction * decided
-                and c.opposed_vs_doppler >= p.verdict_fraction * c.won_wheels):
+                and c.opposed_vs_doppler >= p.verdict_fraction * c.won_wheels and (vote is True or vote(DOPPLER))):
             self.use_doppler = False
             self.dropped_at[DOPPLER] = t
+
+    def _vote_warnings(self, prior_name: str) -> list[str]:
+        return _vote_warnings_of(self.vote, self.dropped_at, prior_name) if self.params.vote else []
 
     def summary(self) -> dict:
         """The counts and verdicts, for ``run.json``."""
@@ -218,6 +468,7 @@ class SensorChecks:
                             "undecided": c.undecided},
             "doppler_dropped_at_s": self.dropped_at.get(DOPPLER),
             "wheels_dropped_at_s": self.dropped_at.get(WHEELS),
+            "vote": self.vote.summary(),
         }
 
     def warnings(self, prior_name: str) -> list[str]:
@@ -238,12 +489,30 @@ class SensorChecks:
                        f"{self.dropped_at[WHEELS]:.1f} s they disputed Doppler ({c.opposed} opposed), and scan "
                        f"matching sided with Doppler in {c.won_doppler} of {checked} checks; from then on the "
                        f"improved method stopped using the {prior_name} (the baseline and wheel_odometry still do)")
-        if not self.dropped_at and c.moving and c.disputed > max(0.05 * c.moving, 5):
+        voted = self._vote_warnings(prior_name)
+        out += voted
+        if not self.dropped_at and not voted and c.moving and c.disputed > max(0.05 * c.moving, 5):
             out.append(f"Doppler and the {prior_name} disagreed by more than the gate in {c.disputed} of {c.moving} "
                        f"moving sweeps ({c.opposed} opposed); scan matching sided with Doppler in {c.won_doppler}, "
                        f"with the {prior_name} in {c.won_wheels}, undecided in {c.undecided}: check the mount "
                        "calibration and the sensors")
         return out
+
+
+def _near(a: float, b: float, tol: float, relative: float) -> bool:
+    """``a`` and ``b`` within ``tol`` plus ``relative`` of the larger magnitude (False with a NaN)."""
+    return abs(a - b) <= tol + relative * max(abs(a), abs(b))
+
+
+def _vote_warnings_of(vote: SensorVote, dropped: dict[str, float], prior_name: str) -> list[str]:
+    """A line per source the vote outvoted in ``min_evidence`` windows (and not dropped for good)."""
+    out = []
+    for source in (DOPPLER, WHEELS):
+        if vote.against[source] >= vote.params.min_evidence and source not in dropped:
+            name = "Doppler" if source == DOPPLER else f"the {prior_name}"
+            out.append(f"{name} outvoted: {vote.evidence(source, prior_name)}; the improved method did not use "
+                       f"{name} where it was outvoted")
+    return out
 
 
 def _gross(loser: np.ndarray, winner: np.ndarray) -> bool:

@@ -9,6 +9,7 @@
 
 #include "common.hpp"
 #include "kernels.hpp"
+#include "voxel.hpp"
 
 namespace fmcwlog {
 namespace {
@@ -16,19 +17,6 @@ namespace {
 using Keys = nb::ndarray<const int64_t, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 using NumpyKeys = nb::ndarray<nb::numpy, int64_t, nb::shape<-1>>;
 using NumpyPoints = nb::ndarray<nb::numpy, double, nb::shape<-1, 2>>;
-
-// numpy's floor(v).astype(int64) on x86 (as voxel.cpp): out of range or NaN gives INT64_MIN.
-inline int64_t floor_to_int64(double v) {
-    if (!(v >= -9223372036854775808.0 && v < 9223372036854775808.0)) return std::numeric_limits<int64_t>::min();
-    const int64_t i = int64_t(v);
-    return double(i) > v ? i - 1 : i;
-}
-
-// voxel.voxel_keys of one point: (i << 32) ^ (j & 0xFFFFFFFF) in int64, i and j the voxel's indices
-inline int64_t voxel_key(double x, double y, double size) {
-    const uint64_t i = uint64_t(floor_to_int64(x / size)), j = uint64_t(floor_to_int64(y / size));
-    return int64_t((i << 32) ^ (j & 0xFFFFFFFFull));
-}
 
 template <class T>
 nb::ndarray<nb::numpy, T> owned(T* data, std::initializer_list<size_t> shape) {
@@ -59,7 +47,7 @@ nb::object keyframe_map_merge(Points xy, double size, Keys old_keys, Points old_
     size_t k = 0;
     {
         nb::gil_scoped_release release;
-        for (size_t i = 0; i < n; ++i) fresh[i] = {voxel_key(p[2 * i], p[2 * i + 1], size), i};
+        for (size_t i = 0; i < n; ++i) fresh[i] = {int64_t(voxel_key(p[2 * i], p[2 * i + 1], size)), i};
         // np.unique's stable sort: equal keys keep their order, the first is the one kept
         std::stable_sort(fresh.begin(), fresh.end(),
                          [](const auto& a, const auto& b) { return a.first < b.first; });

@@ -29,8 +29,8 @@ def voxel_downsample(xy: np.ndarray, size: float) -> np.ndarray:
     """
     if len(xy) == 0 or size <= 0:
         return xy
-    core = compiled.core()
-    if core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2:
+    core = _core_for(xy)
+    if core is not None:
         return core.voxel_downsample(np.ascontiguousarray(xy), float(size))
     return voxel_downsample_numpy(xy, size)
 
@@ -52,8 +52,8 @@ def voxel_centroids(xy: np.ndarray, size: float) -> np.ndarray:
     """
     if len(xy) == 0 or size <= 0:
         return xy
-    core = compiled.core()
-    if core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2:
+    core = _core_for(xy)
+    if core is not None:
         return core.voxel_centroids(np.ascontiguousarray(xy), float(size))
     return voxel_centroids_numpy(xy, size)
 
@@ -68,3 +68,12 @@ def voxel_centroids_numpy(xy: np.ndarray, size: float) -> np.ndarray:
     count = np.bincount(inverse)
     mean = np.stack([np.bincount(inverse, xy[:, 0]), np.bincount(inverse, xy[:, 1])], axis=1) / count[:, None]
     return mean[np.argsort(first, kind="stable")]
+
+
+def _core_for(xy: np.ndarray):
+    """The compiled module where :func:`fmcwlog.kernels.compiled.core` selects it and ``xy`` is a
+    float64 (N, 2) array, the kernels' input; else None (the numpy reference runs)."""
+    core = compiled.core()
+    if core is not None and type(xy) is np.ndarray and xy.dtype == np.float64 and xy.ndim == 2 and xy.shape[1] == 2:
+        return core
+    return None

@@ -21,12 +21,18 @@ inline uint64_t voxel_key(double x, double y, double size) {
     return (i << 32) ^ (j & 0xFFFFFFFFull);
 }
 
+// The size of an open-addressing table for n keys: a power of two, at least 16 and twice n.
+inline size_t table_capacity(size_t n) {
+    size_t cap = 16;
+    while (cap < 2 * n) cap <<= 1;
+    return cap;
+}
+
 // An open-addressing set of keys (linear probing, a power-of-two table at least twice the points).
 class KeySet {
   public:
     explicit KeySet(size_t n) {
-        size_t cap = 16;
-        while (cap < 2 * n) cap <<= 1;
+        const size_t cap = table_capacity(n);
         keys_.assign(cap, 0);
         used_.assign(cap, 0);
         mask_ = cap - 1;
@@ -54,8 +60,7 @@ class KeySet {
 class KeySlots {
   public:
     explicit KeySlots(size_t n) {
-        size_t cap = 16;
-        while (cap < 2 * n) cap <<= 1;
+        const size_t cap = table_capacity(n);
         keys_.assign(cap, 0);
         slot_.assign(cap, -1);
         mask_ = cap - 1;

@@ -109,30 +109,83 @@ class TargetGrid {
     double x(int64_t i) const { return xy_[2 * size_t(i)]; }
     double y(int64_t i) const { return xy_[2 * size_t(i) + 1]; }
 
+    // What the search of one query leaves for the next query of the same source point (an ICP moves
+    // its source a little each iteration): the query (qx, qy), the answer (index -1: none searched
+    // yet) and clear, a distance (m) that every other target point is at least as far as from it.
+    struct Memo {
+        double qx = 0.0, qy = 0.0, clear = 0.0;
+        int64_t index = -1, slot = -1;
+    };
+
     // The nearest target point to (qx, qy) closer than the radius: its index and distance, or -1 and inf.
     // at (optional): the point's (x, y) where one is found, read from the cell just scanned (the same
     // numbers as x(index), y(index), without a look-up in index order).
     int64_t nearest(double qx, double qy, double& dist, double* at = nullptr) const {
+        return search<false>(qx, qy, dist, at, nullptr);
+    }
+
+    // nearest(), the same answer bit for bit, from memo where it decides it: a query moved by delta
+    // from the memo's keeps its answer j while |q - p_j| + delta is less than the memo's clear
+    // distance (every other point is at least clear - delta away, by the triangle inequality; the
+    // margin exceeds any rounding, so a tie or a near tie searches again). Otherwise a search, which
+    // fills the memo. The distance is the search's arithmetic on the same stored coordinates.
+    int64_t nearest(double qx, double qy, double& dist, double* at, Memo& memo) const {
+        if (memo.index >= 0 && std::isfinite(qx) && std::isfinite(qy)) {
+            const double mx = qx - memo.qx, my = qy - memo.qy;
+            const double moved = std::sqrt(mx * mx + my * my);
+            const double dx = oxy_[2 * size_t(memo.slot)] - qx;
+            const double dy = oxy_[2 * size_t(memo.slot) + 1] - qy;
+            const double d = std::sqrt(dx * dx + dy * dy);
+            if (d < radius_ && d + moved < memo.clear * (1.0 - 1e-9) - 1e-12) {
+                dist = d;
+                if (at != nullptr) {
+                    at[0] = oxy_[2 * size_t(memo.slot)];
+                    at[1] = oxy_[2 * size_t(memo.slot) + 1];
+                }
+                return memo.index;
+            }
+        }
+        return search<true>(qx, qy, dist, at, &memo);
+    }
+
+  private:
+    struct Best {
+        double d2;
+        int64_t index, slot;  // the point's index and its place in cell order
+        // with Track: the least squared distance of any other point scanned, and the least squared
+        // gap of a cell or ring left unscanned (a bound on the distance of every point in it)
+        double other2 = kInf;
+    };
+
+    // The search behind nearest(); with Track, it fills memo (clear: the least of the other points'
+    // distances scanned, the gaps of what was left unscanned and the radius).
+    template <bool Track>
+    int64_t search(double qx, double qy, double& dist, double* at, Memo* memo) const {
         dist = kInf;
+        if constexpr (Track) memo->index = -1;
         if (!std::isfinite(qx) || !std::isfinite(qy)) return -1;
         const double fx = std::floor((qx - x0_) * inv_cell_), fy = std::floor((qy - y0_) * inv_cell_);  // any cell near q
         const double reach = double(rings_) + 1.0;
         if (fx < -reach || fy < -reach || fx > double(nx_) + reach || fy > double(ny_) + reach) return -1;
         const int64_t cx = int64_t(fx), cy = int64_t(fy);
         Best b{radius_ * radius_ * (1.0 + 1e-9), -1, -1};  // a bound: the root decides below
-        if (cx >= 0 && cx < nx_ && cy >= 0 && cy < ny_) scan(cy * nx_ + cx, qx, qy, b);
+        if (cx >= 0 && cx < nx_ && cy >= 0 && cy < ny_) scan<Track>(cy * nx_ + cx, qx, qy, b);
         for (int64_t r = 1; r <= rings_; ++r) {
             const int64_t xl = cx - r, xh = cx + r, yl = cy - r, yh = cy + r;
             if (xl < 0 && xh >= nx_ && yl < 0 && yh >= ny_) break;
             const double bl = sq(gap_x(xl, qx)), bh = sq(gap_x(xh, qx));
             const double cl = sq(gap_y(yl, qy)), ch = sq(gap_y(yh, qy));
-            if (std::min(std::min(bl, bh), std::min(cl, ch)) > b.d2) break;  // this ring and all beyond
+            const double ring = std::min(std::min(bl, bh), std::min(cl, ch));
+            if (ring > b.d2) {  // this ring and all beyond
+                if constexpr (Track) b.other2 = std::min(b.other2, ring);
+                break;
+            }
             const int64_t xa = std::max(xl, int64_t(0)), xb = std::min(xh, nx_ - 1);
             const int64_t ya = std::max(yl + 1, int64_t(0)), yb = std::min(yh - 1, ny_ - 1);
-            if (yl >= 0 && yl < ny_ && cl <= b.d2) row(yl, cl, xa, xb, cx, qx, qy, b);
-            if (yh >= 0 && yh < ny_ && ch <= b.d2) row(yh, ch, xa, xb, cx, qx, qy, b);
-            if (xl >= 0 && xl < nx_ && bl <= b.d2) column(xl, bl, ya, yb, cy, qx, qy, b);
-            if (xh >= 0 && xh < nx_ && bh <= b.d2) column(xh, bh, ya, yb, cy, qx, qy, b);
+            if (yl >= 0 && yl < ny_) side<Track>(yl, cl, xa, xb, cx, qx, qy, b, true);
+            if (yh >= 0 && yh < ny_) side<Track>(yh, ch, xa, xb, cx, qx, qy, b, true);
+            if (xl >= 0 && xl < nx_) side<Track>(xl, bl, ya, yb, cy, qx, qy, b, false);
+            if (xh >= 0 && xh < nx_) side<Track>(xh, bh, ya, yb, cy, qx, qy, b, false);
         }
         if (b.index < 0) return -1;
         dist = std::sqrt(b.d2);
@@ -144,14 +197,10 @@ class TargetGrid {
             at[0] = oxy_[2 * size_t(b.slot)];
             at[1] = oxy_[2 * size_t(b.slot) + 1];
         }
+        if constexpr (Track) *memo = Memo{qx, qy, std::min(std::sqrt(b.other2), radius_), b.index, b.slot};
         return b.index;
     }
 
-  private:
-    struct Best {
-        double d2;
-        int64_t index, slot;  // the point's index and its place in cell order
-    };
     static double sq(double v) { return v * v; }
     // How far (qx) is left of column x's box, or right of it; 0 for its own column (m).
     double gap_x(int64_t x, double qx) const {
@@ -162,32 +211,57 @@ class TargetGrid {
         const double ly = y0_ + double(y) * cell_ - margin_, hy = y0_ + double(y + 1) * cell_ + margin_;
         return std::max({0.0, ly - qy, qy - hy});
     }
-    // Cells (xa..xb, y) of a ring's row whose squared gap by2 in y is known.
-    void row(int64_t y, double by2, int64_t xa, int64_t xb, int64_t cx, double qx, double qy, Best& b) const {
-        for (int64_t x = xa; x <= xb; ++x)
-            if (x == cx || by2 + sq(gap_x(x, qx)) <= b.d2) scan(y * nx_ + x, qx, qy, b);
-    }
-    void column(int64_t x, double bx2, int64_t ya, int64_t yb, int64_t cy, double qx, double qy, Best& b) const {
-        for (int64_t y = ya; y <= yb; ++y)
-            if (y == cy || bx2 + sq(gap_y(y, qy)) <= b.d2) scan(y * nx_ + x, qx, qy, b);
+    // A ring's row y (across: cells xa..xb) or column x (else: cells ya..yb), whose squared gap g2
+    // across it is known: each cell whose box may hold a point as near as the best so far, and the
+    // ring's own cell in line with q (c0) always. With Track, what is left unscanned gives its gap.
+    template <bool Track>
+    void side(int64_t line, double g2, int64_t a, int64_t z, int64_t c0, double qx, double qy, Best& b,
+              bool across) const {
+        if (g2 > b.d2) {
+            if constexpr (Track) b.other2 = std::min(b.other2, g2);
+            return;
+        }
+        for (int64_t k = a; k <= z; ++k) {
+            const double cell2 = k == c0 ? 0.0 : (across ? sq(gap_x(k, qx)) : sq(gap_y(k, qy)));
+            if (k == c0 || g2 + cell2 <= b.d2) {
+                scan<Track>(across ? line * nx_ + k : k * nx_ + line, qx, qy, b);
+            } else if constexpr (Track) {
+                b.other2 = std::min(b.other2, g2 + cell2);
+            }
+        }
     }
     // The points of cell c against the best so far: nearer, or as near with a lower index. A cell
     // keeps its points in index order, so its first nearest is its lowest index at that distance.
+    // With Track, the cell's other points (and a displaced best) bound the other points' distance.
+    template <bool Track>
     void scan(int64_t c, double qx, double qy, Best& b) const {
         const int64_t k0 = start_[size_t(c)], k1 = start_[size_t(c + 1)];
-        double m = kInf;
+        double m = kInf, m2 = kInf;
         int64_t km = -1;
         for (int64_t k = k0; k < k1; ++k) {
             const double dx = oxy_[2 * size_t(k)] - qx;
             const double dy = oxy_[2 * size_t(k) + 1] - qy;
             const double d2 = dx * dx + dy * dy;
             const bool nearer = d2 < m;
+            if constexpr (Track) m2 = nearer ? m : std::min(m2, d2);
             m = nearer ? d2 : m;
             km = nearer ? k : km;
         }
-        if (km < 0 || m > b.d2) return;
+        if constexpr (Track) b.other2 = std::min(b.other2, m2);
+        if (km < 0) return;
+        if (m > b.d2) {
+            if constexpr (Track) b.other2 = std::min(b.other2, m);
+            return;
+        }
         const int64_t i = order_[size_t(km)];
-        if (m < b.d2 || i < b.index) b = Best{m, i, km};
+        if (m < b.d2 || i < b.index) {
+            if constexpr (Track) {
+                if (b.index >= 0) b.other2 = std::min(b.other2, b.d2);
+            }
+            b = Best{m, i, km, b.other2};
+        } else if constexpr (Track) {
+            b.other2 = std::min(b.other2, m);
+        }
     }
 
     double radius_, cell_ = 1.0, inv_cell_ = 1.0, margin_ = 0.0, x0_ = 0.0, y0_ = 0.0;
@@ -208,13 +282,20 @@ inline int64_t nearest_moved(const TargetGrid& grid, double c, double sn, double
 
 // recovery.inlier_fraction's count: the n source points s (interleaved x, y) whose nearest target
 // under the pose (x, y, theta) is closer than distance (m; at most the grid's radius to be exact).
+// memo (optional, n entries): each point's TargetGrid::Memo, as an ICP's iterations left them.
 inline int64_t count_within(const TargetGrid& grid, const double* s, size_t n, double x, double y, double theta,
-                            double distance) {
+                            double distance, std::vector<TargetGrid::Memo>* memo = nullptr) {
     const double c = std::cos(theta), sn = std::sin(theta);
     int64_t k = 0;
     for (size_t i = 0; i < n; ++i) {
         double mx, my, d;
-        nearest_moved(grid, c, sn, x, y, s[2 * i], s[2 * i + 1], mx, my, d);
+        if (memo == nullptr) {
+            nearest_moved(grid, c, sn, x, y, s[2 * i], s[2 * i + 1], mx, my, d);
+        } else {
+            mx = c * s[2 * i] + (-sn) * s[2 * i + 1] + x;
+            my = c * s[2 * i + 1] + sn * s[2 * i] + y;
+            grid.nearest(mx, my, d, nullptr, (*memo)[i]);
+        }
         k += d < distance;
     }
     return k;

@@ -20,7 +20,8 @@ struct Pairs {
 };
 
 // The pairs within the grid's radius under a pose (NearestPairs.pairs of the reference).
-void find_pairs(const TargetGrid& grid, const double* s, size_t n, double px, double py, double th, Pairs& out) {
+void find_pairs(const TargetGrid& grid, const double* s, size_t n, double px, double py, double th,
+                std::vector<TargetGrid::Memo>& memo, Pairs& out) {
     out.clear();
     const double c = std::cos(th), sn = std::sin(th);
     for (size_t i = 0; i < n; ++i) {
@@ -28,7 +29,7 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, double px, do
         const double mx = c * x + (-sn) * y + px;
         const double my = c * y + sn * x + py;
         double d, at[2];
-        const int64_t j = grid.nearest(mx, my, d, at);
+        const int64_t j = grid.nearest(mx, my, d, at, memo[i]);
         if (j < 0) continue;
         out.src.push_back(int64_t(i));
         out.tx.push_back(at[0]);
@@ -85,8 +86,9 @@ std::tuple<Pose, int, int64_t, bool, double, Hessian, int64_t> point_to_point_ic
     int64_t inliers = -1;
     {
         nb::gil_scoped_release release;
+        std::vector<TargetGrid::Memo> memo(n);  // each source point's last search, for the next iteration's
         for (iterations = 1; iterations <= max_iterations; ++iterations) {
-            find_pairs(grid, s, n, pose[0], pose[1], pose[2], pairs);
+            find_pairs(grid, s, n, pose[0], pose[1], pose[2], memo, pairs);
             if (int64_t(pairs.src.size()) < min_correspondences) break;
             double fresh[3];
             closed_form_pose(s, pairs, fresh);
@@ -102,7 +104,7 @@ std::tuple<Pose, int, int64_t, bool, double, Hessian, int64_t> point_to_point_ic
             }
         }
         if (iterations > max_iterations) iterations = max_iterations;
-        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance);
+        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance, &memo);
     }
     const size_t k = used.src.size();
     double rmse = std::numeric_limits<double>::quiet_NaN();

@@ -379,7 +379,8 @@ struct Pairs {
     }
 };
 
-void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double pose[3], Pairs& out) {
+void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double pose[3],
+                std::vector<TargetGrid::Memo>& memo, Pairs& out) {
     out.clear();
     const double c = std::cos(pose[2]), sn = std::sin(pose[2]);
     for (size_t i = 0; i < n; ++i) {
@@ -387,7 +388,7 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double 
         const double mx = c * x + (-sn) * y + pose[0];  // NearestPairs._moved's order
         const double my = c * y + sn * x + pose[1];
         double d, at[2];
-        const int64_t j = grid.nearest(mx, my, d, at);
+        const int64_t j = grid.nearest(mx, my, d, at, memo[i]);
         if (j < 0) continue;
         out.mx.push_back(mx);
         out.my.push_back(my);
@@ -482,8 +483,9 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_
     int64_t inliers = -1;
     {
         nb::gil_scoped_release release;
+        std::vector<TargetGrid::Memo> memo(n);  // each source point's last search, for the next iteration's
         for (iterations = 1; iterations <= p.max_iterations; ++iterations) {
-            find_pairs(grid, s, n, pose, pairs);
+            find_pairs(grid, s, n, pose, memo, pairs);
             const size_t np = pairs.dist.size();
             if (int64_t(np) < p.min_correspondences) break;
             bool weighted = false;  // GMMSC weights (and the keep list) in use
@@ -554,7 +556,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_
             }
         }
         if (iterations > p.max_iterations) iterations = p.max_iterations;
-        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance);
+        if (inlier_distance > 0.0) inliers = count_within(grid, s, n, pose[0], pose[1], pose[2], inlier_distance, &memo);
     }
     double rmse = std::numeric_limits<double>::quiet_NaN();
     if (n_kept > 0) {

@@ -143,6 +143,34 @@ def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source
 
 
 @needs_core
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), n_source=st.integers(10, 300), steps=st.integers(0, 4),
+       dth=st.sampled_from([0.0, 1e-3, 0.02]), iterations=st.integers(1, 40))
+def test_lattice_ties_agree(use, seed, n_source, steps, dth, iterations):
+    """A target on a lattice of 1/4 m and a source off it by multiples of 1/8 m, each point moved by
+    about 1e-10 m: many source points within 1e-10 m of halfway between two or four targets as the
+    ICP starts (near ties: exact ties go to whichever point the KD-tree meets first), and more as it
+    moves. Each iteration's pairs decide the next pose, so the poses, pair counts and iteration
+    counts agree only if every look-up does, the ones an earlier iteration's search answers for the
+    next included."""
+    rng = np.random.default_rng(seed)
+    ij = np.stack(np.meshgrid(np.arange(-12, 13), np.arange(-12, 13)), axis=-1).reshape(-1, 2)
+    target = ij[rng.permutation(len(ij))] * 0.25
+    target = np.ascontiguousarray(target + rng.normal(0.0, 1e-10, target.shape))
+    source = target[rng.choice(len(target), n_source, replace=False)] + rng.integers(-2, 3, (n_source, 2)) * 0.125
+    source = np.ascontiguousarray(source + steps * np.array([0.125, 0.0]) + rng.normal(0.0, 1e-10, source.shape))
+    tree = cKDTree(target)
+    params = replace(ICPParams(), max_correspondence_distance=0.3, max_iterations=iterations)
+    start = np.array([0.0, 0.0, dth])
+    assume(_rotation_well_posed(source, tree, target, start, 0.3))
+    ref = p2p.register_point_to_point_numpy(source, tree, target, start, params)
+    fast = _register("compiled", use, source, tree, target, start, params)
+    assert_same(fast, ref)
+    for distance in (0.125, 0.2):
+        assert_counted_inliers(use, source, tree, target, start, params, distance)
+
+
+@needs_core
 def test_far_and_odd_inputs(use):
     """No target, a point far outside the grid, a huge map: no pair or the exact one, never a crash."""
     params = ICPParams()

@@ -137,3 +137,6 @@ class SweepResult:
     keyframe: bool
     searched: bool = False  # the ICP's fit was poor, so a correlative search ran (:mod:`fmcwlog.frontend.recovery`)
     recovered: bool = False  # ... and its match replaced the ICP's from the prior
+    # this sweep ends a jump (a robot carried away, :mod:`fmcwlog.frontend.relocalise`): "relocalised" or
+    # "new piece"; the back end gives the odometry edge across it no weight
+    jump: str | None = None

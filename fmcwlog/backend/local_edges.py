@@ -67,12 +67,13 @@ class LocalMatcher:
         self.icp = dataclasses.replace(self.p.icp, max_iterations=self.p.local_max_iterations,
                                        tolerance=self.p.local_tolerance)
 
-    def edges(self, nodes: list[Node]) -> list[Edge]:
-        """Edges from ``local_links`` nodes before the last one of ``nodes`` to it (module docstring)."""
+    def edges(self, nodes: list[Node], first: int = 0) -> list[Edge]:
+        """Edges from ``local_links`` nodes before the last one of ``nodes`` to it (module docstring),
+        none from a node before ``first`` (the first node of a new piece, after a jump)."""
         query = nodes[-1]
         q = voxel_downsample(query.points.astype(float), self.p.local_query_voxel)
         out = []
-        for j in range(max(query.index - self.p.local_links, 0), query.index):
+        for j in range(max(query.index - self.p.local_links, first, 0), query.index):
             edge = self._match(nodes, j, q)
             if edge is not None:
                 out.append(edge)

@@ -45,6 +45,10 @@ from .params import BackendParams
 from .point_store import PointStore
 from .verification import verify
 
+# The odometry edge across a jump (a robot carried away): a standard deviation of 1 km and 10 rad, no weight
+# against any other edge; the front end's relative pose only seeds the node's estimate.
+JUMP_COVARIANCE = np.diag([1e6, 1e6, 1e2])
+NEW_PIECE = "new piece"  # :data:`fmcwlog.frontend.relocalise.NEW_PIECE` (the back end imports no front end)
 QUERY_VOXEL = 0.1  # m: the query node's points are thinned to this for verification
 SUBMAP_VOXEL = 0.05  # m: and the submap's
 
@@ -160,6 +164,8 @@ class PoseGraphBackend:
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
         self._store: PointStore | None = None  # the points of nodes older than the local links'
         self._node_path = GrowingArray(np.float64)  # every node's path_m (m), for the candidates
+        self._jump: str | None = None  # a jump since the last node (:mod:`fmcwlog.frontend.relocalise`)
+        self._piece_first = 0  # the first node of the current piece: local edges reach no node before it
 
     # --- sweep by sweep -------------------------------------------------------------------
     def add(self, r: SweepResult) -> None:
@@ -171,7 +177,11 @@ class PoseGraphBackend:
             self._path_m += float(np.hypot(*(r.pose[:2] - self._last_pose[:2])))
         self._last_pose = r.pose
         last = self.nodes[-1] if self.nodes else None
-        if (r.keyframe or last is None) and is_new_node(last, r.pose, self.p):
+        if r.jump is not None:  # a robot carried away: no edge may claim it drove the jump
+            self._jump = r.jump
+            if r.jump == NEW_PIECE:  # and the poses after it are at an unknown offset: no local edge across it
+                self._piece_first = len(self.nodes)
+        if (r.keyframe or last is None) and is_new_node(last, r.pose, self.p) or (r.jump is not None and r.keyframe):
             self._add_node(r)
         self.sweeps.poses.append(np.asarray(r.pose, float))
         self.sweeps.node.append(len(self.nodes) - 1)
@@ -188,12 +198,16 @@ class PoseGraphBackend:
             rel = between(prev.frontend_pose, node.frontend_pose)
             estimate = compose(self._estimates[-1], rel)
             self.graph.add_node(estimate)
-            self.graph.add_odometry(Edge(prev.index, node.index, rel, odometry_covariance(prev, node, self.p)))
+            cov = odometry_covariance(prev, node, self.p)
+            if self._jump is not None:
+                cov = cov + JUMP_COVARIANCE
+                self._jump = None
+            self.graph.add_odometry(Edge(prev.index, node.index, rel, cov))
             self._estimates = np.vstack([self._estimates, estimate])
         self.nodes.append(node)
         self._node_path.append(node.path_m)
         if len(self.nodes) > 1 and self.p.local_links:
-            for edge in self.local.edges(self.nodes):
+            for edge in self.local.edges(self.nodes, self._piece_first):
                 self.graph.add_odometry(edge)
                 self.local_edges += 1
         self._nodes_since_opt += 1

@@ -98,7 +98,8 @@ class Evaluation:
 _RUN_KEYS: dict[str, tuple[type, ...]] = {"log": (str,), "scan_topic": (str,), "stamp_shift_s": (int, float),
                                           "sweeps": (int,), "log_sha256": (str,), "params": (dict,),
                                           "doppler": (bool, type(None)), "prior": (str, type(None)),
-                                          "many_skipped_sweeps": (dict,), "gaps": (list,)}
+                                          "many_skipped_sweeps": (dict,), "gaps": (list,),
+                                          "jumps": (dict,)}
 _PARQUET_COLUMNS = {"method": pa.types.is_string, "stamp_ns": pa.types.is_integer, "ms": pa.types.is_floating}
 
 
@@ -251,8 +252,11 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
     """What was run: versions, date (UTC), log, scenario and seed (from the log's ``fmcwlog.sim``
     record, absent from a real log), methods and the parameters' digest; and, only where the run
     skipped more than 5 % of the log's sweeps, how many and why (run.json's ``many_skipped_sweeps``); only
-    where the sweeps had gaps, run.json's ``gaps``."""
+    where the sweeps had gaps, run.json's ``gaps``; only where a method found a jump (a robot carried
+    away), run.json's ``jumps`` of the methods that found one."""
     seed = sim.get("seed")
+    jumps = run.get("jumps")
+    jumps = {m: js for m, js in jumps.items() if js} if isinstance(jumps, dict) else {}
     skipped = run.get("many_skipped_sweeps")
     gaps = run.get("gaps")
     return {
@@ -267,6 +271,7 @@ def report_header(run: dict, log: Path, sim: dict[str, str], present: list[str])
         "params_sha256_12": params_digest(run.get("params")),
         **({"many_skipped_sweeps": skipped} if skipped is not None else {}),
         **({"gaps": gaps} if gaps else {}),
+        **({"jumps": jumps} if jumps else {}),
     }
 
 

@@ -15,7 +15,9 @@ reason in ``notes`` or ``methods.M.notes``):
   ``many_skipped_sweeps``, only where the run skipped more than 5 % of the log's sweeps as
   damaged: run.json's record of it (``skipped``, ``read``, ``share``, ``main_reason``, ...);
   ``gaps``, only where the sweeps had gaps (none, or none with a usable point, for more than a few
-  sweep periods): run.json's list of them (``start_s``, ``length_s``);
+  sweep periods): run.json's list of them (``start_s``, ``length_s``); ``jumps``, only where a method
+  found its sweeps no longer fitting the map where the motion prior put them (a robot carried away):
+  run.json's ``jumps`` of the methods that found one (``start_s``, ``found_s``, ``kind``, ...);
 - ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry`` (and any other
   ``*.tum`` in the folder, e.g. a peer's):
   ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (SE(2)-aligned,
@@ -180,6 +182,7 @@ def header_rows(result: dict) -> list[tuple[str, str]]:
         ("log", str(h.get("log", result.get("log")))),
         *_skipped_rows(h.get("many_skipped_sweeps")),
         *_gap_rows(h.get("gaps")),
+        *_jump_rows(h.get("jumps")),
         ("scenario", none if h.get("scenario") is None else str(h["scenario"])),
         ("seed", none if h.get("seed") is None else str(h["seed"])),
         ("methods", ", ".join(h.get("methods") or []) or "—"),
@@ -215,6 +218,23 @@ def _gap_rows(gaps: Any) -> list[tuple[str, str]]:
     more = f" and {len(spans) - 5} more" if len(spans) > 5 else ""
     return [("gaps in the sweeps", f"{len(spans)}, {sum(s[1] for s in spans):.1f} s in all ({listed}{more}): "
                                    "bridged by the motion prior, the poses across them are as good as it is")]
+
+
+def _jump_rows(jumps: Any) -> list[tuple[str, str]]:
+    """The header's row for a run where a method found its sweeps no longer fitting the map where the
+    motion prior put them (a robot carried away; none otherwise): per method, when and what came of it."""
+    if not isinstance(jumps, dict) or not jumps:
+        return []
+    said = []
+    for method, found in jumps.items():
+        try:
+            parts = [f"{float(j['start_s']):.3f} s, relocalised {float(j['distance_m']):.2f} m away"
+                     if j.get("kind") == "relocalised" else f"{float(j['start_s']):.3f} s, a new piece (unknown offset)"
+                     for j in found]
+        except (KeyError, TypeError, ValueError, AttributeError):
+            parts = [f"{len(found)}"]
+        said.append(f"{method}: {'; '.join(parts)}")
+    return [("robot carried away (jumps)", " | ".join(said))]
 
 
 DISAGREEMENT_HEADER = ["method", "RMSE m", "mean m", "median m", "max m", "at the end m", "over path m"]

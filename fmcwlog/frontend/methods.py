@@ -52,6 +52,7 @@ share (deskew, map, occupancy grid, keyframes); :data:`METHODS` names them.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from abc import ABC, abstractmethod
@@ -75,6 +76,7 @@ from .keyframe_map import KeyframeMap
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
+from .relocalise import NEW_PIECE, RELOCALISED, JumpWatch
 from .robust_icp import register
 from .scan_prior import GRID_REUSE_KEYFRAMES, MidSweepHold, search_window
 from .segmentation import segment_moving
@@ -194,6 +196,7 @@ class FrontEnd(ABC):
         # the geometry of the sweep in step
         self._sweep: SweepGeometry | None = None
         self._gap_information: np.ndarray | None = None  # the ICP's soft prior while a gap is bridged
+        self.jumps = JumpWatch(params.relocalise)  # sweeps that stop fitting the map: a robot carried away
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -290,7 +293,8 @@ class FrontEnd(ABC):
             source = (voxel_centroids if centroid else voxel_downsample)(pts, p.source_voxel)
 
         pose_cov = None
-        searched = recovered = False
+        searched = recovered = suspect = False
+        jump: str | None = None
         if self.map.tree is None or min(len(self.map), len(source)) < p.icp.min_correspondences:
             # No map yet, or too few points left to match (the window covered, every return on a
             # mover or inside the body mask): the ICP could not reach its minimum of pairs and the
@@ -307,17 +311,29 @@ class FrontEnd(ABC):
             pose_cov = registration_covariance(res.hessian, p.residual_sigma)
             if bridge is not None and not within_bridge(pose, motion.predicted, bridge, p.gaps.max_mahalanobis):
                 pose, iterations, kept, pose_cov = motion.predicted, 0, 0, None  # another peak: the bridge stands
+            elif bridge is None and p.relocalise.enabled:
+                found, jump, suspect = self._watch_jumps(source, motion, ts, res)
+                if found is not None:  # relocalised: the pose found over the whole local map
+                    pose, iterations, kept = found.pose, found.iterations, found.n_correspondences_kept
+                    pose_cov = registration_covariance(found.hessian, p.residual_sigma)
+                    searched = True
+                elif suspect or jump is not None:  # the prior's pose, not a match against another place
+                    pose, iterations, kept, pose_cov = motion.predicted, 0, 0, None
         if bridge is not None:  # the back end's edge across the gap is as loose as the bridge
             pose_cov = bridge if pose_cov is None else pose_cov + bridge
         pose = _wrapped(pose)
-        if self.pose is not None:
+        if self.pose is not None and jump is None:  # a jump was not driven
             self.path_m += _step_length(self.pose, pose)
 
         static_map = _transform(pose, pts)
         duration = geometry.last_time  # s, the sweep's last capture time
         skew = abs(omega - self.last_twist[1]) * duration if self.pose is not None else 0.0
         lidar = compose(pose, self.mount)
-        keyframe = self._update_maps(pose, static_map, skew, lidar)
+        if jump == NEW_PIECE:
+            self._new_piece()
+        if jump is not None:
+            self.last_key = self.last_grid = None  # the sweep that ends a jump starts the map again from there
+        keyframe = False if suspect else self._update_maps(pose, static_map, skew, lidar)
         self.after_step(pose, ts, iterations > 0, prior)
         if prior.twist is None:
             self.hold.update(pose, ts, (v, omega), 0.5 * duration)
@@ -332,7 +348,43 @@ class FrontEnd(ABC):
         ms = (time.perf_counter() - t0) * 1e3
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
                            iterations, kept, n_moving, ms, static_map, vel_use,
-                           moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered)
+                           moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered,
+                           jump)
+
+    def _watch_jumps(self, source: np.ndarray, motion: MotionEstimate, stamp: float, res: ICPResult
+                     ) -> tuple[ICPResult | None, str | None, bool]:
+        """Whether this registered sweep fits the map where the prior put it (:mod:`.relocalise`).
+
+        Returns the registration that relocalised it (else None), the kind of jump it ends
+        (:data:`~.relocalise.RELOCALISED`, :data:`~.relocalise.NEW_PIECE`, or None) and whether it is
+        suspect (it keeps the prior's pose and stays out of the map)."""
+        assert self.map.tree is not None
+        rp = self.params.recovery
+        fit = inlier_fraction(source, res.pose, self.map.tree, rp.inlier_distance, res.search)
+        suspect = self.jumps.suspect(fit)
+        if not self.jumps.observe(stamp, suspect):
+            return None, None, suspect
+        wide = self.params.relocalise.search()
+        grid = grid_for(self.map.points, wide)
+        found = correlative_match(grid, source, motion.predicted, wide)
+        peaks = [found.pose]
+        if found.second_pose is not None and self.jumps.close(found.score, found.second_score):
+            peaks.append(found.second_pose)  # a look-alike place (a hall's other end): the ICP's fits decide
+        fits = []
+        for peak in peaks:
+            moved = dataclasses.replace(motion, predicted=peak)  # the ICP's soft prior there, not at the old place
+            again = self.register(source, moved, stamp, initial=peak)
+            fits.append((inlier_fraction(source, again.pose, self.map.tree, rp.inlier_distance, again.search), again))
+        fits.sort(key=lambda f: -f[0])
+        if self.jumps.confident(fits[0][0], fits[1][0] if len(fits) > 1 else 0.0):
+            self.jumps.record(stamp, RELOCALISED, motion.predicted, fits[0][1].pose)
+            return fits[0][1], RELOCALISED, False
+        self.jumps.record(stamp, NEW_PIECE)
+        return None, NEW_PIECE, False
+
+    def _new_piece(self) -> None:
+        """A fresh local map: the sweeps after a jump into a place the map does not hold."""
+        self.map = KeyframeMap(self.params.voxel_size, self.params.local_map)
 
     @staticmethod
     def scan_prior(prior: PriorMotion, motion: MotionEstimate) -> bool:
@@ -500,6 +552,11 @@ class ImprovedFrontEnd(FrontEnd):
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
         self._floor = float(self._doppler_floor[0, 0])  # its diagonal as a float
         self._design_rows = self.design.tolist()  # the design matrix as nested lists, for the float path
+
+    def _new_piece(self) -> None:
+        """A fresh local map, and a fresh tracker: its tracks and free space are of the place left."""
+        super()._new_piece()
+        self.tracker = MoverTracker(self.params.tracking, self.params.map_resolution)
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only

@@ -16,6 +16,7 @@ from .gaps import GapParams
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
 from .recovery import RecoveryParams
+from .relocalise import RelocaliseParams
 from .segmentation import SegmentationParams
 from .self_calibration import SelfCalibrationParams
 from .sensor_checks import CheckParams
@@ -68,6 +69,8 @@ class FrontEndParams(Checked):
     doppler_twist: deskew and predict with the Doppler twist; False uses the wheels'.
     doppler_prior: hold the ICP to the Doppler-predicted motion along the path.
     gaps: what a gap in the sweeps is and how it is bridged (:class:`fmcwlog.frontend.gaps.GapParams`).
+    relocalise: sweeps that stop fitting the map where the prior puts them, a robot carried away
+        (:class:`fmcwlog.frontend.relocalise.RelocaliseParams`).
     """
 
     segmentation: SegmentationParams = field(default_factory=SegmentationParams)
@@ -110,3 +113,4 @@ class FrontEndParams(Checked):
     local_map: LocalMapParams = field(default_factory=LocalMapParams)
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
     gaps: GapParams = field(default_factory=GapParams)
+    relocalise: RelocaliseParams = field(default_factory=RelocaliseParams)

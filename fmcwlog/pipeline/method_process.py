@@ -599,5 +599,6 @@ class _Schedule:
 def merge_diagnostics(first: tuple[dict, list[str]], rest: tuple[dict, list[str]]) -> tuple[dict, list[str]]:
     """Two runners' :meth:`~fmcwlog.pipeline.runner.LogRunner.diagnostics`, ``first``'s methods first."""
     (a, a_notes), (b, b_notes) = first, rest
-    merged = {**b, **a, "motion_sources": {**a["motion_sources"], **b["motion_sources"]}}
+    merged = {**b, **a, "motion_sources": {**a["motion_sources"], **b["motion_sources"]},
+              "jumps": {**a.get("jumps", {}), **b.get("jumps", {})}}
     return merged, a_notes + b_notes

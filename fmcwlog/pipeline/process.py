@@ -159,7 +159,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 backend={"kind": opts.backend, **summary.backend},
                 wall_seconds=round(time.perf_counter() - started, 3),
                 many_skipped_sweeps=_many_skipped_record(skipped, opts.keep_going),
-                gaps=[g.to_json() for g in runner.gaps.gaps])
+                gaps=[g.to_json() for g in runner.gaps.gaps], jumps=diagnostics.get("jumps", {}))
             write_json(tmp / "run.json", record.to_json(), sort_keys=True)
     return summary
 

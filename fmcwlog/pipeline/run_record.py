@@ -38,6 +38,10 @@ class RunRecord:
     gaps: each gap in the sweeps (:mod:`fmcwlog.frontend.gaps`: no sweep, or none with a usable point,
         for more than ``frontend.gaps.min_periods`` sweep periods): ``start_s`` (log time, s, where the
         first missing sweep was due) and ``length_s`` (s).
+    jumps: per method, each jump it found (:mod:`fmcwlog.frontend.relocalise`: a robot carried away, its
+        sweeps no longer fitting the map where the motion prior put them): ``start_s`` (log time, s, the
+        first sweep that did not fit), ``found_s`` (the sweep that ended it), ``kind`` (``relocalised``
+        or ``new piece``) and, where relocalised, ``distance_m`` and ``rotation_deg`` from the prior's pose.
     warnings: every warning of the run, one line each.
     ms_per_sweep_median: per method, the median CPU time of a sweep (ms).
     correlative_searches: per method, ``run`` (searches run), ``kept`` (matches they replaced), ``sweeps``.
@@ -77,6 +81,7 @@ class RunRecord:
     calibration_check: CalibrationCheck | None = field(default=None)
     many_skipped_sweeps: dict[str, Any] | None = field(default=None)
     gaps: list[dict[str, float]] = field(default_factory=list)
+    jumps: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
@@ -107,6 +112,7 @@ class RunRecord:
             **skipped,
             "truncated_log": self.truncated_log,
             "gaps": self.gaps,
+            "jumps": self.jumps,
             "warnings": self.warnings,
             "ms_per_sweep_median": self.ms_per_sweep_median,
             "correlative_searches": self.correlative_searches,

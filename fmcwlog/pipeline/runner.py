@@ -113,12 +113,15 @@ class LogRunner:
 
     def diagnostics(self) -> tuple[dict, list[str]]:
         """For ``run.json``: per method where its twist came from and what the sensor checks found
-        (``motion_sources``), and the calibration check (``calibration_check``); and the warnings."""
+        (``motion_sources``), the jumps it found (``jumps``, :mod:`fmcwlog.frontend.relocalise`), and the
+        calibration check (``calibration_check``); and the warnings."""
         name = "wheel ticks" if self.topics.ticks else ("odometry" if self.topics.odom else "no motion prior")
         sources: dict[str, dict] = {}
         warnings: list[str] = []
-        out: dict = {"motion_sources": sources}
+        out: dict = {"motion_sources": sources, "jumps": {fe.name: [j.to_json() for j in fe.jumps.jumps]
+                                                          for fe in self.fronts}}
         for fe in self.fronts:
+            warnings += [f"{fe.name}: {w}" for w in fe.jumps.warnings()]
             found, said = fe.diagnostics(name)
             if found:
                 if "calibration_check" in found:

@@ -69,7 +69,7 @@ from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskewed_source
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
-from .gaps import bridge_covariance, gap_prior_information, gap_window, to_map, within_bridge
+from .gaps import bridge_covariance, gap_prior_information, gap_window, seen_before, to_map, within_bridge
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
@@ -419,18 +419,35 @@ class FrontEnd(ABC):
 
     def _match_after_gap(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                          covariance: np.ndarray) -> tuple[ICPResult, bool, bool]:
-        """The sweep after a gap: a correlative search around the bridged pose over a window that
-        widens with the bridge's ``covariance`` (map frame), then the ICP from its best pose with that
-        covariance as its soft prior, then the recovery as usual (:mod:`.gaps`)."""
-        p = self.params
-        window = gap_window(covariance, p.recovery.correlative, p.gaps)
-        found = correlative_match(grid_for(self.map.points, window), source, motion.predicted, window, with_second=False)
+        """The sweep after a gap (:mod:`.gaps`), with the bridge's ``covariance`` (map frame) as the
+        ICP's soft prior: the ICP from the bridged pose on the points where the grid has seen
+        (``gaps.seen_only``; every point where fewer than ``icp.min_correspondences`` are); where its
+        fit is poor, as the recovery judges one, a correlative search around the bridged pose over a
+        window that widens with the bridge, and the ICP on every point from its best pose, kept if it
+        fits more of the sweep."""
+        p, rp = self.params, self.params.recovery
         self._gap_information = gap_prior_information(covariance, p.residual_sigma)
         try:
-            res, _, recovered = self._register_or_recover(source, motion, stamp, found.pose)
+            matched = source
+            if p.gaps.seen_only:
+                seen = seen_before(_transform(motion.predicted, source), self.grid)
+                if np.count_nonzero(seen) >= p.icp.min_correspondences:
+                    matched = np.ascontiguousarray(source[seen])
+            res = self.register(matched, motion, stamp)
+            fit = self._fit(matched, res)
+            if res.converged and fit >= rp.min_inlier_fraction:
+                return res, True, False
+            window = gap_window(covariance, rp.correlative, p.gaps)
+            found = correlative_match(grid_for(self.map.points, window), source, motion.predicted, window,
+                                      with_second=False)
+            again = self.register(source, motion, stamp, initial=found.pose)
+            return (again, True, True) if self._fit(source, again) > fit else (res, True, False)
         finally:
             self._gap_information = None
-        return res, True, recovered
+
+    def _fit(self, source: np.ndarray, res: ICPResult) -> float:
+        """The share of ``source`` within the recovery's inlier distance of the map at ``res.pose``."""
+        return inlier_fraction(source, res.pose, self.map.tree, self.params.recovery.inlier_distance, res.search)
 
     def _register_or_recover(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                              start: np.ndarray | None = None) -> tuple[ICPResult, bool, bool]:

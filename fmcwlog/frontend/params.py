@@ -15,10 +15,10 @@ from ..config import Checked, param
 from .gaps import GapParams
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
+from .mirror_check import MountCheckParams
 from .recovery import RecoveryParams
 from .segmentation import SegmentationParams
 from .self_calibration import SelfCalibrationParams
-from .mirror_check import MountCheckParams
 from .sensor_checks import CheckParams
 from .tracking import TrackingParams
 from .twist_fusion import WheelNoise

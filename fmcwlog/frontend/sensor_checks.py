@@ -451,7 +451,8 @@ class SensorChecks:
         decided = c.won_doppler + c.won_wheels
         t = stamp - (self._t0 or stamp)
         vote = not p.vote or self.vote.may_drop
-        if (self.use_wheels and not self.scanner_at_fault and c.won_doppler >= p.min_evidence and c.won_doppler >= p.verdict_fraction * decided
+        if (self.use_wheels and not self.scanner_at_fault
+                and c.won_doppler >= p.min_evidence and c.won_doppler >= p.verdict_fraction * decided
                 and c.gross_vs_wheels >= p.verdict_fraction * c.won_doppler and (vote is True or vote(WHEELS))):
             self.use_wheels = False
             self.dropped_at[WHEELS] = t

@@ -69,7 +69,8 @@ def runs(tmp_path_factory) -> dict[str, dict]:
     logs = {"clean": clean, "off_clean": off, "scan_clean": scan}
     for name, src, edit in (("turned", clean, TURN), ("mirrored", clean, MIRROR), ("off_mirrored", off, MIRROR),
                             ("off_swapped", off, _swap_ticks), ("scan_mirrored", scan, _reverse_ranges)):
-        logs[name] = copy_log(src, root / f"{name}.mcap", edit=edit) or root / f"{name}.mcap"
+        logs[name] = root / f"{name}.mcap"
+        copy_log(src, logs[name], edit=edit)
     sets = {"turned_unchecked": ("turned", ("mount_check.enabled=false",))}
     out = {}
     for name, log in logs.items():

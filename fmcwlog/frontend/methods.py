@@ -73,6 +73,8 @@ from .gaps import bridge_covariance, gap_prior_information, gap_window, seen_bef
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
 from .keyframe_map import KeyframeMap
+from .mirror_check import EITHER, SCANNER, MountCheck
+from .mirror_check import WHEELS as WHEELS_FAULT
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
@@ -559,6 +561,7 @@ class ImprovedFrontEnd(FrontEnd):
         self.mixture: DistanceMixture | None = None  # the last GMMSC mixture, reused by the next sweep's ICP
         self.design = doppler_design(cal.mount)
         self.checks = SensorChecks(self.mount, self.design, params.sensor_checks, params.wheel_noise)
+        self.mount_check = MountCheck(self.mount, params.mount_check)  # the scans mirrored or turned round?
         self.sources = TwistSources()
         self.samples = CalibrationSamples()
         self.scan_twist = (0.0, 0.0)  # (v, ω) scan matching measured over the last interval: the hold
@@ -698,6 +701,7 @@ class ImprovedFrontEnd(FrontEnd):
         ts = sweep.stamp_ns * 1e-9
         wheels = prior if self.checks.use_wheels else PriorMotion()
         self._drop_wheels, self._raw_fit = False, None
+        self.mount_check.sweep(ts, sweep.xy)
         doppler = self.doppler_stages(sweep, wheels.twist)
         if self._drop_wheels or self.checks.vote.outvoted == WHEELS:
             wheels = PriorMotion()
@@ -752,6 +756,7 @@ class ImprovedFrontEnd(FrontEnd):
         # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
         self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,
                              float(d[2]) if registered else None)
+        self._check_mount(stamp, prior)
         if (registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels
                 and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
@@ -761,10 +766,25 @@ class ImprovedFrontEnd(FrontEnd):
         """The wheels' motion across a gap, unless the sensor checks dropped them as faulty."""
         return prior.since_last if self.checks.use_wheels else None
 
+    def _check_mount(self, stamp: float, prior: PriorMotion) -> None:
+        """The interval for :mod:`.mirror_check`; where the scans fit the wheels only in another frame,
+        and better than any wheel fault that mimics it, the sensor checks stop blaming the wheels."""
+        check = self.mount_check
+        if check.settled:
+            return
+        check.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last)
+        if check.found_at is not None and check.blame() == SCANNER and not self.checks.scanner_at_fault:
+            self.checks.exonerate_wheels()
+
+    def _mount_fault(self, prior_name: str) -> str | None:
+        """The mount check's warning, where the scans blame the scanner (or cannot tell it from the wheels)."""
+        return self.mount_check.warning(prior_name) if self.mount_check.blame() not in (None, WHEELS_FAULT) else None
+
     def calibration_estimate(self) -> CalibrationEstimate | None:
         """The mount and wheels the log shows (:mod:`.self_calibration`); None when it cannot say
         (no wheel ticks or Doppler, too little motion, or a source dropped as faulty)."""
-        if self.checks.dropped_at or self.cal.wheels is None or self.checks.calibration_veto("") is not None:
+        if (self.checks.dropped_at or self.cal.wheels is None or self.checks.calibration_veto("") is not None
+                or self._mount_fault("") is not None):
             return None
         return estimate_calibration(self.samples, self.cal, self.params.self_calibration)
 
@@ -772,8 +792,12 @@ class ImprovedFrontEnd(FrontEnd):
         """Where the twist came from, what the sensor checks found, and warnings about either."""
         p = self.params
         seen = observability(self.cal.mount, p.min_lever)
-        out = {"doppler_observes": seen, **self.sources.summary(), "sensor_checks": self.checks.summary()}
-        warnings = self.sources.warnings(seen, prior_name) + self.checks.warnings(prior_name)
+        out = {"doppler_observes": seen, **self.sources.summary(), "sensor_checks": self.checks.summary(),
+               "mount_check": self.mount_check.summary()}
+        mount = self._mount_fault(prior_name)
+        if mount is not None and self.mount_check.blame() == EITHER and WHEELS in self.checks.dropped_at:
+            self.checks.scanner_alternative, mount = self.mount_check.alternative(prior_name), None  # said with the wheels' line
+        warnings = self.sources.warnings(seen, prior_name) + self.checks.warnings(prior_name) + ([mount] if mount else [])
         check, check_warnings = calibration_report(self.calibration_estimate(), self.cal, p.self_calibration,
                                                    self._why_no_calibration(prior_name))
         out["calibration_check"] = check
@@ -783,6 +807,9 @@ class ImprovedFrontEnd(FrontEnd):
         """Why there can be no calibration estimate; None when only too little motion would explain it."""
         if self.cal.wheels is None:
             return "needs wheel ticks (and the calibration's wheels)"
+        mount = self._mount_fault(prior_name)
+        if mount is not None:
+            return mount
         if self.checks.dropped_at:
             return f"a source was dropped as faulty ({', '.join(sorted(self.checks.dropped_at))})"
         veto = self.checks.calibration_veto(prior_name)

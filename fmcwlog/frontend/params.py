@@ -15,6 +15,7 @@ from ..config import Checked, param
 from .gaps import GapParams
 from .icp import ICPParams
 from .keyframe_map import LocalMapParams
+from .mirror_check import MountCheckParams
 from .recovery import RecoveryParams
 from .relocalise import RelocaliseParams
 from .segmentation import SegmentationParams
@@ -59,6 +60,8 @@ class FrontEndParams(Checked):
         (:class:`fmcwlog.frontend.twist_fusion.WheelNoise`).
     sensor_checks: Doppler against the wheels and the scans
         (:class:`fmcwlog.frontend.sensor_checks.CheckParams`).
+    mount_check: whether the scans are mirrored or turned by π against the calibrated mount
+        (:class:`fmcwlog.frontend.mirror_check.MountCheckParams`).
     self_calibration: the calibration check
         (:class:`fmcwlog.frontend.self_calibration.SelfCalibrationParams`).
 
@@ -104,6 +107,7 @@ class FrontEndParams(Checked):
     min_lever: float = param(0.05, "m", gt=0.0, le=10.0)
     wheel_noise: WheelNoise = field(default_factory=WheelNoise)
     sensor_checks: CheckParams = field(default_factory=CheckParams)
+    mount_check: MountCheckParams = field(default_factory=MountCheckParams)
     self_calibration: SelfCalibrationParams = field(default_factory=SelfCalibrationParams)
     segment: bool = True
     deskew: bool = True

@@ -305,6 +305,8 @@ class SensorChecks:
     counts: _Counts = field(default_factory=_Counts)
     vote: SensorVote = field(init=False)
     dropped_at: dict[str, float] = field(default_factory=dict)  # source -> seconds since the first sweep
+    scanner_at_fault: bool = False  # the scans' frame is not the calibrated one (:meth:`exonerate_wheels`)
+    scanner_alternative: str | None = None  # a scanner fault that explains the log as well as the wheels' (said with it)
     _t0: float | None = None
     _prev: tuple[float, np.ndarray] | None = None  # stamp (s) and points (lidar frame) of the last sweep
     _prev_tree: cKDTree | None = None
@@ -328,6 +330,8 @@ class SensorChecks:
         if self._t0 is None:
             self._t0 = stamp
         decision = self._judge_sweep(prev, stamp, xy, ego, wheel_twist, z_pred)
+        if self.scanner_at_fault and decision == DOPPLER:
+            decision = KEEP  # the scans that sided with Doppler share its frame's fault
         if not self.params.vote:
             return decision
         self.vote.sweep_lean = self.counts.won_doppler - self.counts.won_wheels
@@ -393,12 +397,14 @@ class SensorChecks:
         :meth:`judge`, in time order."""
         if self.params.vote:
             self.vote.interval(t_prev, stamp, wheels if self.use_wheels else None, scan_yaw)
+            if self.scanner_at_fault and self.vote.outvoted == WHEELS:
+                self.vote.outvoted = None
 
     def calibration_veto(self, prior_name: str) -> str | None:
         """Why no calibration may be estimated from this log: scan matching contradicted one source
         in too many windows (:meth:`SensorVote.distrusted`); None when it did not."""
         source = self.vote.distrusted() if self.params.vote else None
-        if source is None:
+        if source is None or (source == WHEELS and self.scanner_at_fault):
             return None
         name = "Doppler" if source == DOPPLER else f"the {prior_name}"
         return f"scan matching contradicts {name}, which it distrusts: {self.vote.evidence(source, prior_name)}"
@@ -445,7 +451,8 @@ class SensorChecks:
         decided = c.won_doppler + c.won_wheels
         t = stamp - (self._t0 or stamp)
         vote = not p.vote or self.vote.may_drop
-        if (self.use_wheels and c.won_doppler >= p.min_evidence and c.won_doppler >= p.verdict_fraction * decided
+        if (self.use_wheels and not self.scanner_at_fault
+                and c.won_doppler >= p.min_evidence and c.won_doppler >= p.verdict_fraction * decided
                 and c.gross_vs_wheels >= p.verdict_fraction * c.won_doppler and (vote is True or vote(WHEELS))):
             self.use_wheels = False
             self.dropped_at[WHEELS] = t
@@ -455,7 +462,22 @@ class SensorChecks:
             self.dropped_at[DOPPLER] = t
 
     def _vote_warnings(self, prior_name: str) -> list[str]:
-        return _vote_warnings_of(self.vote, self.dropped_at, prior_name) if self.params.vote else []
+        if not self.params.vote:
+            return []
+        return [w for w in _vote_warnings_of(self.vote, self.dropped_at, prior_name)
+                if not (self.scanner_at_fault and w.startswith(f"the {prior_name} outvoted"))]
+
+    # -- attribution: a scanner whose frame is not the calibrated one (:mod:`.mirror_check`) -------------
+    def exonerate_wheels(self) -> None:
+        """The scans fit the wheels' motion once read in another frame (mirrored, or turned by π):
+        Doppler and the scans, measured in that frame, share its fault, so neither their per-sweep
+        verdicts nor the vote may drop or outvote the wheels from now on; wheels dropped already are
+        taken back (the counts keep what was seen); no warning blames the wheels."""
+        self.scanner_at_fault = True
+        self.use_wheels = True
+        self.dropped_at.pop(WHEELS, None)
+        if self.vote.outvoted == WHEELS:
+            self.vote.outvoted = None
 
     def summary(self) -> dict:
         """The counts and verdicts, for ``run.json``."""
@@ -488,10 +510,12 @@ class SensorChecks:
                        f"and right swapped?): in {c.disputed} of {c.moving} moving sweeps until "
                        f"{self.dropped_at[WHEELS]:.1f} s they disputed Doppler ({c.opposed} opposed), and scan "
                        f"matching sided with Doppler in {c.won_doppler} of {checked} checks; from then on the "
-                       f"improved method stopped using the {prior_name} (the baseline and wheel_odometry still do)")
+                       f"improved method stopped using the {prior_name} (the baseline and wheel_odometry still do)"
+                       + (f"; {self.scanner_alternative}" if self.scanner_alternative else ""))
         voted = self._vote_warnings(prior_name)
         out += voted
-        if not self.dropped_at and not voted and c.moving and c.disputed > max(0.05 * c.moving, 5):
+        if (not self.dropped_at and not voted and not self.scanner_at_fault and c.moving
+                and c.disputed > max(0.05 * c.moving, 5)):
             out.append(f"Doppler and the {prior_name} disagreed by more than the gate in {c.disputed} of {c.moving} "
                        f"moving sweeps ({c.opposed} opposed); scan matching sided with Doppler in {c.won_doppler}, "
                        f"with the {prior_name} in {c.won_wheels}, undecided in {c.undecided}: check the mount "

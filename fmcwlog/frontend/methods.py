@@ -88,6 +88,7 @@ from .twist_fusion import (
     doppler_design,
     fuse_twist,
     fuse_twist_lists,
+    ObservedNoise,
     hold_covariance,
     observability,
     wheel_covariance,
@@ -500,6 +501,9 @@ class ImprovedFrontEnd(FrontEnd):
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
         self._floor = float(self._doppler_floor[0, 0])  # its diagonal as a float
         self._design_rows = self.design.tolist()  # the design matrix as nested lists, for the float path
+        self.observed = ObservedNoise(params.wheel_noise.adapt_rate)  # the sources' recent errors, for the weights
+        self._pair: tuple[tuple[float, float], tuple[float, float]] | None = None  # this sweep's Doppler and wheels
+        self._last_pair: tuple[tuple[float, float], tuple[float, float]] | None = None  # the last sweep's
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only
@@ -576,7 +580,21 @@ class ImprovedFrontEnd(FrontEnd):
         else:
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + self._doppler_floor
+        if wheels.twist is not None and self.observed.rate > 0:
+            self._pair = (self._doppler_base(doppler), (float(x_w[0]), float(x_w[1])))
+            cd, (s_v, s_w) = self.observed.weights(c_d.tolist(), self._design_rows, (float(c_w[0, 0]), float(c_w[1, 1])),
+                                                   p.wheel_noise)
+            c_d, c_w = np.array(cd), np.array([[s_v, 0.0], [0.0, s_w]])
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def _doppler_base(self, doppler: Doppler) -> tuple[float, float]:
+        """Doppler's ``(v, ω)`` of base_link alone, ``A⁻¹ z`` (NaN where ``A`` is singular)."""
+        (a00, a01), (a10, a11) = self._design_rows
+        det = a00 * a11 - a01 * a10
+        if not abs(det) > 1e-9:
+            return (math.nan, math.nan)
+        z0, z1 = float(doppler.v_sensor[0]), float(doppler.v_sensor[1])
+        return ((a11 * z0 - a01 * z1) / det, (a00 * z1 - a10 * z0) / det)
 
     def _fuse_floats(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
         """:meth:`fuse` on Python floats (:func:`~.twist_fusion.fuse_twist_lists`, what :func:`fuse_twist`
@@ -592,6 +610,9 @@ class ImprovedFrontEnd(FrontEnd):
         (c00, c01), (c10, c11) = doppler.covariance.tolist()
         floor = self._floor
         c_d = [[c00 + floor, c01 + 0.0], [c10 + 0.0, c11 + floor]]  # + the floor's eye(2) * σ²
+        if wheels.twist is not None and self.observed.rate > 0:  # as fuse
+            self._pair = (self._doppler_base(doppler), (x_w[0], x_w[1]))
+            c_d, (s_v, s_w) = self.observed.weights(c_d, self._design_rows, (s_v, s_w), p.wheel_noise)
         return fuse_twist_lists(doppler.v_sensor.tolist(), c_d, self._design_rows, x_w, [[s_v, 0.0], [0.0, s_w]])
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
@@ -623,7 +644,7 @@ class ImprovedFrontEnd(FrontEnd):
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
         wheels = prior if self.checks.use_wheels else PriorMotion()
-        self._drop_wheels, self._raw_fit = False, None
+        self._drop_wheels, self._raw_fit, self._pair = False, None, None
         doppler = self.doppler_stages(sweep, wheels.twist)
         if self._drop_wheels or self.checks.vote.outvoted == WHEELS:
             wheels = PriorMotion()
@@ -675,6 +696,9 @@ class ImprovedFrontEnd(FrontEnd):
         d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
+            if self._last_pair is not None and registered:  # the scans' motion over the last sweep's interval
+                self.observed.add(*self._last_pair, self.scan_twist)
+        self._last_pair = self._pair
         # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
         self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,
                              float(d[2]) if registered else None)

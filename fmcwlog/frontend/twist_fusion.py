@@ -57,6 +57,13 @@ class WheelNoise(Checked):
         0.0044 rad/m bias). yaw_rate_min: its floor (rad/s), > 0.
     hold_speed, hold_yaw_rate: standard deviations of the constant-velocity hold used
         when there are no wheels (m/s, rad/s), > 0: wide, so Doppler and the scans decide.
+    adapt_rate: weight of each sweep in the exponentially weighted mean squares of
+        :class:`ObservedNoise` (0..1; about ``1 / adapt_rate`` sweeps remembered); 0 keeps the
+        nominal weights above and the fit's own covariance. With it, Doppler's variance is the
+        larger of the fit's claim and what the recent sweeps show, the wheels' the smaller of
+        the above and what they show (floored at ``speed_min``, ``yaw_rate_min``). 0.02: on the
+        60 s ``crowd`` log with a coarse Doppler (bench/sensors/worse-doppler.toml) the fit
+        claims a few mm/s and errs 2 cm/s; the nominal weights take Doppler almost whole.
     """
 
     speed_rel: float = param(0.05, "", ge=0, le=1)
@@ -65,7 +72,7 @@ class WheelNoise(Checked):
     yaw_rate_min: float = param(0.01, "rad/s", gt=0, le=10)
     hold_speed: float = param(0.5, "m/s", gt=0, le=100)
     hold_yaw_rate: float = param(0.5, "rad/s", gt=0, le=100)
-
+    adapt_rate: float = param(0.02, "", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,78 @@ def wheel_variances(twist: tuple[float, float], noise: WheelNoise) -> tuple[floa
 def hold_covariance(noise: WheelNoise) -> np.ndarray:
     """Diagonal covariance (2, 2) of the constant-velocity hold's ``(v, ω)`` ((m/s)², (rad/s)²)."""
     return np.diag([noise.hold_speed**2, noise.hold_yaw_rate**2])
+
+
+class ObservedNoise:
+    """What the recent sweeps show of Doppler's and the wheels' error, per component of ``(v, ω)``.
+
+    Three estimates of each sweep's motion, with independent errors, are compared pairwise
+    (the "three-cornered hat"): Doppler's ``x_d = A⁻¹ z``, the wheels' ``x_w`` and the
+    scan-matched ``x_s`` (pose difference over the interval, known one sweep later). With
+    ``D = E(x_d - x_w)²``, ``S_d = E(x_d - x_s)²`` and ``S_w = E(x_w - x_s)²`` (exponentially
+    weighted, weight ``rate`` per sweep), Doppler's mean-square error is ``(D + S_d - S_w) / 2``
+    and the wheels' ``(D + S_w - S_d) / 2``: the scans' own error (cm/s per sweep, far more
+    than either) cancels. Mean squares, not variances: a bias counts. The ICP is held to the
+    fused motion, so the scans' error leans toward the source fused most; the hat then
+    underrates that source, and the weights move only as far as the evidence pushes them.
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.rate = float(rate)
+        self.sq: list[float] | None = None  # D_v, D_w, S_d v, S_d w, S_w v, S_w w (m²/s², rad²/s²)
+
+    def add(self, x_d: tuple[float, float], x_w: tuple[float, float], x_s: tuple[float, float]) -> None:
+        """One interval's three ``(v, ω)`` (m/s, rad/s); ignored unless all are finite."""
+        vals = (x_d[0], x_d[1], x_w[0], x_w[1], x_s[0], x_s[1])
+        if not all(math.isfinite(x) for x in vals):
+            return
+        new = [(x_d[0] - x_w[0]) ** 2, (x_d[1] - x_w[1]) ** 2, (x_d[0] - x_s[0]) ** 2, (x_d[1] - x_s[1]) ** 2,
+               (x_w[0] - x_s[0]) ** 2, (x_w[1] - x_s[1]) ** 2]
+        if self.sq is None:
+            self.sq = new
+        else:
+            r = self.rate
+            self.sq = [a + r * (b - a) for a, b in zip(self.sq, new)]
+
+    def mean_squares(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """Doppler's and the wheels' mean-square error of ``(v, ω)`` (each >= 0), None before any sweep."""
+        if self.sq is None:
+            return None
+        dv, dw, sdv, sdw, swv, sww = self.sq
+        return ((max(0.5 * (dv + sdv - swv), 0.0), max(0.5 * (dw + sdw - sww), 0.0)),
+                (max(0.5 * (dv + swv - sdv), 0.0), max(0.5 * (dw + sww - sdw), 0.0)))
+
+    def weights(self, c_d: list[list[float]], a: list[list[float]], wheel_var: tuple[float, float],
+                noise: WheelNoise) -> tuple[list[list[float]], tuple[float, float]]:
+        """Doppler's covariance ``c_d`` (lidar frame, nested 2x2) and the wheels' variances, as fused.
+
+        In base_link (``A⁻¹ c_d A⁻ᵀ``) each of Doppler's standard deviations grows to what the
+        sweeps show where that is more (the correlation kept), then back through ``A``; each
+        wheel variance shrinks to what they show where that is less, floored at
+        ``speed_min²``, ``yaw_rate_min²``. Unchanged before any sweep, or when ``A`` is singular.
+        """
+        ms = self.mean_squares()
+        (a00, a01), (a10, a11) = a
+        det = a00 * a11 - a01 * a10
+        if ms is None or not abs(det) > 1e-9:
+            return c_d, wheel_var
+        (md_v, md_w), (mw_v, mw_w) = ms
+        wv = (min(wheel_var[0], max(mw_v, noise.speed_min**2)), min(wheel_var[1], max(mw_w, noise.yaw_rate_min**2)))
+        i00, i01, i10, i11 = a11 / det, -a01 / det, -a10 / det, a00 / det  # A⁻¹
+        (c00, c01), (c10, c11) = c_d
+        # B = A⁻¹ c_d A⁻ᵀ
+        t00, t01 = i00 * c00 + i01 * c10, i00 * c01 + i01 * c11
+        t10, t11 = i10 * c00 + i11 * c10, i10 * c01 + i11 * c11
+        b00, b01 = t00 * i00 + t01 * i01, t00 * i10 + t01 * i11
+        b10, b11 = t10 * i00 + t11 * i01, t10 * i10 + t11 * i11
+        if not (b00 > 0 and b11 > 0) or (md_v <= b00 and md_w <= b11):
+            return c_d, wv
+        s0, s1 = math.sqrt(max(md_v / b00, 1.0)), math.sqrt(max(md_w / b11, 1.0))
+        b00, b01, b10, b11 = b00 * s0 * s0, b01 * s0 * s1, b10 * s1 * s0, b11 * s1 * s1
+        # A B Aᵀ
+        u00, u01 = a00 * b00 + a01 * b10, a00 * b01 + a01 * b11
+        u10, u11 = a10 * b00 + a11 * b10, a10 * b01 + a11 * b11
+        return [[u00 * a00 + u01 * a01, u00 * a10 + u01 * a11], [u10 * a00 + u11 * a01, u10 * a10 + u11 * a11]], wv
 
 
 def _inv2(m: np.ndarray) -> np.ndarray | None:

@@ -84,11 +84,11 @@ from .sweep_geometry import SweepGeometry, sweep_geometry
 from .tracking import MoverTracker
 from .twist_fusion import (
     FusedTwist,
+    ObservedNoise,
     TwistSources,
     doppler_design,
     fuse_twist,
     fuse_twist_lists,
-    ObservedNoise,
     hold_covariance,
     observability,
     wheel_covariance,

@@ -138,6 +138,7 @@ class ObservedNoise:
     def __init__(self, rate: float) -> None:
         self.rate = float(rate)
         self.sq: list[float] | None = None  # D_v, D_w, S_d v, S_d w, S_w v, S_w w (m²/s², rad²/s²)
+        self.count = 0  # sweeps added
 
     def add(self, x_d: tuple[float, float], x_w: tuple[float, float], x_s: tuple[float, float]) -> None:
         """One interval's three ``(v, ω)`` (m/s, rad/s); ignored unless all are finite."""
@@ -146,10 +147,11 @@ class ObservedNoise:
             return
         new = [(x_d[0] - x_w[0]) ** 2, (x_d[1] - x_w[1]) ** 2, (x_d[0] - x_s[0]) ** 2, (x_d[1] - x_s[1]) ** 2,
                (x_w[0] - x_s[0]) ** 2, (x_w[1] - x_s[1]) ** 2]
+        self.count += 1
         if self.sq is None:
             self.sq = new
-        else:
-            r = self.rate
+        else:  # the plain mean until 1 / rate sweeps are in: a first sweep does not dominate the start
+            r = max(self.rate, 1.0 / self.count)
             self.sq = [a + r * (b - a) for a, b in zip(self.sq, new)]
 
     def mean_squares(self) -> tuple[tuple[float, float], tuple[float, float]] | None:

@@ -581,9 +581,10 @@ class ImprovedFrontEnd(FrontEnd):
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + self._doppler_floor
         if wheels.twist is not None and self.observed.rate > 0:
-            self._pair = (self._doppler_base(doppler), (float(x_w[0]), float(x_w[1])))
+            x_d, xw = self._doppler_base(doppler), (float(x_w[0]), float(x_w[1]))
+            self._pair = (x_d, xw)
             cd, (s_v, s_w) = self.observed.weights(c_d.tolist(), self._design_rows, (float(c_w[0, 0]), float(c_w[1, 1])),
-                                                   p.wheel_noise)
+                                                   p.wheel_noise, (x_d[0] - xw[0], x_d[1] - xw[1]))
             c_d, c_w = np.array(cd), np.array([[s_v, 0.0], [0.0, s_w]])
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
 
@@ -611,8 +612,10 @@ class ImprovedFrontEnd(FrontEnd):
         floor = self._floor
         c_d = [[c00 + floor, c01 + 0.0], [c10 + 0.0, c11 + floor]]  # + the floor's eye(2) * σ²
         if wheels.twist is not None and self.observed.rate > 0:  # as fuse
-            self._pair = (self._doppler_base(doppler), (x_w[0], x_w[1]))
-            c_d, (s_v, s_w) = self.observed.weights(c_d, self._design_rows, (s_v, s_w), p.wheel_noise)
+            x_d = self._doppler_base(doppler)
+            self._pair = (x_d, (x_w[0], x_w[1]))
+            c_d, (s_v, s_w) = self.observed.weights(c_d, self._design_rows, (s_v, s_w), p.wheel_noise,
+                                                    (x_d[0] - x_w[0], x_d[1] - x_w[1]))
         return fuse_twist_lists(doppler.v_sensor.tolist(), c_d, self._design_rows, x_w, [[s_v, 0.0], [0.0, s_w]])
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:

@@ -163,17 +163,24 @@ class ObservedNoise:
                 (max(0.5 * (dv + swv - sdv), 0.0), max(0.5 * (dw + sww - sdw), 0.0)))
 
     def weights(self, c_d: list[list[float]], a: list[list[float]], wheel_var: tuple[float, float],
-                noise: WheelNoise) -> tuple[list[list[float]], tuple[float, float]]:
+                noise: WheelNoise, innovation: tuple[float, float] | None = None
+                ) -> tuple[list[list[float]], tuple[float, float]]:
         """Doppler's covariance ``c_d`` (lidar frame, nested 2x2) and the wheels' variances, as fused.
 
         In base_link (``A⁻¹ c_d A⁻ᵀ``) each of Doppler's standard deviations grows to what the
         sweeps show where that is more (the correlation kept), then back through ``A``; each
         wheel variance shrinks to what they show where that is less, floored at
-        ``speed_min²``, ``yaw_rate_min²``. Unchanged before any sweep, or when ``A`` is singular.
+        ``speed_min²``, ``yaw_rate_min²``. Before the scans' motion is in (the first sweeps), the
+        whole of this sweep's ``innovation`` ``x_d - x_w`` (m/s, rad/s) counts as Doppler's and
+        the wheels keep ``wheel_var``: at the start (slow, where a coarse Doppler rounds to zero)
+        the nominal weights would take Doppler whole. Unchanged when ``A`` is singular, or with
+        neither.
         """
         ms = self.mean_squares()
         (a00, a01), (a10, a11) = a
         det = a00 * a11 - a01 * a10
+        if ms is None and innovation is not None and all(math.isfinite(x) for x in innovation):
+            ms = ((innovation[0] ** 2, innovation[1] ** 2), wheel_var)
         if ms is None or not abs(det) > 1e-9:
             return c_d, wheel_var
         (md_v, md_w), (mw_v, mw_w) = ms

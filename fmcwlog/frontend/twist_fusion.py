@@ -135,15 +135,21 @@ class ObservedNoise:
     underrates that source, and the weights move only as far as the evidence pushes them.
     """
 
+    STEP = 0.05  # rad/s: a step in the wheels' ω between intervals beyond which one is left out
+
     def __init__(self, rate: float) -> None:
+        self.last_yaw_rate = math.nan  # the wheels' ω of the last interval given (rad/s)
         self.rate = float(rate)
         self.sq: list[float] | None = None  # D_v, D_w, S_d v, S_d w, S_w v, S_w w (m²/s², rad²/s²)
         self.count = 0  # sweeps added
 
     def add(self, x_d: tuple[float, float], x_w: tuple[float, float], x_s: tuple[float, float]) -> None:
-        """One interval's three ``(v, ω)`` (m/s, rad/s); ignored unless all are finite."""
+        """One interval's three ``(v, ω)`` (m/s, rad/s); ignored unless all are finite, and where the
+        wheels' ``ω`` stepped by more than :attr:`STEP` since the last interval given (a sweep across
+        a step in curvature has no one twist: the sources disagree there whatever their noise)."""
         vals = (x_d[0], x_d[1], x_w[0], x_w[1], x_s[0], x_s[1])
-        if not all(math.isfinite(x) for x in vals):
+        last, self.last_yaw_rate = self.last_yaw_rate, x_w[1]
+        if not all(math.isfinite(x) for x in vals) or not abs(x_w[1] - last) <= self.STEP:
             return
         new = [(x_d[0] - x_w[0]) ** 2, (x_d[1] - x_w[1]) ** 2, (x_d[0] - x_s[0]) ** 2, (x_d[1] - x_s[1]) ** 2,
                (x_w[0] - x_s[0]) ** 2, (x_w[1] - x_s[1]) ** 2]

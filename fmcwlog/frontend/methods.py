@@ -86,6 +86,7 @@ from .twist_fusion import (
     FusedTwist,
     ObservedNoise,
     TwistSources,
+    base_variances,
     doppler_design,
     fuse_twist,
     fuse_twist_lists,
@@ -138,6 +139,10 @@ def _finite(a: np.ndarray) -> bool:
     """``np.all(np.isfinite(a))`` of a small array (a twist, a 2x2 or 3x3 matrix): the same answer
     from its elements as Python numbers, without numpy's reduction machinery."""
     return all(map(math.isfinite, a.ravel().tolist()))
+
+
+# Doppler's (v, ω) alone, the wheels', and the variances of (v, ω) Doppler's fit claimed (base_link)
+_Pair = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
 
 
 def _finite_pair(twist: tuple[float, float]) -> bool:
@@ -501,9 +506,10 @@ class ImprovedFrontEnd(FrontEnd):
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
         self._floor = float(self._doppler_floor[0, 0])  # its diagonal as a float
         self._design_rows = self.design.tolist()  # the design matrix as nested lists, for the float path
-        self.observed = ObservedNoise(params.wheel_noise.adapt_rate)  # the sources' recent errors, for the weights
-        self._pair: tuple[tuple[float, float], tuple[float, float]] | None = None  # this sweep's Doppler and wheels
-        self._last_pair: tuple[tuple[float, float], tuple[float, float]] | None = None  # the last sweep's
+        noise = params.wheel_noise
+        self.observed = ObservedNoise(noise.adapt_rate, noise.adapt_gate, noise.adapt_min_sweeps)  # the sources' errors
+        self._pair: _Pair | None = None  # this sweep's, for the observed noise (_Pair)
+        self._last_pair: _Pair | None = None  # the last sweep's
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only
@@ -581,12 +587,28 @@ class ImprovedFrontEnd(FrontEnd):
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + self._doppler_floor
         if wheels.twist is not None and self.observed.rate > 0:
-            x_d, xw = self._doppler_base(doppler), (float(x_w[0]), float(x_w[1]))
-            self._pair = (x_d, xw)
-            cd, (s_v, s_w) = self.observed.weights(c_d.tolist(), self._design_rows, (float(c_w[0, 0]), float(c_w[1, 1])),
-                                                   p.wheel_noise, (x_d[0] - xw[0], x_d[1] - xw[1]))
+            cd, (s_v, s_w) = self._observed_weights(doppler, (float(x_w[0]), float(x_w[1])), c_d.tolist(),
+                                                    (float(c_w[0, 0]), float(c_w[1, 1])))
             c_d, c_w = np.array(cd), np.array([[s_v, 0.0], [0.0, s_w]])
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def _observed_weights(self, doppler: Doppler, x_w: tuple[float, float], c_d: list[list[float]],
+                          wheel_var: tuple[float, float]) -> tuple[list[list[float]], tuple[float, float]]:
+        """Doppler's covariance (lidar frame) and the wheels' variances for this sweep's fusion, from what
+        the recent sweeps show (:class:`~.twist_fusion.ObservedNoise`), and this sweep kept for it.
+
+        Only where the sensor checks keep both sources: no source outvoted, none dropped, and (with the
+        vote on) after its first judged window; elsewhere the nominal ones, and the sweep is not
+        counted, so that the estimate is not taken from a source the checks found faulty."""
+        checks = self.checks
+        vote = checks.vote
+        if vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
+            return c_d, wheel_var
+        base = base_variances(c_d, self._design_rows)
+        self._pair = (self._doppler_base(doppler), x_w, (math.nan, math.nan) if base is None else (base[0], base[2]))
+        if checks.params.vote and vote.judged == 0:
+            return c_d, wheel_var
+        return self.observed.weights(c_d, self._design_rows, wheel_var, self.params.wheel_noise)
 
     def _doppler_base(self, doppler: Doppler) -> tuple[float, float]:
         """Doppler's ``(v, ω)`` of base_link alone, ``A⁻¹ z`` (NaN where ``A`` is singular)."""
@@ -612,10 +634,7 @@ class ImprovedFrontEnd(FrontEnd):
         floor = self._floor
         c_d = [[c00 + floor, c01 + 0.0], [c10 + 0.0, c11 + floor]]  # + the floor's eye(2) * σ²
         if wheels.twist is not None and self.observed.rate > 0:  # as fuse
-            x_d = self._doppler_base(doppler)
-            self._pair = (x_d, (x_w[0], x_w[1]))
-            c_d, (s_v, s_w) = self.observed.weights(c_d, self._design_rows, (s_v, s_w), p.wheel_noise,
-                                                    (x_d[0] - x_w[0], x_d[1] - x_w[1]))
+            c_d, (s_v, s_w) = self._observed_weights(doppler, (x_w[0], x_w[1]), c_d, (s_v, s_w))
         return fuse_twist_lists(doppler.v_sensor.tolist(), c_d, self._design_rows, x_w, [[s_v, 0.0], [0.0, s_w]])
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
@@ -700,7 +719,8 @@ class ImprovedFrontEnd(FrontEnd):
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
             if self._last_pair is not None and registered:  # the scans' motion over the last sweep's interval
-                self.observed.add(*self._last_pair, self.scan_twist)
+                x_d, x_w, claim = self._last_pair
+                self.observed.add(x_d, x_w, self.scan_twist, claim)
         self._last_pair = self._pair
         # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
         self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,

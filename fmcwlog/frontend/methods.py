@@ -356,6 +356,19 @@ class FrontEnd(ABC):
         found = correlative_match(grid, source, motion.predicted, window, with_second=False)
         return self._register_or_recover(source, motion, stamp, found.pose)
 
+    def _pass_pending(self) -> None:
+        """The sweeps compared for the observed noise go to it once a whole window of the vote
+        (``vote_sweeps``) has judged them with no source outvoted; a window that outvotes one (or a
+        source dropped) discards them: the onset of a fault, before the vote sees it, is not
+        evidence of the other source's noise. Without the vote they go at once."""
+        checks = self.checks
+        if checks.vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
+            self._pending.clear()
+            return
+        keep = checks.params.vote_sweeps if checks.params.vote else 0
+        while len(self._pending) > keep:
+            self.observed.add(*self._pending.pop(0))
+
     def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
         """The motion prior's motion (x, y, yaw) across a gap before this sweep; None without one."""
         return prior.since_last
@@ -510,6 +523,9 @@ class ImprovedFrontEnd(FrontEnd):
         self.observed = ObservedNoise(noise.adapt_rate, noise.adapt_gate, noise.adapt_min_sweeps)  # the sources' errors
         self._pair: _Pair | None = None  # this sweep's, for the observed noise (_Pair)
         self._last_pair: _Pair | None = None  # the last sweep's
+        # the sweeps compared, not yet judged by a whole window of the vote: Doppler's, the wheels' and the
+        # scans' (v, ω), and Doppler's claimed variances
+        self._pending: list[tuple[tuple[float, float], tuple[float, float], tuple[float, float], tuple[float, float]]] = []
 
     def _into_grid(self, scan: Scan) -> None:
         """The grid, and the tracker's free space, which holds the last stretch of path only
@@ -720,11 +736,12 @@ class ImprovedFrontEnd(FrontEnd):
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
             if self._last_pair is not None and registered:  # the scans' motion over the last sweep's interval
                 x_d, x_w, claim = self._last_pair
-                self.observed.add(x_d, x_w, self.scan_twist, claim)
+                self._pending.append((x_d, x_w, self.scan_twist, claim))
         self._last_pair = self._pair
         # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
         self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,
                              float(d[2]) if registered else None)
+        self._pass_pending()
         if (registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels
                 and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)

@@ -356,19 +356,6 @@ class FrontEnd(ABC):
         found = correlative_match(grid, source, motion.predicted, window, with_second=False)
         return self._register_or_recover(source, motion, stamp, found.pose)
 
-    def _pass_pending(self) -> None:
-        """The sweeps compared for the observed noise go to it once a whole window of the vote
-        (``vote_sweeps``) has judged them with no source outvoted; a window that outvotes one (or a
-        source dropped) discards them: the onset of a fault, before the vote sees it, is not
-        evidence of the other source's noise. Without the vote they go at once."""
-        checks = self.checks
-        if checks.vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
-            self._pending.clear()
-            return
-        keep = checks.params.vote_sweeps if checks.params.vote else 0
-        while len(self._pending) > keep:
-            self.observed.add(*self._pending.pop(0))
-
     def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
         """The motion prior's motion (x, y, yaw) across a gap before this sweep; None without one."""
         return prior.since_last
@@ -746,6 +733,19 @@ class ImprovedFrontEnd(FrontEnd):
                 and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
         self._registered_last = registered
+
+    def _pass_pending(self) -> None:
+        """The sweeps compared for the observed noise go to it once a whole window of the vote
+        (``vote_sweeps``) has judged them with no source outvoted; a window that outvotes one (or a
+        source dropped) discards them: the onset of a fault, before the vote sees it, is not
+        evidence of the other source's noise. Without the vote they go at once."""
+        checks = self.checks
+        if checks.vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
+            self._pending.clear()
+            return
+        keep = checks.params.vote_sweeps if checks.params.vote else 0
+        while len(self._pending) > keep:
+            self.observed.add(*self._pending.pop(0))
 
     def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
         """The wheels' motion across a gap, unless the sensor checks dropped them as faulty."""

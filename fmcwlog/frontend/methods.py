@@ -88,7 +88,9 @@ from .sweep_geometry import SweepGeometry, sweep_geometry
 from .tracking import MoverTracker
 from .twist_fusion import (
     FusedTwist,
+    ObservedNoise,
     TwistSources,
+    base_variances,
     doppler_design,
     fuse_twist,
     fuse_twist_lists,
@@ -141,6 +143,10 @@ def _finite(a: np.ndarray) -> bool:
     """``np.all(np.isfinite(a))`` of a small array (a twist, a 2x2 or 3x3 matrix): the same answer
     from its elements as Python numbers, without numpy's reduction machinery."""
     return all(map(math.isfinite, a.ravel().tolist()))
+
+
+# Doppler's (v, ω) alone, the wheels', and the variances of (v, ω) Doppler's fit claimed (base_link)
+_Pair = tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
 
 
 def _finite_pair(twist: tuple[float, float]) -> bool:
@@ -572,6 +578,13 @@ class ImprovedFrontEnd(FrontEnd):
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
         self._floor = float(self._doppler_floor[0, 0])  # its diagonal as a float
         self._design_rows = self.design.tolist()  # the design matrix as nested lists, for the float path
+        noise = params.wheel_noise
+        self.observed = ObservedNoise(noise.adapt_rate, noise.adapt_gate, noise.adapt_min_sweeps)  # the sources' errors
+        self._pair: _Pair | None = None  # this sweep's, for the observed noise (_Pair)
+        self._last_pair: _Pair | None = None  # the last sweep's
+        # the sweeps compared, not yet judged by a whole window of the vote: Doppler's, the wheels' and the
+        # scans' (v, ω), and Doppler's claimed variances
+        self._pending: list[tuple[tuple[float, float], tuple[float, float], tuple[float, float], tuple[float, float]]] = []
 
     def _new_piece(self) -> None:
         """A fresh local map, and a fresh tracker: its tracks and free space are of the place left."""
@@ -653,7 +666,38 @@ class ImprovedFrontEnd(FrontEnd):
         else:
             x_w, c_w = np.asarray(self.scan_twist, dtype=float), hold_covariance(p.wheel_noise)
         c_d = doppler.covariance + self._doppler_floor
+        if wheels.twist is not None and self.observed.rate > 0:
+            cd, (s_v, s_w) = self._observed_weights(doppler, (float(x_w[0]), float(x_w[1])), c_d.tolist(),
+                                                    (float(c_w[0, 0]), float(c_w[1, 1])))
+            c_d, c_w = np.array(cd), np.array([[s_v, 0.0], [0.0, s_w]])
         return fuse_twist(doppler.v_sensor, c_d, self.design, x_w, c_w)
+
+    def _observed_weights(self, doppler: Doppler, x_w: tuple[float, float], c_d: list[list[float]],
+                          wheel_var: tuple[float, float]) -> tuple[list[list[float]], tuple[float, float]]:
+        """Doppler's covariance (lidar frame) and the wheels' variances for this sweep's fusion, from what
+        the recent sweeps show (:class:`~.twist_fusion.ObservedNoise`), and this sweep kept for it.
+
+        Only where the sensor checks keep both sources: no source outvoted, none dropped, and (with the
+        vote on) after its first judged window; elsewhere the nominal ones, and the sweep is not
+        counted, so that the estimate is not taken from a source the checks found faulty."""
+        checks = self.checks
+        vote = checks.vote
+        if vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
+            return c_d, wheel_var
+        base = base_variances(c_d, self._design_rows)
+        self._pair = (self._doppler_base(doppler), x_w, (math.nan, math.nan) if base is None else (base[0], base[2]))
+        if checks.params.vote and vote.judged == 0:
+            return c_d, wheel_var
+        return self.observed.weights(c_d, self._design_rows, wheel_var, self.params.wheel_noise)
+
+    def _doppler_base(self, doppler: Doppler) -> tuple[float, float]:
+        """Doppler's ``(v, ω)`` of base_link alone, ``A⁻¹ z`` (NaN where ``A`` is singular)."""
+        (a00, a01), (a10, a11) = self._design_rows
+        det = a00 * a11 - a01 * a10
+        if not abs(det) > 1e-9:
+            return (math.nan, math.nan)
+        z0, z1 = float(doppler.v_sensor[0]), float(doppler.v_sensor[1])
+        return ((a11 * z0 - a01 * z1) / det, (a00 * z1 - a10 * z0) / det)
 
     def _fuse_floats(self, doppler: Doppler, wheels: PriorMotion) -> FusedTwist:
         """:meth:`fuse` on Python floats (:func:`~.twist_fusion.fuse_twist_lists`, what :func:`fuse_twist`
@@ -669,6 +713,8 @@ class ImprovedFrontEnd(FrontEnd):
         (c00, c01), (c10, c11) = doppler.covariance.tolist()
         floor = self._floor
         c_d = [[c00 + floor, c01 + 0.0], [c10 + 0.0, c11 + floor]]  # + the floor's eye(2) * σ²
+        if wheels.twist is not None and self.observed.rate > 0:  # as fuse
+            c_d, (s_v, s_w) = self._observed_weights(doppler, (x_w[0], x_w[1]), c_d, (s_v, s_w))
         return fuse_twist_lists(doppler.v_sensor.tolist(), c_d, self._design_rows, x_w, [[s_v, 0.0], [0.0, s_w]])
 
     def segment(self, sweep: SweepInput, eps: np.ndarray, twist: tuple[float, float] | None) -> np.ndarray:
@@ -700,7 +746,7 @@ class ImprovedFrontEnd(FrontEnd):
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         ts = sweep.stamp_ns * 1e-9
         wheels = prior if self.checks.use_wheels else PriorMotion()
-        self._drop_wheels, self._raw_fit = False, None
+        self._drop_wheels, self._raw_fit, self._pair = False, None, None
         self.mount_check.sweep(ts, sweep.xy)
         doppler = self.doppler_stages(sweep, wheels.twist)
         if self._drop_wheels or self.checks.vote.outvoted == WHEELS:
@@ -753,14 +799,32 @@ class ImprovedFrontEnd(FrontEnd):
         d = between_floats(self.pose, pose) or between(self.pose, pose)
         if dt > 0:
             self.scan_twist = (float(d[0] / dt), float(d[2] / dt))
+            if self._last_pair is not None and registered:  # the scans' motion over the last sweep's interval
+                x_d, x_w, claim = self._last_pair
+                self._pending.append((x_d, x_w, self.scan_twist, claim))
+        self._last_pair = self._pair
         # the vote's window spans consecutive sweeps only: a gap (no wheels given) starts it anew
         self.checks.interval(self.last_stamp, stamp, None if prior.gap else prior.since_last,
                              float(d[2]) if registered else None)
         self._check_mount(stamp, prior)
+        self._pass_pending()
         if (registered and self._registered_last and prior.turns_since_last is not None and self.checks.use_wheels
                 and not prior.gap):
             self.samples.add_yaw(stamp, float(d[2]), prior.turns_since_last, dt)
         self._registered_last = registered
+
+    def _pass_pending(self) -> None:
+        """The sweeps compared for the observed noise go to it once a whole window of the vote
+        (``vote_sweeps``) has judged them with no source outvoted; a window that outvotes one (or a
+        source dropped) discards them: the onset of a fault, before the vote sees it, is not
+        evidence of the other source's noise. Without the vote they go at once."""
+        checks = self.checks
+        if checks.vote.outvoted is not None or not (checks.use_doppler and checks.use_wheels):
+            self._pending.clear()
+            return
+        keep = checks.params.vote_sweeps if checks.params.vote else 0
+        while len(self._pending) > keep:
+            self.observed.add(*self._pending.pop(0))
 
     def gap_motion(self, prior: PriorMotion) -> np.ndarray | None:
         """The wheels' motion across a gap, unless the sensor checks dropped them as faulty."""

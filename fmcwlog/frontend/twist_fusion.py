@@ -57,6 +57,20 @@ class WheelNoise(Checked):
         0.0044 rad/m bias). yaw_rate_min: its floor (rad/s), > 0.
     hold_speed, hold_yaw_rate: standard deviations of the constant-velocity hold used
         when there are no wheels (m/s, rad/s), > 0: wide, so Doppler and the scans decide.
+    adapt_rate: weight of each sweep in the exponentially weighted mean squares of
+        :class:`ObservedNoise` (0..1; about ``1 / adapt_rate`` sweeps remembered); 0 keeps the
+        nominal weights above and the fit's own covariance. 0.02.
+    adapt_gate: the weights move once Doppler's observed mean-square error exceeds this multiple
+        of the variance its fits claim (the mean of the ``v`` and ``ω`` ratios), and return to the
+        nominal ones below half of it (>= 1). There, Doppler's variance is the larger of the fit's
+        claim and what the sweeps show, the wheels' the smaller of the above and what they show
+        (floored at ``speed_min``, ``yaw_rate_min``). 6.5: on the 60 s ``crowd`` logs (seeds 0-2)
+        the nominal Doppler errs up to 5.6 times (in variance) what it claims, and keeps the
+        nominal weights; a coarse Doppler (bench/sensors/worse-doppler.toml: noise 0.1 m/s,
+        0.25 m/s steps) claims a few mm/s, errs 2 cm/s, 12-20 times its claim (at least 4.9), and
+        the nominal weights take it almost whole.
+    adapt_min_sweeps: sweeps compared before the weights may move (>= 1). 10: the ratio of the
+        nominal Doppler over its first 3 to 5 sweeps reaches 6.7.
     """
 
     speed_rel: float = param(0.05, "", ge=0, le=1)
@@ -65,7 +79,9 @@ class WheelNoise(Checked):
     yaw_rate_min: float = param(0.01, "rad/s", gt=0, le=10)
     hold_speed: float = param(0.5, "m/s", gt=0, le=100)
     hold_yaw_rate: float = param(0.5, "rad/s", gt=0, le=100)
-
+    adapt_rate: float = param(0.02, "", ge=0, le=1)
+    adapt_gate: float = param(6.5, "", ge=1, le=1e6)
+    adapt_min_sweeps: int = param(10, "sweeps", ge=1, le=1000000)
 
 
 @dataclass(frozen=True)
@@ -112,6 +128,139 @@ def wheel_variances(twist: tuple[float, float], noise: WheelNoise) -> tuple[floa
 def hold_covariance(noise: WheelNoise) -> np.ndarray:
     """Diagonal covariance (2, 2) of the constant-velocity hold's ``(v, ω)`` ((m/s)², (rad/s)²)."""
     return np.diag([noise.hold_speed**2, noise.hold_yaw_rate**2])
+
+
+class ObservedNoise:
+    """What the recent sweeps show of Doppler's and the wheels' error, per component of ``(v, ω)``.
+
+    Three estimates of each sweep's motion, with independent errors, are compared pairwise
+    (the "three-cornered hat"): Doppler's ``x_d = A⁻¹ z``, the wheels' ``x_w`` and the
+    scan-matched ``x_s`` (pose difference over the interval, known one sweep later). With
+    ``D = E(x_d - x_w)²``, ``S_d = E(x_d - x_s)²`` and ``S_w = E(x_w - x_s)²`` (exponentially
+    weighted, weight ``rate`` per sweep), Doppler's mean-square error is ``(D + S_d - S_w) / 2``
+    and the wheels' ``(D + S_w - S_d) / 2``: the scans' own error (cm/s per sweep, far more
+    than either) cancels. Mean squares, not variances: a bias counts. The ICP is held to the
+    fused motion, so the scans' error leans toward the source fused most; the hat then
+    underrates that source, and the weights move only as far as the evidence pushes them.
+
+    The weights move only on significant evidence (:meth:`adapting`): once ``1 / rate`` sweeps
+    are in, and only in a component where Doppler's observed mean square exceeds ``gate`` times
+    the variance its fits claimed over the same sweeps (``C``, the same weighting). A Doppler
+    that errs as it claims (or a little more) keeps the nominal weights, and so do the wheels.
+    A faulty source is not followed: a wheel fault raises the wheels' share of the hat, not
+    Doppler's, and wheel variances only ever shrink from the nominal ones.
+    """
+
+    STEP = 0.05  # rad/s: a step in the wheels' ω between intervals beyond which one is left out
+
+    def __init__(self, rate: float, gate: float = 1.0, min_sweeps: int = 1) -> None:
+        self.last_yaw_rate = math.nan  # the wheels' ω of the last interval given (rad/s)
+        self.rate = float(rate)
+        self.gate = float(gate)
+        self.min_sweeps = int(min_sweeps)
+        self.on = False  # whether the weights move (:meth:`_update`)
+        # D_v, D_w, S_d v, S_d w, S_w v, S_w w, C_v, C_w (m²/s², rad²/s²)
+        self.sq: list[float] | None = None
+        self.count = 0  # sweeps added
+
+    def add(self, x_d: tuple[float, float], x_w: tuple[float, float], x_s: tuple[float, float],
+            claim: tuple[float, float] = (math.nan, math.nan)) -> None:
+        """One interval's three ``(v, ω)`` (m/s, rad/s) and the variances of ``(v, ω)`` Doppler's fit
+        claimed for it (base_link, :func:`base_variances`; NaN: none, then :meth:`adapting` stays
+        False); ignored unless the three are finite, and where the wheels' ``ω`` stepped by more than
+        :attr:`STEP` since the last interval given (a sweep across a step in curvature has no one
+        twist: the sources disagree there whatever their noise)."""
+        vals = (x_d[0], x_d[1], x_w[0], x_w[1], x_s[0], x_s[1])
+        last, self.last_yaw_rate = self.last_yaw_rate, x_w[1]
+        if not all(math.isfinite(x) for x in vals) or not abs(x_w[1] - last) <= self.STEP:
+            return
+        new = [(x_d[0] - x_w[0]) ** 2, (x_d[1] - x_w[1]) ** 2, (x_d[0] - x_s[0]) ** 2, (x_d[1] - x_s[1]) ** 2,
+               (x_w[0] - x_s[0]) ** 2, (x_w[1] - x_s[1]) ** 2, float(claim[0]), float(claim[1])]
+        self.count += 1
+        if self.sq is None:
+            self.sq = new
+        else:  # the plain mean until 1 / rate sweeps are in: a first sweep does not dominate the start
+            r = max(self.rate, 1.0 / self.count)
+            self.sq = [a + r * (b - a) for a, b in zip(self.sq, new)]
+        self._update()
+
+    def mean_squares(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """Doppler's and the wheels' mean-square error of ``(v, ω)`` (each >= 0), None before any sweep."""
+        if self.sq is None:
+            return None
+        dv, dw, sdv, sdw, swv, sww = self.sq[:6]
+        return ((max(0.5 * (dv + sdv - swv), 0.0), max(0.5 * (dw + sdw - sww), 0.0)),
+                (max(0.5 * (dv + swv - sdv), 0.0), max(0.5 * (dw + sww - sdw), 0.0)))
+
+    def ratio(self) -> float:
+        """Doppler's observed mean square over the variance its fits claimed, the mean of the ``v``
+        and ``ω`` ratios (NaN before any sweep, or without claims)."""
+        ms = self.mean_squares()
+        if ms is None or self.sq is None:
+            return math.nan
+        (md_v, md_w), (c_v, c_w) = ms[0], self.sq[6:8]
+        return 0.5 * (md_v / c_v + md_w / c_w) if c_v > 0 and c_w > 0 else math.nan
+
+    def _update(self) -> None:
+        """Whether the weights move from here: on once ``min_sweeps`` are in and :meth:`ratio` is above
+        ``gate``, off again once it is below half of it (hysteresis: a Doppler that errs several times
+        its claim does not flicker back to the nominal weights where its ratio dips)."""
+        r = self.ratio()
+        if self.count < self.min_sweeps or not math.isfinite(r):
+            self.on = False
+        elif self.on:
+            self.on = r >= 0.5 * self.gate
+        else:
+            self.on = r > self.gate
+
+    def adapting(self) -> tuple[bool, bool]:
+        """Per component ``(v, ω)``: whether the evidence moves the weights (:meth:`_update`)."""
+        return (self.on, self.on)
+
+    def weights(self, c_d: list[list[float]], a: list[list[float]], wheel_var: tuple[float, float],
+                noise: WheelNoise) -> tuple[list[list[float]], tuple[float, float]]:
+        """Doppler's covariance ``c_d`` (lidar frame, nested 2x2) and the wheels' variances, as fused.
+
+        In each component that is :meth:`adapting`, Doppler's standard deviation in base_link
+        (``A⁻¹ c_d A⁻ᵀ``) grows to what the sweeps show where that is more (the correlation kept,
+        then back through ``A``), and the wheels' variance shrinks to what they show where that
+        is less, floored at ``speed_min²``, ``yaw_rate_min²``. Elsewhere both are as given; all
+        of it when ``A`` is singular.
+        """
+        on = self.adapting()
+        ms = self.mean_squares()
+        b = base_variances(c_d, a)
+        if ms is None or b is None or not (on[0] or on[1]):
+            return c_d, wheel_var
+        (md_v, md_w), (mw_v, mw_w) = ms
+        floors = (noise.speed_min**2, noise.yaw_rate_min**2)
+        wv = tuple(min(w, max(m, f)) if o else w for w, m, f, o in zip(wheel_var, (mw_v, mw_w), floors, on))
+        b00, b01, b11 = b
+        s0 = math.sqrt(max(md_v / b00, 1.0)) if on[0] and b00 > 0 else 1.0
+        s1 = math.sqrt(max(md_w / b11, 1.0)) if on[1] and b11 > 0 else 1.0
+        if s0 == 1.0 and s1 == 1.0:
+            return c_d, (wv[0], wv[1])
+        b00, b01, b11 = b00 * s0 * s0, b01 * s0 * s1, b11 * s1 * s1
+        (a00, a01), (a10, a11) = a
+        # A B Aᵀ
+        u00, u01 = a00 * b00 + a01 * b01, a00 * b01 + a01 * b11
+        u10, u11 = a10 * b00 + a11 * b01, a10 * b01 + a11 * b11
+        return ([[u00 * a00 + u01 * a01, u00 * a10 + u01 * a11], [u10 * a00 + u11 * a01, u10 * a10 + u11 * a11]],
+                (wv[0], wv[1]))
+
+
+def base_variances(c_d: list[list[float]], a: list[list[float]]) -> tuple[float, float, float] | None:
+    """Doppler's covariance ``c_d`` (lidar frame, nested 2x2) in base_link, ``B = A⁻¹ c_d A⁻ᵀ``, as
+    ``(B_vv, B_vω, B_ωω)`` ((m/s)², m·rad/s², (rad/s)²); None where ``A`` is singular (``|det| <= 1e-9``)."""
+    (a00, a01), (a10, a11) = a
+    det = a00 * a11 - a01 * a10
+    if not abs(det) > 1e-9:
+        return None
+    i00, i01, i10, i11 = a11 / det, -a01 / det, -a10 / det, a00 / det  # A⁻¹
+    (c00, c01), (c10, c11) = c_d
+    t00, t01 = i00 * c00 + i01 * c10, i00 * c01 + i01 * c11
+    t10, t11 = i10 * c00 + i11 * c10, i10 * c01 + i11 * c11
+    return t00 * i00 + t01 * i01, t00 * i10 + t01 * i11, t10 * i10 + t11 * i11
 
 
 def _inv2(m: np.ndarray) -> np.ndarray | None:

@@ -354,10 +354,11 @@ class FrontEnd(ABC):
         else:  # what those give with no point moving: empty, in the inputs' dtypes
             moving_map, moving_vel = np.empty((0, 2)), None if vel is None else vel[:0].copy()
         ms = (time.perf_counter() - t0) * 1e3
+        back = self.jumps.jumps[-1].suspects - 1 if jump == RELOCALISED else 0
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
                            iterations, kept, n_moving, ms, static_map, vel_use,
                            moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered,
-                           jump)
+                           jump, _wrapped(motion.predicted) if back else None, back)
 
     def _watch_jumps(self, source: np.ndarray, motion: MotionEstimate, stamp: float, res: ICPResult
                      ) -> tuple[ICPResult | None, str | None, bool]:

@@ -224,10 +224,8 @@ def _times(gap: float, spread: float) -> str:
 def run_names(out_dirs: Sequence[Path]) -> list[str]:
     """Each run's name on the page: its folder's name, with its parent's where two share a name,
     numbered where even that does not tell them apart."""
-    names = [p.name or str(p) for p in out_dirs]
-    for i, p in enumerate(out_dirs):
-        if names.count(p.name) > 1:
-            names[i] = f"{p.parent.name}/{p.name}"
+    short = [p.name or str(p) for p in out_dirs]
+    names = [f"{p.parent.name}/{n}" if short.count(n) > 1 else n for p, n in zip(out_dirs, short)]
     return [n if names.count(n) == 1 else f"{n} ({i + 1})" for i, n in enumerate(names)]
 
 

@@ -393,7 +393,9 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
         r["notes"].append("builds no map: no feature lengths")
         return
     if method not in feature_rows:
-        if measurable:
+        if measurable and method.endswith("_frontend") and method.removesuffix("_frontend") in METHOD_NAMES:
+            r["notes"].append(f"its map is the {method.removesuffix('_frontend')} method's, measured there")
+        elif measurable:
             r["notes"].append("not one of fmcwlog's methods: its map is not measured")
         return
     rows = feature_rows[method]
@@ -415,6 +417,8 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
 def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:
     if method in SEGMENTING_METHODS:
         r["segmentation"] = segmentation_scores(out_dir, method, labels, r["notes"])
+    elif method.removesuffix("_frontend") in SEGMENTING_METHODS:
+        r["notes"].append(f"its moving points are the {method.removesuffix('_frontend')} method's, scored there")
     elif method != WHEEL_ODOMETRY:
         r["notes"].append("does not segment moving points: no moving-point scores")
 

@@ -24,7 +24,7 @@ the gap (0.9 cm without a gap); the numbers with the bridge are in the tests
 (``tests/integration/test_sweep_gaps.py``).
 
 A gap is a time between two sweeps longer than ``min_periods`` sweep periods (the calibration's
-``scan_rate``, else the shortest interval seen so far); it is counted and reported (a warning,
+``scan_rate``, else the median of the recent intervals); it is counted and reported (a warning,
 ``run.json``'s ``gaps``, the report's header) whether or not it is bridged.
 """
 
@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,13 +87,24 @@ class SweepGap:
 
 class GapFinder:
     """Watches the sweeps' stamps, in order, for gaps. ``scan_rate``: sweeps per second (Hz) where
-    the calibration gives it; else the period is the shortest interval seen so far."""
+    the calibration gives it; else the period is the median of the last :attr:`RECENT` intervals
+    (recomputed every :attr:`EVERY` sweeps once that many are in), and no gap is found before
+    :attr:`MIN_SEEN` intervals are. Not their shortest: a log subsampled unevenly (a
+    CARMEN log that kept a scan every few seconds, one sometimes 0.3 s after another) would make
+    most of its intervals gaps, and bridge every sweep on its odometry (the Intel subset's
+    relations 0.017 -> 0.67 m)."""
+
+    RECENT = 101
+    EVERY = 10
+    MIN_SEEN = 5
 
     def __init__(self, min_periods: float, scan_rate: float | None = None):
         self.min_periods = min_periods
         self.period = 1.0 / scan_rate if scan_rate else math.inf  # s
         self._given = bool(scan_rate)
         self._last: float | None = None
+        self._recent: deque[float] = deque(maxlen=self.RECENT)  # the last intervals (s), where no rate is given
+        self._seen = 0  # intervals seen
         self.gaps: list[SweepGap] = []
 
     def observe(self, stamp: float) -> float:
@@ -100,12 +113,15 @@ class GapFinder:
         if last is None:
             return 0.0
         dt = stamp - last
-        if dt > self.min_periods * self.period:
+        gap = dt > self.min_periods * self.period and (self._given or self._seen >= self.MIN_SEEN)
+        if gap:
             self.gaps.append(SweepGap(last + self.period, dt - self.period))
-            return dt - self.period
         if not self._given and dt > 0:
-            self.period = min(self.period, dt)
-        return 0.0
+            self._recent.append(dt)
+            self._seen += 1
+            if self._seen <= self.RECENT or self._seen % self.EVERY == 0:
+                self.period = statistics.median(self._recent)
+        return dt - self.period if gap else 0.0
 
     def warning(self, scan_topic: str) -> str | None:
         """One line on the gaps found, None without any."""

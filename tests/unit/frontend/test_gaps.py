@@ -24,6 +24,21 @@ def test_gaps_are_intervals_longer_than_a_few_periods(scan_rate):
     assert GapFinder(3.0).warning("/scan") is None
 
 
+def test_an_unevenly_subsampled_log_is_not_all_gaps():
+    """A log that kept a scan every few seconds, now and then two within 0.3 s (as the Intel subset
+    does): without a scan rate the period is the intervals' median, so only a pause of many periods
+    is a gap (with the shortest interval as the period, nearly every interval was one)."""
+    rng = np.random.default_rng(0)
+    intervals = rng.uniform(2.5, 4.5, 300)
+    intervals[::17] = 0.3
+    intervals[200] = 40.0  # a real pause
+    stamps = np.concatenate([[0.0], np.cumsum(intervals)])
+    finder = GapFinder(3.0)
+    found = [finder.observe(float(t)) for t in stamps]
+    assert len(finder.gaps) == 1 and finder.gaps[0].start == pytest.approx(stamps[200] + finder.period, abs=1.0)
+    assert sum(g > 0 for g in found) == 1
+
+
 def test_the_bridge_widens_with_the_gap():
     noise = WheelNoise()
     short = bridge_covariance(np.array([2.0, 0.0, 0.0]), 2.0, noise)

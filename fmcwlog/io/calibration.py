@@ -304,7 +304,9 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
     if mount_src is not None:
         mount_label = mount_src.label
         if not mount_src.is_file:
-            _compare_with_tf(reader, log, scan_topic, base_frame, mount, upside_down)
+            # the roll too, where the record says it or none does: a file's overrides both, unsaid
+            flag = None if flag_src is not None and flag_src.is_file else upside_down
+            _compare_with_tf(reader, log, scan_topic, base_frame, mount, flag)
     else:
         found, notes = mount_from_tf(reader, scan_topic, base_frame)
         for note in notes:
@@ -328,16 +330,17 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
 
 
 def _compare_with_tf(reader: LogSource, log: Path, scan_topic: str, base_frame: str,
-                     mount: tuple[float, float, float], upside_down: bool) -> None:
+                     mount: tuple[float, float, float], upside_down: bool | None) -> None:
     """The record's mount against the log's tf, where it has one: a warning naming both where they
-    differ (in x, y, yaw, or one upside down and the other not)."""
+    differ (in x, y, yaw, or, unless ``upside_down`` is None, one upside down and the other not)."""
     found, notes = mount_from_tf(reader, scan_topic, base_frame)
     if not isinstance(found, TfMount):
         return
     for note in notes:
         warnings.warn(note, stacklevel=3)
-    if not _agree(mount, found.mount) or upside_down != found.upside_down:
+    roll = found.upside_down if upside_down is None else upside_down
+    if not _agree(mount, found.mount) or roll != found.upside_down:
         warnings.warn(f"{log}: {CALIBRATION_KEY} and tf disagree on the lidar's mount: the record has "
-                      f"{_fmt_mount(mount, upside_down)}, {found.source} has "
+                      f"{_fmt_mount(mount, bool(upside_down))}, {found.source} has "
                       f"{_fmt_mount(found.mount, found.upside_down)}; used the record's "
                       "(--calibration FILE overrides both)", stacklevel=3)

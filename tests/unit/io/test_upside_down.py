@@ -218,3 +218,14 @@ def test_the_mount_check_names_the_key_each_way():
     both = _fix(MIRRORED_TURNED, 0.0)
     assert "set lidar_upside_down: true and lidar_yaw: 3.141593 (not 0.000000)" in both
     assert "lidar_upside_down" not in _fix(TURNED, 0.0)
+
+
+def test_the_key_in_a_file_is_no_disagreement_between_the_record_and_tf(tmp_path):
+    """The file overrides both: the record's mount against tf is compared without the file's roll."""
+    calib = tmp_path / "calib.yaml"
+    calib.write_text("lidar_upside_down: true\n")
+    upright = [tf_entry("base_link", "laser", (0.35, 0.0, 0.2))]
+    loaded, said = _load(FakeReader(upright, record=RECORD), path=calib)
+    assert loaded.cal.upside_down and said == []
+    loaded, said = _load(FakeReader(UPSIDE_DOWN_TF, record=RECORD), path=calib)
+    assert loaded.cal.upside_down and len(said) == 1 and "x 0.35 m, y 0 m, yaw 0 rad, tf" in said[0], said  # x, yaw

@@ -6,6 +6,7 @@
     ev = api.report("out/")                  # ev.result["methods"]["improved"]["ate_rmse_m"]
     batch = api.process_many(["logs/"], "results/", jobs=4)   # results/<log>/; batch.failed: their reasons
     fleet = api.report_fleet("results/")     # fleet["flagged"]; results/fleet.html
+    cmp = api.compare_runs(["runA/", "runB/"], "cmp/")  # cmp["metrics"]; cmp/compare.html
 
 Every function raises :class:`fmcwlog.errors.FmcwlogError` (with a one-line message
 naming the file and the problem) for input it cannot use, and leaves nothing
@@ -14,6 +15,7 @@ half-written behind. This module only gathers the names; each lives in its layer
 
 from __future__ import annotations
 
+from .evaluation.compare import compare_runs
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.report import compare, report, report_fleet
 from .fleet.batch import BatchSummary, process_many
@@ -33,4 +35,4 @@ from .sim.scenarios import scenario
 __all__ = ["SimConfig", "ProcessParams", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "Limits",
            "BatchSummary", "RecordSummary", "ImportSummary", "ImportOutcome", "CalibrateSummary",
            "scenario", "record", "process", "process_many", "evaluate", "report", "report_fleet", "is_batch_folder",
-           "compare", "import_carmen", "import_carmen_many", "calibrate"]
+           "compare", "compare_runs", "import_carmen", "import_carmen_many", "calibrate"]

@@ -144,3 +144,8 @@ class SweepResult:
     # this sweep ends a jump (a robot carried away, :mod:`fmcwlog.frontend.relocalise`): "relocalised" or
     # "new piece"; the back end gives the odometry edge across it no weight
     jump: str | None = None
+    # where relocalised: the pose (x, y, yaw) the motion prior gave this sweep, on the chain of the
+    # ``jump_back`` suspect sweeps just before it (which kept the prior's poses): the back end moves
+    # those by the prior's motion from this sweep's pose found, back to the place they were taken
+    jump_prior: np.ndarray | None = None
+    jump_back: int = 0

@@ -248,7 +248,7 @@ def test_record_does_not_import_the_estimation_stack(tmp_path):
     assert log.stat().st_size > 0
 
 
-OTHER_COMMANDS = ("fmcwlog.cli.record", "fmcwlog.cli.report", "fmcwlog.cli.run", "fmcwlog.cli.import_carmen",
+OTHER_COMMANDS = ("fmcwlog.cli.record", "fmcwlog.cli.report", "fmcwlog.cli.compare", "fmcwlog.cli.run", "fmcwlog.cli.import_carmen",
                   "fmcwlog.cli.calibrate", "fmcwlog.sim", "fmcwlog.evaluation", "fmcwlog.fleet.imports")
 
 

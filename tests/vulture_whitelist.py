@@ -15,6 +15,7 @@ calibrate_cmd  # fmcwlog/cli/calibrate.py: a click command, named in fmcwlog.cli
 process_cmd  # fmcwlog/cli/process.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
 record_cmd  # fmcwlog/cli/record.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
 report_cmd  # fmcwlog/cli/report.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
+compare_cmd  # fmcwlog/cli/compare.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
 run_cmd  # fmcwlog/cli/run.py: a click command, named in fmcwlog.cli.COMMANDS and loaded by name
 _.get_command  # fmcwlog/cli/__init__.py: click.Group's hook, which click calls
 _.format_commands  # fmcwlog/cli/__init__.py: click.Group's hook, which click calls

@@ -165,6 +165,8 @@ class PoseGraphBackend:
         self._store: PointStore | None = None  # the points of nodes older than the local links'
         self._node_path = GrowingArray(np.float64)  # every node's path_m (m), for the candidates
         self._jump: str | None = None  # a jump since the last node (:mod:`fmcwlog.frontend.relocalise`)
+        # per relocalised sweep: its index, the suspect sweeps just before it, the prior's pose of it
+        self._carried: list[tuple[int, int, np.ndarray]] = []
         self._piece_first = 0  # the first node of the current piece: local edges reach no node before it
 
     # --- sweep by sweep -------------------------------------------------------------------
@@ -185,6 +187,8 @@ class PoseGraphBackend:
             self._add_node(r)
         self.sweeps.poses.append(np.asarray(r.pose, float))
         self.sweeps.node.append(len(self.nodes) - 1)
+        if r.jump_prior is not None and r.jump_back > 0:  # the suspect sweeps before a relocalised one
+            self._carried.append((len(self.sweeps.poses) - 1, r.jump_back, np.asarray(r.jump_prior, float)))
         self.seconds += time.perf_counter() - t0
 
     def _add_node(self, r: SweepResult) -> None:
@@ -312,6 +316,7 @@ class PoseGraphBackend:
             poses = self.sweeps.poses.values.copy()
         else:
             poses = self._corrected_sweeps()
+        self._place_carried(poses)
         grid = self._rebuild_map()
         self.seconds += time.perf_counter() - t0
         return BackendResult(poses, np.array([n.stamp_ns for n in self.nodes], np.int64), self._estimates.copy(),
@@ -327,6 +332,16 @@ class PoseGraphBackend:
         idx = np.maximum(self.sweeps.node.values, 0)
         f_node = np.array([n.frontend_pose for n in self.nodes])[idx]
         return compose(self._estimates[idx], between(f_node, f))
+
+    def _place_carried(self, poses: np.ndarray) -> None:
+        """The suspect sweeps before each relocalised sweep, in ``poses`` (S, 3): where the robot was
+        carried, not where the prior left them: the relocalised sweep's pose composed with the prior's
+        motion from it to each (``x_r ⊕ (p_r⁻¹ ⊕ f_i)``; they kept the prior's poses, one chain with
+        ``p_r``). The front end's own trajectory keeps them where the prior put them."""
+        f = self.sweeps.poses.values
+        for r, back, prior in self._carried:
+            lo = max(r - back, 0)
+            poses[lo:r] = compose(poses[r], between(prior, f[lo:r]))
 
     def _rebuild_map(self) -> OccupancyGrid:
         grid = OccupancyGrid(OccupancyParams(resolution=self.map_resolution))

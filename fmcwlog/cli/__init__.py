@@ -30,6 +30,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "report": ("report", "report_cmd", "Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of "
                                        "the log it came from (found through run.json, or --log), and write into "
                                        "OUT_DIR:"),
+    "compare": ("compare", "compare_cmd", "Compare several runs of 'fmcwlog process' (their output folders), as one "
+                                          "tunes a front end: each is measured as 'fmcwlog report' measures it, and "
+                                          "OUTPUT gets"),
     "run": ("run", "run_cmd", "Record a built-in scenario, process it with both front ends and report, into one "
                               "folder: OUT/log.mcap, OUT/results/ (trajectories, maps, processed.mcap) and "
                               "OUT/results/report.html. If any step fails, OUT is removed again (and what was there "
@@ -87,6 +90,7 @@ def cli(quiet: bool, verbose: int) -> None:
     fmcwlog record   simulate a robot with an FMCW LiDAR and wheel encoders -> log.mcap
     fmcwlog process  estimate trajectories and maps from a log, improved and baseline
     fmcwlog report   measure them against ground truth: a page, Markdown and JSON
+    fmcwlog compare  several runs side by side: what differs, which is better, beyond the spread
     fmcwlog run      all three on a built-in scenario, into one folder
     fmcwlog import   real 2-D laser logs (CARMEN, CMU course format) -> log.mcap
     fmcwlog calibrate  the LiDAR's mount and the wheel radii from a log -> calib.yaml

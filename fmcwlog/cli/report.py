@@ -24,14 +24,16 @@ log it came from (found through run.json, or --log), and write into OUT_DIR:
   report.json   stable keys for scripts, e.g. methods.improved.ate_rmse_m (docs/commands/report.md)
 
 \b
-Measured for improved, baseline and wheel odometry: ATE (RMSE, mean, median, max; SE(2)-
-aligned and first-pose-aligned, as evo defines them), RPE over 1 m and 10 m (% of distance,
+Measured for improved, baseline and wheel odometry: ATE (RMSE, mean, median, std, min,
+max; SE(2)-aligned, and RMSE first-pose-aligned, as evo defines them), RPE over 1 m and 10 m (% of distance,
 deg/m), each labelled feature's length in the map each method built and its error (the
 paper's Tables 2 and 3, and the reduction of the average), precision/recall/F1 of the moving
 points, ms per sweep. What cannot be computed is left empty with the reason.
 
 With several OUT_DIRs, each gets its report and a comparison table is printed and
-written to comparison.md/.json in --output (default: the current folder).
+written to comparison.md/.json in --output (default: the current folder); for a page
+with what differs, the best run per metric and verdicts beyond the log's own spread,
+see 'fmcwlog compare'.
 
 A batch folder (what 'fmcwlog process' wrote for many logs) gets each log's report in
 its folder, and fleet.html and fleet.json: a row per log (duration, distance, sweeps,

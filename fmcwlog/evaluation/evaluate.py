@@ -12,8 +12,11 @@ plots and the methods' disagreement (which needs no ground truth):
 ``_pct``, ``_deg``, ``_cm`` or ``ms``):
 
 - ``header``: versions, date, log, scenario, seed, the parameters' digest;
-- ``methods.<name>``: ``ate_*_m`` (SE(2)-aligned, evo's ``-a``; ``ate_first_aligned_rmse_m``
-  aligned at the first pose), ``rpe_{1,10}m_pct`` and ``rpe_{1,10}m_deg_per_m``, ``features``
+- ``wall_seconds`` and ``wall_sweeps_per_second``: the whole run's wall-clock time (run.json's) and
+  sweeps per second of it, as ``process`` printed them;
+- ``methods.<name>``: ``ate_*_m`` (rmse, mean, median, std, min, max: evo_ape's statistics,
+  SE(2)-aligned, evo's ``-a``; ``ate_first_aligned_rmse_m`` aligned at the first pose),
+  ``rpe_{1,10}m_pct`` and ``rpe_{1,10}m_deg_per_m``, ``features``
   (each feature's length in the method's map, or why it is not measurable) and
   ``feature_avg_rel_error_pct``, ``segmentation`` (precision, recall, F1, counts),
   ``ms_per_sweep_*``, ``heading_*_deg``, and ``notes`` for what could not be computed;
@@ -65,7 +68,8 @@ from .segmentation_score import segmentation_scores
 TRAJECTORIES = (*METHOD_NAMES, WHEEL_ODOMETRY, *(f"{m}_frontend" for m in METHOD_NAMES))
 GROUND_TRUTH_TUM = "gt.tum"  # written by the report beside the estimates; never an estimate itself
 RPE_DELTAS_M = (1.0, 10.0)
-_METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_max_m", "ate_first_aligned_rmse_m", "rpe_1m_pct",
+_METRIC_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_std_m", "ate_min_m", "ate_max_m",
+                "ate_first_aligned_rmse_m", "rpe_1m_pct",
                 "rpe_10m_pct", "rpe_1m_deg_per_m", "rpe_10m_deg_per_m", "features", "feature_avg_rel_error_pct",
                 "segmentation", "ms_per_sweep_median", "ms_per_sweep_p95", "sweeps_per_second",
                 "heading_rmse_deg", "heading_max_deg", "ms_per_sweep_mean", "ms_per_sweep_max")
@@ -223,6 +227,8 @@ def evaluate(out_dir: str | Path, log: str | Path | None = None,
         "out_dir": str(out_dir),
         "log": str(log),
         "sweeps": int(run.get("sweeps", 0)),
+        "wall_seconds": _wall_seconds(run),
+        "wall_sweeps_per_second": _wall_rate(run),
         "doppler": run.get("doppler"),
         "prior": run.get("prior"),
         "methods": methods,
@@ -362,8 +368,8 @@ def _trajectory_errors(r: dict, method: str, t: np.ndarray, est: np.ndarray, ev:
     idx, ref = interpolate_reference(t, ev.gt_t, ev.gt)
     a = ate(est[idx], ref, "se2")
     f = ate(est[idx], ref, "first")
-    r.update(ate_rmse_m=a.rmse, ate_mean_m=a.mean, ate_median_m=a.median, ate_max_m=a.max,
-             ate_first_aligned_rmse_m=f.rmse)
+    r.update(ate_rmse_m=a.rmse, ate_mean_m=a.mean, ate_median_m=a.median, ate_std_m=a.std, ate_min_m=a.min,
+             ate_max_m=a.max, ate_first_aligned_rmse_m=f.rmse)
     ev.aligned[method] = (t[idx], a.est_aligned, a.errors)
     heading = ev.heading[method] = heading_errors(a.est_aligned, ref)
     r["heading_rmse_deg"] = float(np.sqrt(np.mean(heading**2)))
@@ -384,10 +390,12 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
     """The method's feature rows (measured in its map: :mod:`.features`) with their errors, and
     their average over the features its map shows."""
     if method == WHEEL_ODOMETRY:
-        r["notes"].append("wheel odometry builds no map: no feature lengths")
+        r["notes"].append("builds no map: no feature lengths")
         return
     if method not in feature_rows:
-        if measurable:
+        if measurable and method.endswith("_frontend") and method.removesuffix("_frontend") in METHOD_NAMES:
+            r["notes"].append(f"its map is the {method.removesuffix('_frontend')} method's, measured there")
+        elif measurable:
             r["notes"].append("not one of fmcwlog's methods: its map is not measured")
         return
     rows = feature_rows[method]
@@ -409,8 +417,10 @@ def _features(r: dict, method: str, feature_rows: dict[str, list[dict]], measura
 def _segmentation(r: dict, method: str, out_dir: Path, labels: dict[int, np.ndarray] | None) -> None:
     if method in SEGMENTING_METHODS:
         r["segmentation"] = segmentation_scores(out_dir, method, labels, r["notes"])
+    elif method.removesuffix("_frontend") in SEGMENTING_METHODS:
+        r["notes"].append(f"its moving points are the {method.removesuffix('_frontend')} method's, scored there")
     elif method != WHEEL_ODOMETRY:
-        r["notes"].append(f"{method} does not segment moving points")
+        r["notes"].append("does not segment moving points: no moving-point scores")
 
 
 def _speed(r: dict, method: str, ms: np.ndarray) -> np.ndarray:
@@ -423,8 +433,23 @@ def _speed(r: dict, method: str, ms: np.ndarray) -> np.ndarray:
         r["ms_per_sweep_max"] = float(np.max(ms))
         r["sweeps_per_second"] = float(1000.0 / np.mean(ms))
     elif method == WHEEL_ODOMETRY:
-        r["notes"].append("wheel odometry is the motion prior itself; its time is not measured per sweep")
+        r["notes"].append("the motion prior itself: its time is not measured per sweep")
     return ms
+
+
+def _wall_seconds(run: dict) -> float | None:
+    """run.json's ``wall_seconds`` (the whole run: reading, both methods side by side, writing), or None."""
+    wall = run.get("wall_seconds")
+    if not isinstance(wall, int | float) or isinstance(wall, bool) or not np.isfinite(wall) or wall <= 0:
+        return None
+    return float(wall)
+
+
+def _wall_rate(run: dict) -> float | None:
+    """Sweeps per second of wall-clock time over the whole run, as ``process`` printed it (None without
+    run.json's ``wall_seconds``)."""
+    wall = _wall_seconds(run)
+    return float(run.get("sweeps") or 0) / wall if wall is not None else None
 
 
 def _comparison(methods: dict[str, dict[str, Any]]) -> dict[str, Any] | None:

@@ -20,8 +20,9 @@ reason in ``notes`` or ``methods.M.notes``):
   run.json's ``jumps`` of the methods that found one (``start_s``, ``found_s``, ``kind``, ...);
 - ``methods.M`` for M in ``improved``, ``baseline``, ``wheel_odometry`` (and any other
   ``*.tum`` in the folder, e.g. a peer's):
-  ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (SE(2)-aligned,
-  evo's ``evo_ape -a``), ``ate_first_aligned_rmse_m`` (first poses aligned),
+  ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_std_m``, ``ate_min_m``, ``ate_max_m``
+  (evo_ape's statistics of the translation error, SE(2)-aligned as ``evo_ape -a``; std is the
+  population one), ``ate_first_aligned_rmse_m`` (first poses aligned),
   ``rpe_1m_pct``, ``rpe_10m_pct`` (mean translation error over 1 m / 10 m of
   travel, % of the distance), ``rpe_1m_deg_per_m``, ``rpe_10m_deg_per_m`` (mean
   yaw error per metre), ``heading_rmse_deg``, ``heading_max_deg`` (yaw error of the
@@ -30,7 +31,11 @@ reason in ``notes`` or ``methods.M.notes``):
   keys, ``measured_m`` is ``null`` for a feature not measured), ``feature_avg_rel_error_pct``,
   ``segmentation`` (``precision``, ``recall``, ``f1`` and counts),
   ``ms_per_sweep_median``, ``ms_per_sweep_p95``, ``ms_per_sweep_mean``,
-  ``ms_per_sweep_max`` (ms, over the timed sweeps), ``sweeps_per_second`` (1000 / mean), ``notes``;
+  ``ms_per_sweep_max`` (ms of the method's own step per sweep, over the timed sweeps), ``sweeps_per_second`` (1000 / mean ms: the
+  rate of that method alone, not the run's), ``notes``;
+- ``wall_seconds``, ``wall_sweeps_per_second``: the whole run's wall-clock time (run.json's
+  ``wall_seconds``: reading, the methods side by side, writing) and sweeps per second of it, as
+  ``process`` printed them (``null`` where run.json has no ``wall_seconds``);
 - ``disagreement`` (needs no ground truth): ``reference`` (``improved`` if present, else
   the first method) and ``methods.M`` for every other trajectory: ``rmse_m``, ``mean_m``,
   ``median_m``, ``max_m``, ``final_m`` (at the last common stamp), ``path_m`` (the
@@ -77,13 +82,29 @@ def trajectory_rows(result: dict) -> list[list[str]]:
                      _fmt(r["ate_first_aligned_rmse_m"], 1, 100), _fmt(r["rpe_1m_pct"], 2), _fmt(r["rpe_10m_pct"], 2),
                      _fmt(r["rpe_1m_deg_per_m"], 3), _fmt(r["feature_avg_rel_error_pct"], 2),
                      _fmt(seg.get("precision"), 3), _fmt(seg.get("recall"), 3), _fmt(seg.get("f1"), 3),
-                     _fmt(r["ms_per_sweep_median"], 2), _fmt(r["sweeps_per_second"], 0)])
+                     _fmt(r["ms_per_sweep_median"], 2)])
     return rows
 
 
-TRAJECTORY_HEADER = ["method", "ATE RMSE cm", "ATE max cm", "ATE RMSE cm (first pose)", "RPE 1 m %", "RPE 10 m %",
-                     "RPE 1 m deg/m", "feature error %", "moving precision", "moving recall", "moving F1",
-                     "ms/sweep", "sweeps/s"]
+TRAJECTORY_HEADER = ["method", "ATE RMSE cm", "ATE max cm", "ATE RMSE cm (first pose)", "RPE 1 m % (mean)",
+                     "RPE 10 m % (mean)", "RPE 1 m deg/m (mean)", "feature error %", "moving precision",
+                     "moving recall", "moving F1", "median ms per sweep"]
+
+ATE_STATS = ("rmse", "mean", "median", "std", "min", "max")
+ATE_HEADER = ["method", *(f"{s} cm" for s in ATE_STATS), "first-pose-aligned RMSE cm"]
+
+
+def ate_rows(result: dict) -> list[list[str]]:
+    """evo_ape's statistics of each trajectory's position error (SE(2)-aligned), cm; none without them."""
+    return [[LABELS.get(m, m), *(_fmt(r.get(f"ate_{s}_m"), 2, 100) for s in ATE_STATS),
+             _fmt(r.get("ate_first_aligned_rmse_m"), 2, 100)]
+            for m, r in result["methods"].items() if r.get("ate_rmse_m") is not None]
+
+
+ATE_INTRO = ("evo_ape's statistics (-r trans_part -a): the distance between each pose, once the whole trajectory "
+             "is SE(2)-aligned onto the ground truth (Umeyama, no scale), and the ground truth interpolated at its "
+             "stamp; std is the population one (as evo). The last column aligns the first poses instead "
+             "(--align_origin).")
 
 
 def feature_rows(result: dict) -> tuple[list[str], list[list[str]]]:
@@ -185,8 +206,8 @@ def header_rows(result: dict) -> list[tuple[str, str]]:
         *_jump_rows(h.get("jumps")),
         ("scenario", none if h.get("scenario") is None else str(h["scenario"])),
         ("seed", none if h.get("seed") is None else str(h["seed"])),
-        ("methods", ", ".join(h.get("methods") or []) or "—"),
-        ("trajectories compared", ", ".join(LABELS.get(m, m) for m in h.get("trajectories") or []) or "—"),
+        ("methods", "; ".join(h.get("methods") or []) or "—"),
+        ("trajectories compared", "; ".join(LABELS.get(m, m) for m in h.get("trajectories") or []) or "—"),
         ("parameters digest", f"{h.get('params_sha256_12') or '—'} (sha256 of run.json's params as canonical JSON)"),
         ("processed by", f"fmcwlog {h.get('fmcwlog_version_processed') or '— (not in run.json)'}"),
         ("reported by", f"fmcwlog {h.get('fmcwlog_version_report')} on {h.get('report_date_utc')} (UTC)"),
@@ -254,7 +275,19 @@ def _disagreement_intro(result: dict) -> str:
             f"spread over the whole path by the alignment.")
 
 
-SPEED_HEADER = ["method", "sweeps", "median ms", "p95 ms", "max ms", "mean ms", "sweeps/s"]
+SPEED_HEADER = ["method", "sweeps", "median ms", "p95 ms", "max ms", "mean ms",
+                "1000 / mean ms (the method's step alone)"]
+
+
+def run_rate_line(result: dict) -> str:
+    """The whole run's wall-clock rate, as ``process`` printed it; the per-sweep times are each method's step."""
+    wall, rate = result.get("wall_seconds"), result.get("wall_sweeps_per_second")
+    steps = ("Each method's time per sweep is its own step (wall clock around it); with the methods side by "
+             "side, their sum is not the run's.")
+    if wall is None or rate is None:
+        return f"{steps} The run's wall-clock time is not in run.json."
+    return (f"The run: {result['sweeps']} sweeps in {wall:.1f} s of wall clock, {rate:.0f} sweeps/s (reading the log, "
+            f"the methods side by side, writing the outputs; as process printed it). {steps}")
 
 
 def speed_rows(ev: Evaluation) -> list[list[str]]:
@@ -273,8 +306,11 @@ def render_markdown(ev: Evaluation) -> str:
     if ev.gt is None and disagreement_rows(r):
         parts += ["## How far the methods disagree", "", _disagreement_intro(r), "",
                   markdown_table(DISAGREEMENT_HEADER, disagreement_rows(r)), ""]
+    if ate_rows(r):
+        parts += ["## Position error (ATE), evo_ape's statistics", "", ATE_INTRO, "",
+                  markdown_table(ATE_HEADER, ate_rows(r)), ""]
     if speed_rows(ev):
-        parts += ["## Time per sweep", "", markdown_table(SPEED_HEADER, speed_rows(ev)), ""]
+        parts += ["## Time per sweep", "", markdown_table(SPEED_HEADER, speed_rows(ev)), "", run_rate_line(r), ""]
     parts += ["## Map feature lengths (the paper's Tables 2 and 3)", "",
               markdown_table(fh, fr) if fr else "No feature lengths (see the notes).", "", _summary_line(r), ""]
     rel = relations_rows(r)
@@ -327,8 +363,13 @@ def _ground_truth_html(r: dict, img) -> str:
         errors = "".join(img(f"error_{m}", f"{LABELS.get(m, m)} trajectory coloured by its position error")
                          for m in r["methods"])
         return f"""{img("trajectories", "trajectories over the world's walls")}
-<h3>Position error along the path</h3><div class="grid">{errors}</div>
+{img("xy_yaw", "x, y and yaw over time, with ground truth")}
+<h3>Position error (ATE), evo_ape's statistics</h3>
+<p>{html.escape(ATE_INTRO)}</p>
+{_html_table(ATE_HEADER, ate_rows(r))}
 {img("errors", "position error along the path")}
+{img("histograms", "distribution of the position error")}
+<h3>Position error along the path</h3><div class="grid">{errors}</div>
 <h3>Relative pose error against distance travelled</h3>
 {img("rpe", "relative pose error of each pair against distance travelled")}
 <h3>Heading error</h3>
@@ -375,7 +416,7 @@ Doppler stages: {'on' if r['doppler'] else 'off'}.</p>
 <h2>Trajectory, segmentation, speed</h2>
 {_html_table(*without_empty_columns(TRAJECTORY_HEADER, trajectory_rows(r)))}
 {_ground_truth_html(r, img)}
-{f"<h2>Time per sweep</h2>{_html_table(SPEED_HEADER, speed)}" if speed else ""}
+{f"<h2>Time per sweep</h2>{_html_table(SPEED_HEADER, speed)}<p>{html.escape(run_rate_line(r))}</p>" if speed else ""}
 {img("sweep_times", "time per sweep of each method")}
 <h2>Map feature lengths (the paper's Tables 2 and 3)</h2>
 {_html_table(fh, fr, text_columns=2) if fr else "<p>No feature lengths (see the notes).</p>"}
@@ -472,7 +513,8 @@ def write_report(ev: Evaluation) -> list[Path]:
 
 
 def comparison_rows(results: list[dict]) -> tuple[list[str], list[list[str]]]:
-    header = ["output", "method", "ATE RMSE cm", "RPE 1 m %", "RPE 10 m %", "feature error %", "moving F1", "ms/sweep"]
+    header = ["output", "method", "ATE RMSE cm", "RPE 1 m % (mean)", "RPE 10 m % (mean)", "feature error %",
+              "moving F1", "median ms per sweep"]
     rows = []
     for res in results:
         for m, r in res["methods"].items():

@@ -1,13 +1,18 @@
 """The report's figures (matplotlib, Agg), each returned as a self-contained ``data:image/png`` URI.
 
 With ground truth (as evo's plots): every trajectory SE(2)-aligned over the world's walls;
-each one coloured by its position error with a colorbar (``evo_ape --plot_colormap_*``);
-position error over time; RPE per pair against the distance travelled where the pair starts
-(``evo_rpe``'s per-pair values, 1 m and 10 m); heading error over time. Always: the time
+x, y and yaw over time (``evo_traj --plot``); each one coloured by its position error with a
+colorbar (``evo_ape --plot_colormap_*``); position error over time and its histogram; RPE
+per pair against the distance travelled where the pair starts (``evo_rpe``'s per-pair values, 1 m and 10 m);
+heading error over time. Always: the time
 per sweep as a distribution (box from quartiles, whisker to p95, the slower sweeps as dots,
 median, p95 and max written out), each map with its own trajectory, and how far the
 trajectories disagree once aligned onto the improved one (needs no ground truth). With
 feature lengths: their relative errors (the paper's Figure 4).
+
+The maps are framed on the walls (or a map's occupied cells), the ground truth (or the reference
+trajectory) and the best trajectories: an outlier (wheel odometry wandering tens of metres) is
+marked where it leaves the frame and said to in the legend, not followed.
 
 Axis units are in every label. Legends sit outside the axes wherever a path could run under
 them. Figures are rendered at :data:`DPI` for a page about 1100 px wide.
@@ -96,20 +101,163 @@ def _t0(ev: Evaluation) -> float:
     return float(min(t[0] for t, _, _ in ev.aligned.values()))
 
 
+Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax (m)
+FRAMED_WITHIN = 3.0  # a trajectory frames the plots when its ATE RMSE is within this factor of the best one's
+
+
+def bounds(xy: np.ndarray) -> Box | None:
+    """The (xmin, xmax, ymin, ymax) of finite points ``xy`` (N, 2), or None when there are none."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    if not len(xy):
+        return None
+    return float(xy[:, 0].min()), float(xy[:, 0].max()), float(xy[:, 1].min()), float(xy[:, 1].max())
+
+
+def frame(boxes: list[Box | None], pad_share: float = 0.05, pad_m: float = 0.5) -> Box | None:
+    """The union of ``boxes`` widened by ``pad_share`` of its larger side plus ``pad_m`` (m) each way."""
+    given = [b for b in boxes if b is not None]
+    if not given:
+        return None
+    x0, x1 = min(b[0] for b in given), max(b[1] for b in given)
+    y0, y1 = min(b[2] for b in given), max(b[3] for b in given)
+    pad = pad_share * max(x1 - x0, y1 - y0) + pad_m
+    return x0 - pad, x1 + pad, y0 - pad, y1 + pad
+
+
+def beyond(box: Box, xy: np.ndarray) -> float:
+    """How far (m) the farthest of ``xy`` (N, 2) lies outside ``box``; 0 when every point is inside."""
+    dx = np.maximum(np.maximum(box[0] - xy[:, 0], xy[:, 0] - box[1]), 0.0)
+    dy = np.maximum(np.maximum(box[2] - xy[:, 1], xy[:, 1] - box[3]), 0.0)
+    return float(np.max(np.hypot(dx, dy))) if len(xy) else 0.0
+
+
+def framing_methods(rmse: dict[str, float]) -> list[str]:
+    """The trajectories the plots are framed on: those whose ATE RMSE (m) is within
+    :data:`FRAMED_WITHIN` times the lowest (the best ones); an outlier (wheel odometry wandering
+    tens of metres) is drawn as far as the frame goes and said to leave it, not followed."""
+    if not rmse:
+        return []
+    best = min(rmse.values())
+    return [m for m, v in rmse.items() if v <= FRAMED_WITHIN * best + 1e-9]
+
+
+def _walls_box(walls: np.ndarray | None) -> Box | None:
+    return bounds(np.asarray(walls).reshape(-1, 2)) if walls is not None and len(walls) else None
+
+
+def _frame_axes(ax, box: Box, paths: dict[str, np.ndarray]) -> dict[str, float]:
+    """Set ``ax``'s limits to ``box`` (equal aspect) and mark where each path of ``paths`` crosses
+    its edge (an ✕ at the pose inside, the first six crossings); returns how far (m) each path that leaves goes beyond."""
+    ax.set_xlim(box[0], box[1])
+    ax.set_ylim(box[2], box[3])
+    ax.set_aspect("equal")
+    out = {}
+    for m, xy in paths.items():
+        far = beyond(box, xy[:, :2])
+        if far > 0.0:
+            out[m] = far
+            inside = (xy[:, 0] >= box[0]) & (xy[:, 0] <= box[1]) & (xy[:, 1] >= box[2]) & (xy[:, 1] <= box[3])
+            cross = np.flatnonzero(inside[:-1] != inside[1:])[:6]  # the inside pose of each crossing
+            at = xy[np.where(inside[cross], cross, cross + 1), :2]
+            ax.plot(at[:, 0], at[:, 1], ls="none", marker="X", ms=9, color=color(m), mec="white", zorder=5)
+    return out
+
+
+def _leaves_label(m: str, far: dict[str, float]) -> str:
+    return f"{label(m)} (leaves the frame at ✕, goes up to {far[m]:.1f} m beyond)" if m in far else label(m)
+
+
+def _ate_rmse(ev: Evaluation) -> dict[str, float]:
+    return {m: float(np.sqrt(np.mean(err**2))) for m, (_, _, err) in ev.aligned.items()}
+
+
 def trajectories_over_walls(ev: Evaluation):
-    """All SE(2)-aligned trajectories and the ground truth, over the world's walls."""
+    """All SE(2)-aligned trajectories and the ground truth, over the world's walls, framed on the
+    walls, the ground truth and the best trajectories (:func:`framing_methods`); a trajectory that
+    leaves the frame is marked where it does and said to in the legend, not followed."""
     plt = _pyplot()
     assert ev.gt is not None
     fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
     _walls(ax, ev.walls)
+    best = framing_methods(_ate_rmse(ev))
+    box = frame([_walls_box(ev.walls), bounds(ev.gt[:, :2]), *(bounds(ev.aligned[m][1][:, :2]) for m in best)])
+    assert box is not None
+    far = _frame_axes(ax, box, {m: est for m, (_, est, _) in ev.aligned.items()})
     ax.plot(ev.gt[:, 0], ev.gt[:, 1], color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
     for m, (_, est, _) in ev.aligned.items():
-        ax.plot(est[:, 0], est[:, 1], color=color(m), lw=1.2, label=label(m))
-    ax.set_aspect("equal")
+        ax.plot(est[:, 0], est[:, 1], color=color(m), lw=1.2, label=_leaves_label(m, far))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title("Trajectories (SE(2)-aligned to ground truth) over the world's walls")
-    _legend_below(fig, ax, len(ev.aligned) + 1)
+    _legend_below(fig, ax, 2 if far else len(ev.aligned) + 1)
+    return fig
+
+
+def _unwrapped_near(yaw: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``yaw`` (rad) unwrapped and shifted by whole turns to lie nearest ``ref`` (rad, same stamps) on average."""
+    u = np.unwrap(yaw)
+    return u - 2 * np.pi * np.round(np.mean(u - ref) / (2 * np.pi))
+
+
+def xy_yaw_over_time(ev: Evaluation):
+    """x, y (m) and yaw (deg) of every SE(2)-aligned trajectory and of the ground truth against time
+    (s), as evo_traj's first plot; each axis framed on the ground truth and the best trajectories
+    (:func:`framing_methods`), a trajectory that leaves it said to in the legend."""
+    plt = _pyplot()
+    assert ev.gt is not None and ev.gt_t is not None
+    t0 = _t0(ev)
+    gt_yaw = np.unwrap(ev.gt[:, 2])
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.2), sharex=True, layout="constrained")
+    best = framing_methods(_ate_rmse(ev))
+    series: dict[str, list[np.ndarray]] = {}
+    for m, (t, est, _) in ev.aligned.items():
+        ref_yaw = np.interp(t, ev.gt_t, gt_yaw)
+        series[m] = [est[:, 0], est[:, 1], np.degrees(_unwrapped_near(est[:, 2], ref_yaw))]
+    leaves: set[str] = set()
+    for i, (ax, name) in enumerate(zip(axes, ("x (m)", "y (m)", "yaw (deg, unwrapped)"))):
+        gt_i = ev.gt[:, i] if i < 2 else np.degrees(gt_yaw)
+        ax.plot(ev.gt_t - t0, gt_i, color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
+        for m, (t, _, _) in ev.aligned.items():
+            ax.plot(t - t0, series[m][i], color=color(m), lw=1)
+        framed = np.concatenate([gt_i, *(series[m][i] for m in best)])
+        lo, hi = float(np.min(framed)), float(np.max(framed))
+        pad = 0.05 * (hi - lo) + (0.5 if i < 2 else 5.0)
+        ax.set_ylim(lo - pad, hi + pad)
+        leaves |= {m for m in series if np.any(series[m][i] < lo - pad) or np.any(series[m][i] > hi + pad)}
+        ax.set_ylabel(name)
+        ax.grid(True, alpha=0.3)
+    for m in ev.aligned:  # the legend's entries, once
+        axes[0].plot([], [], color=color(m), lw=1,
+                     label=f"{label(m)} (leaves the frame)" if m in leaves else label(m))
+    axes[-1].set_xlabel("time since the first sweep (s)")
+    axes[0].set_title("x, y and yaw over time (SE(2)-aligned to ground truth, as evo_traj --plot)")
+    _legend_below(fig, axes[0], len(ev.aligned) + 1)
+    return fig
+
+
+def error_histograms(ev: Evaluation):
+    """Each trajectory's position errors (cm, SE(2)-aligned) as a histogram of its own, with its
+    RMSE, mean and median marked (evo_ape's statistics)."""
+    plt = _pyplot()
+    items = list(ev.aligned.items())
+    cols = min(3, len(items))
+    rows = -(-len(items) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols + 0.4, 2.7 * rows + 0.5), squeeze=False,
+                             layout="constrained")
+    for ax, (m, (_, _, err)) in zip(axes.ravel(), items):
+        cm = 100.0 * err
+        ax.hist(cm, bins=30, color=color(m), alpha=0.75)
+        for value, style, name in ((np.sqrt(np.mean(cm**2)), "-", "RMSE"), (np.mean(cm), "--", "mean"),
+                                   (np.median(cm), ":", "median")):
+            ax.axvline(value, color="#222222", ls=style, lw=1.2, label=f"{name} {value:.1f}")
+        ax.set_title(label(m), fontsize=10)
+        ax.set_xlabel("position error (cm)")
+        ax.set_ylabel("poses")
+        ax.legend(fontsize=7, frameon=False)
+    for ax in axes.ravel()[len(items):]:
+        ax.set_visible(False)
+    fig.suptitle("Distribution of the position error (SE(2)-aligned, as evo_ape -a --plot)")
     return fig
 
 
@@ -316,8 +464,23 @@ def loop_closures_over_map(out_dir: Path, method: str):
     return fig
 
 
+def _occupied_box(image: tuple[np.ndarray, Box] | None) -> Box | None:
+    """The extent (m) of a map's occupied (dark) cells; None without a map or an occupied cell."""
+    if image is None:
+        return None
+    pixels, (x0, x1, y0, y1) = image
+    rows, cols = np.nonzero(pixels < 100)
+    if not len(rows):
+        return None
+    h, w = pixels.shape
+    res = (x1 - x0) / w
+    return x0 + cols.min() * res, x0 + (cols.max() + 1) * res, y1 - (rows.max() + 1) * res, y1 - rows.min() * res
+
+
 def aligned_over_reference_map(ev: Evaluation):
-    """Every trajectory SE(2)-aligned onto the reference one, over the reference's map (no ground truth)."""
+    """Every trajectory SE(2)-aligned onto the reference one, over the reference's map (no ground
+    truth), framed on the map's walls and the reference trajectory: one that leaves the frame is
+    marked where it does and said to in the legend, not followed."""
     plt = _pyplot()
     ref = ev.disagreement_reference
     if ref is None or not ev.disagreements:
@@ -327,15 +490,16 @@ def aligned_over_reference_map(ev: Evaluation):
     fig, ax = plt.subplots(figsize=(7.5, 7.5), layout="constrained")
     if image is not None:
         ax.imshow(image[0], cmap="gray", vmin=0, vmax=255, extent=image[1], interpolation="nearest", alpha=0.6)
+    box = frame([_occupied_box(image), bounds(ref_poses[:, :2])])
+    far = _frame_axes(ax, box, {m: d.aligned for m, d in ev.disagreements.items()}) if box is not None else {}
     ax.plot(ref_poses[:, 0], ref_poses[:, 1], color=color(ref), lw=1.4, label=f"{label(ref)} (reference)",
             zorder=3)
     for m, d in ev.disagreements.items():
-        ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), lw=1.1, label=f"{label(m)}, aligned")
-    ax.set_aspect("equal")
+        ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), lw=1.1, label=f"{_leaves_label(m, far)}, aligned")
     ax.set_xlabel(f"x in {ref}/odom (m)")
     ax.set_ylabel(f"y in {ref}/odom (m)")
     ax.set_title(f"Trajectories SE(2)-aligned onto the {label(ref)} one, over its map")
-    _legend_below(fig, ax, len(ev.disagreements) + 1)
+    _legend_below(fig, ax, 2 if far else len(ev.disagreements) + 1)
     return fig
 
 
@@ -365,7 +529,9 @@ def all_plots(ev: Evaluation) -> dict[str, str]:
     if ev.gt is not None and ev.aligned:
         makers += [("trajectories", partial(trajectories_over_walls, ev))]
         makers += [(f"error_{m}", partial(error_colored, ev, m)) for m in ev.aligned]
+        makers += [("xy_yaw", partial(xy_yaw_over_time, ev))]
         makers += [("errors", partial(ate_over_time, ev))]
+        makers += [("histograms", partial(error_histograms, ev))]
         if any(ev.rpe.values()):
             makers += [("rpe", partial(rpe_over_distance, ev))]
         makers += [("heading", partial(heading_over_time, ev))]

@@ -54,8 +54,8 @@ class GapParams(Checked):
     max_mahalanobis: a match further than this from the bridged pose, in the bridge's standard
         deviations (Mahalanobis distance over x, y, yaw), is another peak (a bare corridor's walls
         seen from a stretch the map does not hold yet): the bridged pose stands (> 0).
-    seen_only: the ICP after a gap matches only the points that fall, at the bridged pose, where the
-        occupancy grid has seen (:func:`seen_before`). The rest is ground the robot reached during
+    seen_only: the ICP after a gap bridged by the motion prior matches only the points that fall,
+        at the bridged pose, where the occupancy grid has seen (:func:`seen_before`). The rest is ground the robot reached during
         the gap, and the nearest map points of a wall beyond the map's end are that end's: they pull
         the pose back along the wall, and the pose stays there (on the 30 s corridor sample with 4 s
         of sweeps removed at its corner, 11 cm back along the new corridor with every point, where

@@ -204,6 +204,7 @@ class FrontEnd(ABC):
         # the geometry of the sweep in step
         self._sweep: SweepGeometry | None = None
         self._gap_information: np.ndarray | None = None  # the ICP's soft prior while a gap is bridged
+        self._gap_by_prior = False  # the last gap was bridged by the motion prior (else by the hold)
         self.jumps = JumpWatch(params.relocalise)  # sweeps that stop fitting the map: a robot carried away
 
     # --- what the methods do differently -------------------------------------------------
@@ -354,10 +355,11 @@ class FrontEnd(ABC):
         else:  # what those give with no point moving: empty, in the inputs' dtypes
             moving_map, moving_vel = np.empty((0, 2)), None if vel is None else vel[:0].copy()
         ms = (time.perf_counter() - t0) * 1e3
+        back = self.jumps.jumps[-1].suspects - 1 if jump == RELOCALISED else 0
         return SweepResult(self.name, sweep.stamp_ns, pose, (v, omega), motion.twist_covariance, pose_cov,
                            iterations, kept, n_moving, ms, static_map, vel_use,
                            moving_map, moving_vel, motion.moving, motion.segmented, keyframe, searched, recovered,
-                           jump)
+                           jump, _wrapped(motion.predicted) if back else None, back)
 
     def _watch_jumps(self, source: np.ndarray, motion: MotionEstimate, stamp: float, res: ICPResult
                      ) -> tuple[ICPResult | None, str | None, bool]:
@@ -419,6 +421,7 @@ class FrontEnd(ABC):
         (else the estimate's own hold), and the bridge's covariance (3, 3) in the map frame."""
         assert self.pose is not None
         since = self.gap_motion(prior)
+        self._gap_by_prior = since is not None
         predicted = motion.predicted if since is None else compose(self.pose, since)
         chord = 0.0 if since is None or not np.hypot(since[0], since[1]) > 0 else math.atan2(since[1], since[0])
         cov = to_map(bridge_covariance(since, prior.gap, self.params.wheel_noise), float(self.pose[2]) + chord)
@@ -428,14 +431,22 @@ class FrontEnd(ABC):
     def _match_after_gap(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                          covariance: np.ndarray) -> tuple[ICPResult, bool, bool]:
         """The sweep after a gap (:mod:`.gaps`), with the bridge's ``covariance`` (map frame) as the
-        ICP's soft prior: the ICP from the bridged pose on the points where the grid has seen
-        (``gaps.seen_only``; every point where fewer than ``icp.min_correspondences`` are); where its
-        fit is poor, as the recovery judges one, a correlative search around the bridged pose over a
-        window that widens with the bridge, and the ICP on every point from its best pose, kept if it
-        fits more of the sweep."""
+        ICP's soft prior. Bridged by the motion prior: the ICP from the bridged pose on the points
+        where the grid has seen (``gaps.seen_only``; every point where fewer than
+        ``icp.min_correspondences`` are); where its fit is poor, as the recovery judges one, a
+        correlative search around the bridged pose over a window that widens with the bridge, and the
+        ICP on every point from its best pose, kept if it fits more of the sweep. Bridged by the hold
+        (no prior: where the robot went is a guess) the search comes first, then the ICP from its best
+        pose and the recovery as usual."""
         p, rp = self.params, self.params.recovery
         self._gap_information = gap_prior_information(covariance, p.residual_sigma)
+        window = gap_window(covariance, rp.correlative, p.gaps)
         try:
+            if not self._gap_by_prior:
+                found = correlative_match(grid_for(self.map.points, window), source, motion.predicted, window,
+                                          with_second=False)
+                res, _, recovered = self._register_or_recover(source, motion, stamp, found.pose)
+                return res, True, recovered
             matched = source
             if p.gaps.seen_only:
                 seen = seen_before(_transform(motion.predicted, source), self.grid)
@@ -445,7 +456,6 @@ class FrontEnd(ABC):
             fit = self._fit(matched, res)
             if res.converged and fit >= rp.min_inlier_fraction:
                 return res, True, False
-            window = gap_window(covariance, rp.correlative, p.gaps)
             found = correlative_match(grid_for(self.map.points, window), source, motion.predicted, window,
                                       with_second=False)
             again = self.register(source, motion, stamp, initial=found.pose)

@@ -24,9 +24,9 @@ key for the scanner).
 
 A mirror is ``lidar_upside_down`` the other way (the sensor rolled by π about its x axis, whose
 sweeps are read mirrored back: :class:`fmcwlog.io.inputs.LogInputs`); a frame turned by π is
-``lidar_yaw`` plus π; the warning gives the keys and their values. The cost: a KD-tree over 256
-points and seven queries of 256 points once per window of moving sweeps, at most ``max_checks``
-per log; nothing once a verdict is reached.
+``lidar_yaw`` plus π; the warning gives the keys and their values. The cost: a nearest-point grid
+(a KD-tree with the numpy kernels) over 256 points and seven queries of 256 points once per window
+of moving sweeps, at most ``max_checks`` per log; nothing once a verdict is reached.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ import numpy as np
 
 from ..config import Checked, param
 from ..geometry import compose, inverse, transform_points
+from ..kernels import compiled
 
 SCANNER, WHEELS, EITHER = "scanner", "wheels", "either"  # who the scans blame for a frame that is not the calibrated one
 MIRRORED, TURNED, MIRRORED_TURNED = "mirrored", "turned_by_pi", "mirrored_and_turned_by_pi"
@@ -102,6 +103,36 @@ class MountCheckParams(Checked):
     min_evidence: int = param(3, "windows", ge=1, le=1000000)
     verdict_fraction: float = param(0.8, "", gt=0.5, le=1)
     max_checks: int = param(200, "windows", ge=0, le=1000000000)
+
+
+class Witness:
+    """A sweep's points (N, 2) to measure other points' nearest distances against, up to ``cap`` (m):
+    the compiled kernels' ``TargetGrid`` where :func:`fmcwlog.kernels.compiled.core` selects them (the
+    KD-tree's distances, to the rounding of the moved points), else a ``cKDTree`` (the reference)."""
+
+    def __init__(self, points: np.ndarray, cap: float):
+        self.cap = cap
+        self._core = compiled.core()
+        self._index: object
+        if self._core is not None:
+            self._index = self._core.TargetGrid(np.ascontiguousarray(points, dtype=float), cap)
+        else:
+            from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
+
+            self._index = cKDTree(points)
+
+    def distances(self, pts: np.ndarray, motion: np.ndarray) -> np.ndarray:
+        """Each of ``pts`` (M, 2), carried by ``motion`` (x, y, yaw), to its nearest point (m); inf
+        where none is nearer than ``cap``."""
+        if self._core is None:
+            d, _ = self._index.query(transform_points(motion, pts), k=1, distance_upper_bound=self.cap)  # type: ignore[attr-defined]
+            return d
+        src = np.ascontiguousarray(pts, dtype=float)
+        n = len(src)
+        moved, index, dist = np.empty((n, 2)), np.empty(n, np.int64), np.empty(n)
+        x, y, yaw = (float(v) for v in motion)
+        self._core.nearest(self._index, src, x, y, yaw, moved, index, dist)
+        return dist
 
 
 @dataclass
@@ -169,9 +200,7 @@ class MountCheck:
         if math.hypot(base[0], base[1]) < p.min_motion and abs(base[2]) < p.min_turn:
             return
         self.judged += 1
-        from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
-
-        tree = cKDTree(first)
+        tree = Witness(first, p.witness_cap)
         lidar = self._in_lidar(base)
         calibrated = self._misfit(tree, last, lidar)
         e_wheels: float | None = None  # the best of the wheel faults, in the calibrated frame
@@ -206,11 +235,10 @@ class MountCheck:
         p = self.params
         return a < p.witness_ratio * b and b - a > p.witness_min_gap
 
-    def _misfit(self, tree, pts: np.ndarray, motion: np.ndarray) -> float:
-        """Mean distance (m), each capped at ``witness_cap``, from ``pts`` carried by ``motion`` to the tree's points."""
+    def _misfit(self, tree: Witness, pts: np.ndarray, motion: np.ndarray) -> float:
+        """Mean distance (m), each capped at ``witness_cap``, from ``pts`` carried by ``motion`` to the witness's points."""
         cap = self.params.witness_cap
-        d, _ = tree.query(transform_points(motion, pts), k=1, distance_upper_bound=cap)
-        return float(np.mean(np.minimum(d, cap)))
+        return float(np.mean(np.minimum(tree.distances(pts, motion), cap)))
 
     def verdict(self) -> str | None:
         """The hypothesis the scans chose over the calibrated frame: won ``min_evidence`` windows,

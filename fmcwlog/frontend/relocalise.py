@@ -85,6 +85,7 @@ class Jump:
     found: float
     kind: str
     motion: tuple[float, float, float] | None = None
+    suspects: int = 1  # the suspect sweeps in a row, the one that ended it included
 
     @property
     def distance(self) -> float | None:
@@ -136,7 +137,7 @@ class JumpWatch:
         if predicted is not None and found is not None:
             d = between(predicted, found)
             motion = (float(d[0]), float(d[1]), float(d[2]))
-        jump = Jump(self.streak[0] if self.streak else stamp, stamp, kind, motion)
+        jump = Jump(self.streak[0] if self.streak else stamp, stamp, kind, motion, max(len(self.streak), 1))
         self.jumps.append(jump)
         self.streak.clear()
         return jump

@@ -159,8 +159,10 @@ def test_pages_hold_every_table_and_image(folders, tmp_path):
                     "Position error along the path", "Relative pose error against distance travelled",
                     "Heading error", "Time per sweep"):
         assert heading in html
-    assert html.count("<table>") == 3  # trajectory, time per sweep, features (the header has its own class)
+    # trajectory, evo_ape's statistics, time per sweep, features (the header has its own class)
+    assert html.count("<table>") == 4
     alts = ["trajectories over the world", "position error along the path", "relative error of each feature",
+            "x, y and yaw over time, with ground truth", "distribution of the position error",
             "relative pose error of each pair against distance travelled", "heading error over time",
             "time per sweep of each method"]
     alts += [f"{m} trajectory coloured by its position error" for m in ("improved", "baseline", "wheel odometry")]
@@ -173,7 +175,7 @@ def test_pages_hold_every_table_and_image(folders, tmp_path):
     assert "| method | ATE RMSE cm" in md and "| feature | name | true mm" in md
     data = json.loads((folder / "report.json").read_text())
     for m in ("improved", "baseline", "wheel_odometry"):
-        for key in ("ate_rmse_m", "rpe_1m_pct", "rpe_10m_pct", "features", "feature_avg_rel_error_pct",
+        for key in ("ate_rmse_m", "ate_std_m", "ate_min_m", "rpe_1m_pct", "rpe_10m_pct", "features", "feature_avg_rel_error_pct",
                     "segmentation", "ms_per_sweep_median", "notes", "heading_rmse_deg", "heading_max_deg",
                     "ms_per_sweep_max"):
             assert key in data["methods"][m]
@@ -352,7 +354,11 @@ def test_report_agrees_with_evo_on_a_processed_log(tmp_path):
         e.align(r, correct_scale=False)
         ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
         ape.process_data((r, e))
-        assert result["methods"][m]["ate_rmse_m"] == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), abs=1e-6)
+        for stat in ("rmse", "mean", "median", "std", "min", "max"):  # evo_ape's set, every one on the page
+            assert result["methods"][m][f"ate_{stat}_m"] == pytest.approx(
+                ape.get_statistic(evo_metrics.StatisticsType(stat)), abs=1e-6), (m, stat)
+        # a note under a method does not open with its name again (the page prefixes it)
+        assert not any(n.startswith((m, m.replace("_", " "))) for n in result["methods"][m]["notes"]), m
 
 
 def _cli(*args):

@@ -1,0 +1,54 @@
+"""``fmcwlog compare``: several runs of ``process`` side by side: a page and compare.json."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..io.atomic import check_folder_can_be_made
+from .console import console
+from .paths import as_path, as_paths
+
+_COMPARE_HELP = """Compare several runs of 'fmcwlog process' (their output folders), as one tunes a
+front end: each is measured as 'fmcwlog report' measures it, and OUTPUT gets
+
+\b
+  compare.html  the runs; the run.json settings and parameters that differ between them;
+                every metric per run and trajectory (ATE rmse, mean, median, std, min, max,
+                RPE, heading, feature and moving-point errors, median ms per sweep) with the
+                best run of each row marked; a verdict where a difference exceeds the spread;
+                each trajectory's position error over time, the runs overlaid
+  compare.json  the same, stable keys for scripts (docs/commands/compare.md)
+
+\b
+The spread is measured from the log's own segments: the series behind a metric (the
+position errors along the path, the per-pair RPE, the time of each sweep) is cut into 5
+segments, the metric computed on each; a difference counts beyond twice the two runs'
+spreads combined. Runs of different logs are compared too, and the page says so.
+Nothing is written into the runs' folders.
+"""
+
+
+@click.command("compare", help=_COMPARE_HELP)
+@click.argument("runs", nargs=-1, required=True, type=click.Path(), callback=as_paths)
+@click.option("-o", "--output", type=click.Path(file_okay=False), callback=as_path, required=True,
+              help="The folder compare.html and compare.json go into (made if missing).")
+def compare_cmd(runs: tuple[Path, ...], output: Path) -> None:
+    from ..evaluation.compare import check_runs, compare_runs, terminal_rows
+    from ..evaluation.pages import terminal_table
+    from ..evaluation.plots import label
+
+    check_runs(list(runs))  # before any run is measured; a folder that is not a run: evaluate's one line
+    check_folder_can_be_made(output)
+    doc = compare_runs(list(runs), output)
+    if not doc["same_log"]:
+        console.warning(f"the runs come from {len(doc['logs'])} different logs: their differences mix the logs' "
+                        "and the settings'")
+    for d in doc["differences"]:
+        console.info(f"differs: {d['key']}: " + "; ".join(f"{r['name']}={v}" for r, v in zip(doc["runs"], d["values"])))
+    console.info(terminal_table(*terminal_rows(doc)))
+    for row in doc["metrics"]:
+        if row["verdict"]:
+            console.info(f"{label(row['method'])}, {row['label']}: {row['verdict']}")
+    console.info(f"wrote {output / 'compare.html'} (and compare.json)")

@@ -43,7 +43,10 @@ class Calibration:
     """What processing knows of the robot: wheels (None if not given) and the lidar mounting.
 
     max_range: the sensor's rated range (m), scan_rate: sweeps per second (Hz); None where the
-    record does not give them (``scan_rate`` 0 counts as not given).
+    record does not give them (``scan_rate`` 0 counts as not given). upside_down: the sensor is
+    rolled by π about its x axis (``lidar_upside_down``): its scan is mirrored, each point (x, y) of
+    its frame is (x, -y) in an upright sensor frame at the same x, y, yaw, where processing reads it
+    (:class:`fmcwlog.io.inputs.LogInputs`); Doppler and point times are unchanged.
     """
 
     wheels: WheelCalibration | None
@@ -52,6 +55,7 @@ class Calibration:
     range_sigma: float | None  # m
     max_range: float | None = None  # m
     scan_rate: float | None = None  # Hz
+    upside_down: bool = False  # rolled by pi about its x axis: its scan mirrored (y -> -y)
 
 
 @dataclass(frozen=True)

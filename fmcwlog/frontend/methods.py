@@ -577,7 +577,7 @@ class ImprovedFrontEnd(FrontEnd):
         self.mixture: DistanceMixture | None = None  # the last GMMSC mixture, reused by the next sweep's ICP
         self.design = doppler_design(cal.mount)
         self.checks = SensorChecks(self.mount, self.design, params.sensor_checks, params.wheel_noise)
-        self.mount_check = MountCheck(self.mount, params.mount_check)  # the scans mirrored or turned round?
+        self.mount_check = MountCheck(self.mount, params.mount_check, cal.upside_down)  # the scans mirrored or turned round?
         self.sources = TwistSources()
         self.samples = CalibrationSamples()
         self.scan_twist = (0.0, 0.0)  # (v, ω) scan matching measured over the last interval: the hold

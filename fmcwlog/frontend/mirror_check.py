@@ -22,11 +22,11 @@ not to be blamed, :meth:`.sensor_checks.SensorChecks.exonerate_wheels`), the whe
 said here: the sensor checks say it), or either (the warning names both, with the calibration
 key for the scanner).
 
-A mirror cannot be given with the planar mount keys (``lidar_x``, ``lidar_y``, ``lidar_yaw``): the
-warning says so and how to undo it; a frame turned by π is ``lidar_yaw`` plus π, which the warning
-gives. The cost: a nearest-point grid (a KD-tree with the numpy kernels) over 256 points and seven
-queries of 256 points once per window of moving sweeps, at most ``max_checks`` per log; nothing
-once a verdict is reached.
+A mirror is ``lidar_upside_down`` the other way (the sensor rolled by π about its x axis, whose
+sweeps are read mirrored back: :class:`fmcwlog.io.inputs.LogInputs`); a frame turned by π is
+``lidar_yaw`` plus π; the warning gives the keys and their values. The cost: a nearest-point grid
+(a KD-tree with the numpy kernels) over 256 points and seven queries of 256 points once per window
+of moving sweeps, at most ``max_checks`` per log; nothing once a verdict is reached.
 """
 
 from __future__ import annotations
@@ -139,7 +139,8 @@ class Witness:
 class MountCheck:
     """The scans asked which frame they are in, window by window (module docstring).
 
-    ``mount``: the lidar in base_link as calibrated (m, m, rad). Feed :meth:`sweep` each sweep's
+    ``mount``: the lidar in base_link as calibrated (m, m, rad); ``upside_down``: as calibrated
+    (``lidar_upside_down``: the sweeps fed are mirrored back already). Feed :meth:`sweep` each sweep's
     points (lidar frame) and :meth:`interval` the wheels' motion between consecutive sweeps, in
     time order; :meth:`verdict` is the hypothesis found (None: the calibrated frame, or too little
     evidence), :meth:`blame` whom the scans blame for it.
@@ -147,6 +148,7 @@ class MountCheck:
 
     mount: np.ndarray
     params: MountCheckParams = field(default_factory=MountCheckParams)
+    upside_down: bool = False
     judged: int = 0  # windows judged
     won: dict[str, int] = field(default_factory=lambda: dict.fromkeys(HYPOTHESES, 0))  # ... won against the calibrated frame
     lost: dict[str, int] = field(default_factory=lambda: dict.fromkeys(HYPOTHESES, 0))  # ... lost to it
@@ -221,6 +223,10 @@ class MountCheck:
         if self.found_at is None and self.verdict() is not None:
             self.found_at = window[-1][1] - (self._t0 or 0.0)
 
+    @property
+    def _yaw(self) -> float:
+        return float(self.mount[2])
+
     def _in_lidar(self, base: np.ndarray) -> np.ndarray:
         """base_link's motion as the (calibrated) lidar frame moved."""
         return compose(compose(inverse(self.mount), base), self.mount)
@@ -268,10 +274,10 @@ class MountCheck:
         if who == SCANNER:
             return (f"{self._found(name, prior_name)}, and better than with the {prior_name} {fault} or any such fault "
                     f"({self.scanner[name]} of {self.scanner[name] + self.wheels[name]} windows that tell the two apart): "
-                    f"the LiDAR is {_fix(name, float(self.mount[2]))}; the {prior_name} are not to blame "
+                    f"the LiDAR is {_fix(name, self._yaw, self.upside_down)}; the {prior_name} are not to blame "
                     "(Doppler, measured in the scan's frame, shares the fault)")
         verb = "are" if prior_name.endswith("s") else "is"
-        return (f"{self._found(name, prior_name)}: the LiDAR is {_fix(name, float(self.mount[2]))}; or the {prior_name} "
+        return (f"{self._found(name, prior_name)}: the LiDAR is {_fix(name, self._yaw, self.upside_down)}; or the {prior_name} "
                 f"{verb} {fault} (at this mount the two look the same)")
 
     def alternative(self, prior_name: str) -> str | None:
@@ -279,7 +285,7 @@ class MountCheck:
         name = self.verdict()
         if name is None or self.blame() != EITHER:
             return None
-        return (f"or the LiDAR is {_fix(name, float(self.mount[2]))}, which at this mount looks the same: "
+        return (f"or the LiDAR is {_fix(name, self._yaw, self.upside_down)}, which at this mount looks the same: "
                 f"{self._found(name, prior_name)}")
 
     def _found(self, name: str, prior_name: str) -> str:
@@ -312,14 +318,15 @@ def _words(name: str) -> str:
             MIRRORED_TURNED: "mirrored about the lidar's y axis (x -> -x)"}[name]
 
 
-def _fix(name: str, yaw: float) -> str:
-    """What the mount is and the calibration key that says it."""
+def _fix(name: str, yaw: float, upside_down: bool = False) -> str:
+    """What the mount is and the calibration keys that say it (``upside_down``: as calibrated)."""
     turned = math.atan2(math.sin(yaw + math.pi), math.cos(yaw + math.pi))
-    mirror = ("mounted upside down (its scan mirrored), which the planar mount keys (lidar_x, lidar_y, lidar_yaw) "
-              "cannot say: mount it upright, or have its driver mirror the scan back (a LaserScan's ranges in "
-              "reverse order, a cloud's y negated)")
+    mirror = ("mounted upright, not upside down as calibrated (its scan mirrored)" if upside_down
+              else "mounted upside down (its scan mirrored)")
+    flag = f"lidar_upside_down: {'false' if upside_down else 'true'}"
     if name == MIRRORED:
-        return mirror
+        return f"{mirror}: set {flag} in the calibration (--calibration)"
     if name == TURNED:
         return f"facing the other way: set lidar_yaw: {turned:.6f} (not {yaw:.6f}) in the calibration (--calibration)"
-    return f"{mirror}, and facing the other way: lidar_yaw {turned:.6f} once upright"
+    return (f"{mirror} and facing the other way: set {flag} and lidar_yaw: {turned:.6f} (not {yaw:.6f}) in the "
+            "calibration (--calibration)")

@@ -7,6 +7,9 @@ Each group of values comes from the first source that gives it (:func:`load_cali
 - the mount (``lidar_x``, ``lidar_y``, ``lidar_yaw``): ``--calibration FILE``, the record, the
   log's ``/tf_static`` (or a ``/tf`` transform that never changes) from the scan's frame to the
   base frame (:mod:`.tf_tree`), else 0, 0, 0 with a warning saying how to give it;
+- ``lidar_upside_down`` (true: the sensor rolled by π about its x axis, its scan mirrored): the
+  file, the record, else the log's tf where tf gives the mount (a sensor whose z axis points
+  down), else false;
 - the wheels, which wheel ticks need: the file, else the record;
 - the other keys: the file's, else the record's.
 
@@ -27,7 +30,7 @@ from typing import Protocol, TypeVar
 
 from ..errors import CalibrationError, LogError
 from ..types import Calibration, WheelCalibration
-from .calibration_file import read_calibration_file
+from .calibration_file import UPSIDE_DOWN_KEY, read_calibration_file
 from .tf_tree import MessageSource, TfMount, mount_from_tf
 from .topics import BASE_FRAME, CALIBRATION_KEY
 
@@ -77,6 +80,14 @@ def _number(values: dict[str, str], key: str) -> float:
         raise CalibrationError(f"calibration {key!r} = {values[key]}{u} is outside its valid range "
                                f"[{low:g}, {high:g}]{u}")
     return x
+
+
+def _flag(values: dict[str, str], key: str) -> bool:
+    """A key that is true or false (``true``, ``false``, any case)."""
+    text = str(values[key]).strip().lower()
+    if text not in ("true", "false"):
+        raise CalibrationError(f"calibration {key!r} must be true or false, got {values[key]!r}")
+    return text == "true"
 
 
 def _same(a: str | None, b: str | None) -> bool:
@@ -168,21 +179,29 @@ class CalibrationSources:
 
     mount: a calibration file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
     base_link->laser`` (the topics and the frames) or :data:`NO_MOUNT`. wheels: a file's path or the
-    record; None where no wheel ticks are read.
+    record; None where no wheel ticks are read. upside_down: the source of ``lidar_upside_down``
+    (a file, the record, or tf where its sensor's z axis points down); None where none gives it
+    (the sensor upright).
     """
 
     mount: str
     wheels: str | None
+    upside_down: str | None = None
 
     def describe(self) -> str:
         """``run.json``'s ``calibration_source``: the one source where it gave all that was used, else each group's."""
-        if self.wheels is None or self.wheels == self.mount:
+        groups = [("mount", self.mount), (UPSIDE_DOWN_KEY, self.upside_down), ("wheels", self.wheels)]
+        given = [(name, src) for name, src in groups if src is not None]
+        if all(src == self.mount for _, src in given):
             return self.mount
-        return f"mount from {self.mount}; wheels from {self.wheels}"
+        return "; ".join(f"{name} from {src}" for name, src in given)
 
     def to_json(self) -> dict[str, str]:
-        """``run.json``'s ``calibration_sources``."""
-        return {"mount": self.mount, "wheels": self.wheels if self.wheels is not None else NO_WHEELS}
+        """``run.json``'s ``calibration_sources`` (``upside_down`` only where a source gives it)."""
+        out = {"mount": self.mount, "wheels": self.wheels if self.wheels is not None else NO_WHEELS}
+        if self.upside_down is not None:
+            out["upside_down"] = self.upside_down
+        return out
 
 
 @dataclass(frozen=True)
@@ -216,9 +235,9 @@ class _Source:
             raise LogError(f"{self.names}: {exc}{damage}") from None
 
 
-def _fmt_mount(mount: tuple[float, float, float]) -> str:
+def _fmt_mount(mount: tuple[float, float, float], upside_down: bool = False) -> str:
     x, y, yaw = (round(v, 6) + 0.0 for v in mount)
-    return f"x {x:g} m, y {y:g} m, yaw {yaw:g} rad"
+    return f"x {x:g} m, y {y:g} m, yaw {yaw:g} rad{', upside down' if upside_down else ''}"
 
 
 def _agree(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
@@ -233,8 +252,9 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
     The mount (``lidar_x``, ``lidar_y``, ``lidar_yaw``): the calibration file at ``path``, the log's
     ``fmcwlog.calibration`` record, the log's tf from ``scan_topic``'s frame to ``base_frame``
     (:mod:`.tf_tree`), else 0, 0, 0 with a warning saying how to give it. A source gives the mount
-    when it holds any of the three keys (one it lacks is 0, with a warning). Where the record gives
-    the mount and tf another, a warning names both and the one used. The wheels (``need_wheels``:
+    when it holds any of the three keys (one it lacks is 0, with a warning). ``lidar_upside_down``:
+    the file's, the record's, else tf's where tf gives the mount, else false. Where the record gives
+    the mount and tf another (upside down included), a warning names both and the one used. The wheels (``need_wheels``:
     wheel ticks are read): the file, else the record, else None (the caller falls back or fails).
     The other keys: the file's, else the record's.
 
@@ -273,6 +293,9 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
     if mount_src is not None:
         names = mount_src.names
         mount = mount_src.parse(lambda v: _mount(v, names), damage)
+    flag_src = next((s for s in sources if UPSIDE_DOWN_KEY in s.values), None)
+    upside_down = flag_src.parse(functools.partial(_flag, key=UPSIDE_DOWN_KEY), damage) if flag_src else False
+    flag_label = flag_src.label if flag_src is not None else None
     opt: dict[str, float | None] = {k: None for k in OPTIONAL_KEYS}
     for k in OPTIONAL_KEYS:
         src = next((s for s in sources if k in s.values), None)
@@ -281,7 +304,9 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
     if mount_src is not None:
         mount_label = mount_src.label
         if not mount_src.is_file:
-            _compare_with_tf(reader, log, scan_topic, base_frame, mount)
+            # the roll too, where the record says it or none does: a file's overrides both, unsaid
+            flag = None if flag_src is not None and flag_src.is_file else upside_down
+            _compare_with_tf(reader, log, scan_topic, base_frame, mount, flag)
     else:
         found, notes = mount_from_tf(reader, scan_topic, base_frame)
         for note in notes:
@@ -289,26 +314,33 @@ def load_calibration(reader: LogSource, log: Path, scan_topic: str, need_wheels:
         if isinstance(found, TfMount):
             mount, mount_label = found.mount, found.source
             values.update({k: repr(v) for k, v in zip(MOUNT_KEYS, mount)})
+            if flag_src is None and found.upside_down:  # tf gives the mount, and says it
+                upside_down, flag_label = True, found.source
+                values[UPSIDE_DOWN_KEY] = "true"
+                warnings.warn(found.upside_down_note(log, base_frame), stacklevel=2)
         else:
             mount, mount_label = (0.0, 0.0, 0.0), NO_MOUNT
             have = f"no {CALIBRATION_KEY} record" if record is None else f"{CALIBRATION_KEY} has no {', '.join(MOUNT_KEYS)}"
             warnings.warn(f"{log}: nothing gives the lidar's mount ({have}; tf: {found}): taken as 0, 0, 0 (the "
                           f"lidar at {base_frame}'s origin, facing forward); {mount_hint(log, base_frame)}", stacklevel=2)
     cal = Calibration(wheels, mount, opt["doppler_resolution"], opt["range_sigma"], opt["max_range"],
-                      opt["scan_rate"] or None)
+                      opt["scan_rate"] or None, upside_down)
     wheels_label = None if not need_wheels else wheels_src.label if wheels_src is not None else "none"
-    return LoadedCalibration(cal, CalibrationSources(mount_label, wheels_label), values)
+    return LoadedCalibration(cal, CalibrationSources(mount_label, wheels_label, flag_label), values)
 
 
 def _compare_with_tf(reader: LogSource, log: Path, scan_topic: str, base_frame: str,
-                     mount: tuple[float, float, float]) -> None:
-    """The record's mount against the log's tf, where it has one: a warning naming both where they differ."""
+                     mount: tuple[float, float, float], upside_down: bool | None) -> None:
+    """The record's mount against the log's tf, where it has one: a warning naming both where they
+    differ (in x, y, yaw, or, unless ``upside_down`` is None, one upside down and the other not)."""
     found, notes = mount_from_tf(reader, scan_topic, base_frame)
     if not isinstance(found, TfMount):
         return
     for note in notes:
         warnings.warn(note, stacklevel=3)
-    if not _agree(mount, found.mount):
+    roll = found.upside_down if upside_down is None else upside_down
+    if not _agree(mount, found.mount) or roll != found.upside_down:
         warnings.warn(f"{log}: {CALIBRATION_KEY} and tf disagree on the lidar's mount: the record has "
-                      f"{_fmt_mount(mount)}, {found.source} has {_fmt_mount(found.mount)}; used the record's "
+                      f"{_fmt_mount(mount, bool(upside_down))}, {found.source} has "
+                      f"{_fmt_mount(found.mount, found.upside_down)}; used the record's "
                       "(--calibration FILE overrides both)", stacklevel=3)

@@ -41,7 +41,16 @@ from .logs import Log
 from .mcap_log import UndecodableMessage
 from .messages import odometry_pose_twist
 from .prior_gates import PoseGate, TickGate
-from .sweeps import MAX_ODOM_POSITION, MAX_SPEED, InputLimits, Rejected, header_stamp, sweep_from_laserscan, sweep_from_pointcloud
+from .sweeps import (
+    MAX_ODOM_POSITION,
+    MAX_SPEED,
+    InputLimits,
+    Rejected,
+    header_stamp,
+    mirrored,
+    sweep_from_laserscan,
+    sweep_from_pointcloud,
+)
 
 # Shares of a log's sweeps skipped beyond which a run says so where it is seen (the last line,
 # run.json, the report's header), and beyond which it is no measurement of the log at all (refused
@@ -124,8 +133,11 @@ class LogInputs:
 
     Iterate once. ``reading``: how a PointCloud2's point times and a 3-D cloud are read
     (:mod:`fmcwlog.io.clouds`). :meth:`notes` gives one warning per kind of skipped message; :attr:`skipped`
-    the counts by kind. Raises :class:`LogError` at the end if nothing usable was left on the
-    scan topic or the prior topic, and as soon as the two clocks are found far apart.
+    the counts by kind. A sensor mounted upside down (``cal.upside_down``) has every sweep's points
+    mirrored back (y -> -y, :func:`.sweeps.mirrored`) here, once, so that every reader of the inputs
+    (process, calibrate, fleets) sees the scan of an upright sensor. Raises :class:`LogError` at the
+    end if nothing usable was left on the scan topic or the prior topic, and as soon as the two
+    clocks are found far apart.
     """
 
     def __init__(self, reader: Log, topics: InputTopics, cal: Calibration, reading: CloudReading = CloudReading()):
@@ -135,6 +147,7 @@ class LogInputs:
         self.path = reader.path
         self.topics = topics
         self.limits = InputLimits.from_calibration(cal)
+        self.upside_down = cal.upside_down
         self.scan = _Stream(topics.scan)
         self.prior = _Stream(topics.prior) if topics.prior else None
         if topics.ticks is not None and cal.wheels is None:
@@ -246,6 +259,8 @@ class LogInputs:
                 self.clouds_3d = [a + b for a, b in zip(self.clouds_3d, (1, layout.points, layout.kept))]
         else:
             sweep = sweep_from_laserscan(self.path, m.msg, self.limits)
+        if self.upside_down:
+            sweep = mirrored(sweep)
         return sweep.stamp_ns, sweep
 
     def _read_prior(self, m: Any) -> tuple[int, tuple[int, int] | np.ndarray]:

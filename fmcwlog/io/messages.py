@@ -7,6 +7,7 @@ its ``header.frame_id`` and a twist in its ``child_frame_id``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from typing import Any
 
@@ -131,9 +132,14 @@ def odometry_message(
     }
 
 
-def transform_dict(stamp_ns_: int, parent: str, child: str, pose: np.ndarray) -> dict:
-    """``geometry_msgs/TransformStamped``: frame ``child`` at ``pose`` (x, y, yaw) in ``parent``."""
+def transform_dict(stamp_ns_: int, parent: str, child: str, pose: np.ndarray, upside_down: bool = False) -> dict:
+    """``geometry_msgs/TransformStamped``: frame ``child`` at ``pose`` (x, y, yaw) in ``parent``;
+    ``upside_down``: rolled by π about its x axis as well, ``Rz(yaw) Rx(π)`` (the quaternion
+    ``(cos(yaw/2), sin(yaw/2), 0, 0)`` as x, y, z, w)."""
     p = pose_dict(pose)
+    if upside_down:
+        half = 0.5 * float(pose[2])
+        p["orientation"] = {"x": math.cos(half), "y": math.sin(half), "z": 0.0, "w": 0.0}
     return {"header": {"stamp": stamp(stamp_ns_), "frame_id": parent}, "child_frame_id": child,
             "transform": {"translation": p["position"], "rotation": p["orientation"]}}
 

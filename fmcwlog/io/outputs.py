@@ -359,12 +359,14 @@ class ProcessOutputs:
     ``processed.mcap`` is streamed; trajectories and the parquet rows are kept (a few numbers
     per sweep) and written by :meth:`finish`, with the maps and ``/tf`` (the trajectories as
     they end up, a back end's correction included). ``mount`` (x, y, yaw of the lidar in
-    base_link) goes to ``/tf_static`` with each ``map -> M/odom``; paths and maps are published
+    base_link; ``upside_down``: rolled by π about its x axis too, as the input's sensor frame is)
+    goes to ``/tf_static`` with each ``map -> M/odom``; paths and maps are published
     every ``publish_period`` seconds of log.
     """
 
     def __init__(self, folder: Path, trajectories: tuple[str, ...], mount: np.ndarray,
-                 publish_period: float = 5.0, publish_bytes_per_s: float = PUBLISH_BYTES_PER_S):
+                 publish_period: float = 5.0, publish_bytes_per_s: float = PUBLISH_BYTES_PER_S,
+                 upside_down: bool = False):
         self.folder = folder
         self.writer = LogWriter(folder / "processed.mcap")
         self.rows = TrajectoryRows()
@@ -374,6 +376,7 @@ class ProcessOutputs:
         self._decimated = {name: PathPoses(odom_frame(name)) for name in trajectories}  # the published paths
         self._kept: dict[str, np.ndarray] = {}  # per trajectory, the last pose its decimated path kept
         self.mount = np.asarray(mount, dtype=float)
+        self.upside_down = upside_down
         self.publish_period_ns = int(publish_period * 1e9)
         self.publish_bytes_per_s = float(publish_bytes_per_s)
         self._next_publish: int | None = None
@@ -405,7 +408,8 @@ class ProcessOutputs:
 
     def _static(self, stamp_ns: int) -> None:
         """``/tf_static``, once: each trajectory's ``map -> M/odom`` (the identity: every estimate
-        starts at its origin) and ``M/base_link -> M/lidar`` (the input's mount)."""
+        starts at its origin) and ``M/base_link -> M/lidar`` (the input's mount, its roll included: the
+        frame of the input's points, which ``/M/moving_labels`` index)."""
         if self._static_written:
             return
         self._static_written = True
@@ -413,7 +417,7 @@ class ProcessOutputs:
         self.writer.write(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", tf_message(
             [t for n in self.trajectories for t in (transform_dict(stamp_ns, MAP_FRAME, odom_frame(n), origin),
                                                     transform_dict(stamp_ns, base_frame(n), lidar_frame(n),
-                                                                   self.mount))]), stamp_ns)
+                                                                   self.mount, self.upside_down))]), stamp_ns)
 
     def add(self, r: SweepResult, messages: SweepMessages | None = None) -> None:
         """One method's result for one sweep; ``messages``: its :func:`sweep_messages` where they were

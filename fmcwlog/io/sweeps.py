@@ -28,6 +28,7 @@ no-returns only has no points (``empty``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -233,6 +234,13 @@ def sweep_from_pointcloud(path: Path, msg: Any, limits: InputLimits = InputLimit
                        f"{exc.detail} ({time.describe(types[time.name])}; {TIME_FIELD_HELP})") from None
     layout = CloudLayout(time, types[time.name] if time else 0, n, kept, no_returns)
     return SweepInput(ns, xy, t, vel, inten), layout
+
+
+def mirrored(sweep: SweepInput) -> SweepInput:
+    """``sweep`` as an upright sensor at the same x, y, yaw sees it, from an upside-down one (rolled by π
+    about its x axis, ``Calibration.upside_down``): each point (x, y) is (x, -y), a copy; the point
+    order, times, radial Doppler (along the ray, which the mirror keeps) and intensities unchanged."""
+    return dataclasses.replace(sweep, xy=sweep.xy * np.array([1.0, -1.0], dtype=sweep.xy.dtype))
 
 
 def sweep_from_laserscan(path: Path, msg: Any, limits: InputLimits = InputLimits()) -> SweepInput:

@@ -7,7 +7,11 @@ over). The scan's ``header.frame_id`` names the sensor's frame; the path from th
 frame (``base_link`` unless told otherwise) to it, through whatever frames lie between
 (``base_link -> sensor_mount -> laser``), composed in 3-D, is the mount. It is projected to the
 plane processing works in: x and y of the sensor's origin in the base frame, and the heading of its
-x axis. A sensor tilted by more than :data:`TILT_WARN_RAD` sweeps a cone, not the plane: said.
+x axis. A sensor whose z axis points down (tilted by more than 90°) is upside down: rolled by π
+about its x axis, ``R = Rz(yaw) Rx(π)``, its scan mirrored (``Calibration.upside_down``); a pitch
+of π is the same sensor facing back, ``Rz(yaw + π) Rx(π)``, and the heading of the x axis,
+``atan2(r10, r00)``, is the yaw of both. A sensor tilted by more than :data:`TILT_WARN_RAD` from
+either (upright or upside down) sweeps a cone, not the plane: said.
 
 Only the reader's public interface is used (``topics``, ``messages``, ``path``), so any log reader
 with that interface serves.
@@ -57,7 +61,7 @@ class TfMount:
     """The sensor's pose in the base frame as tf gives it.
 
     mount: (x m, y m, yaw rad) in the plane; tilt: the angle (rad) between the sensor's z axis and
-    the base frame's; path: the frames from the base to the sensor, each hop marked ``->`` where
+    the base frame's (over π/2: :attr:`upside_down`); path: the frames from the base to the sensor, each hop marked ``->`` where
     tf holds it parent to child and ``<-`` where it is taken inverted; topics: the tf topics whose
     transforms it used.
     """
@@ -71,6 +75,17 @@ class TfMount:
     def source(self) -> str:
         """Where the mount came from, as run.json says it: ``tf /tf_static base_link->laser``."""
         return f"tf {', '.join(self.topics)} {self.path}"
+
+    @property
+    def upside_down(self) -> bool:
+        """The sensor's z axis points down: rolled by π about its x axis (its scan mirrored, y -> -y)."""
+        return self.tilt > math.pi / 2
+
+    def upside_down_note(self, log: Any, base: str) -> str:
+        """The note that the mount was taken as upside down from tf."""
+        return (f"{log}: tf turns the lidar upside down ({self.path}: its z axis {math.degrees(self.tilt):.1f} "
+                f"degrees from {base}'s): taken as lidar_upside_down: true, its scan mirrored back (y -> -y) "
+                "before processing")
 
 
 def _frame(name: str) -> str:
@@ -238,9 +253,9 @@ def mount_from_tf(reader: MessageSource, scan_topic: str, base: str) -> tuple[Tf
     except LogError as exc:
         return f"its tf cannot be read ({exc})", []
     notes = list(tree.notes)
-    if isinstance(found, TfMount) and found.tilt > TILT_WARN_RAD:
-        how = ("upside down: its scan is mirrored, which a planar mount (x, y, yaw) cannot say"
-               if found.tilt > math.pi / 2 else "its scan is not horizontal")
-        notes.append(f"{reader.path}: tf tilts {sensor} by {math.degrees(found.tilt):.1f} degrees from {base}'s "
-                     f"plane ({found.path}): {how}; processed as a planar scan at x, y, yaw")
+    if isinstance(found, TfMount) and min(found.tilt, math.pi - found.tilt) > TILT_WARN_RAD:
+        what = f"{sensor}, upside down," if found.upside_down else sensor
+        notes.append(f"{reader.path}: tf tilts {what} by {math.degrees(min(found.tilt, math.pi - found.tilt)):.1f} "
+                     f"degrees from {base}'s plane ({found.path}): its scan is not horizontal; processed as a planar "
+                     "scan at x, y, yaw")
     return found, notes

@@ -113,7 +113,8 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             runner = LogRunner(here, opts.params, cal, topics, reader.path)
             inputs = LogInputs(reader, topics, cal, reading)
             trajectories = (*opts.methods, WHEEL_ODOMETRY) if topics.prior else tuple(opts.methods)
-            outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period)
+            outputs = ProcessOutputs(tmp, trajectories, np.asarray(cal.mount), opts.publish_period,
+                                     upside_down=cal.upside_down)
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
             grids: dict[str, Any] = {m: own_grids.get(m) for m in opts.methods}  # the child's: its maps, as published
             backends = _backends(opts, cal, elsewhere)
@@ -148,6 +149,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
                 fmcwlog_version=__version__, log=str(log.resolve()), log_size_bytes=log_size(log),
                 log_sha256=digest, options_sha256=options_digest(opts), methods=tuple(opts.methods),
                 scan_topic=topics.scan, prior=summary.prior, doppler=summary.doppler, mount=cal.mount,
+                lidar_upside_down=cal.upside_down,
                 calibration_source=loaded.sources.describe(), calibration_sources=loaded.sources.to_json(),
                 motion_sources=diagnostics["motion_sources"],
                 calibration_check=diagnostics.get("calibration_check"),

@@ -23,11 +23,13 @@ class RunRecord:
         summary says it (``wheel ticks (/wheel/ticks)``, ``odometry (/odom)``, or without either what
         guessed each sweep's pose and why, e.g. ``scan-to-map correlative search (no odometry, no
         wheel ticks, no Doppler in /scan)``). doppler: whether the scans carried Doppler velocity.
-    mount: the lidar's pose in the base frame (m, m, rad); calibration_source: where the calibration
+    mount: the lidar's pose in the base frame (m, m, rad); lidar_upside_down: the lidar is rolled by π
+        about its x axis, its sweeps mirrored back (y -> -y) as read; calibration_source: where the calibration
         came from: one source (a file's path, ``log record fmcwlog.calibration``, ``tf /tf_static
         base_link->laser``, ``none (assumed 0, 0, 0)``) where it gave every value used, else
         ``mount from ...; wheels from ...``; calibration_sources: the same per group (``mount``,
-        ``wheels``), :class:`fmcwlog.io.calibration.CalibrationSources`.
+        ``wheels``, and ``upside_down`` where a source gives ``lidar_upside_down``),
+        :class:`fmcwlog.io.calibration.CalibrationSources`.
     motion_sources: per method, where its twist came from and what the sensor checks found.
     calibration_check: the calibration check's findings, where it ran (absent otherwise).
     frames: each trajectory's odometry frame. params: every parameter (``dataclasses.asdict`` of
@@ -82,6 +84,7 @@ class RunRecord:
     many_skipped_sweeps: dict[str, Any] | None = field(default=None)
     gaps: list[dict[str, float]] = field(default_factory=list)
     jumps: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    lidar_upside_down: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """The document ``run.json`` holds (plain JSON types; lists for tuples)."""
@@ -100,6 +103,7 @@ class RunRecord:
             "prior": self.prior,
             "doppler": self.doppler,
             "mount": list(self.mount),
+            "lidar_upside_down": self.lidar_upside_down,
             "calibration_source": self.calibration_source,
             "calibration_sources": self.calibration_sources,
             **diagnostics,

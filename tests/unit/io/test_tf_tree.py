@@ -120,8 +120,8 @@ def test_a_tilted_sensor_is_said_with_its_angle():
     found, notes = _mount(FakeReader([tf_entry("base_link", "laser", (0.3, 0.0, 0.5), (0, 10 * DEG, 0))]))
     assert isinstance(found, TfMount) and len(notes) == 1
     assert "tilts laser by 10.0 degrees from base_link's plane" in notes[0] and "not horizontal" in notes[0]
-    _, notes = _mount(FakeReader([tf_entry("base_link", "laser", (0.3, 0.0, 0.5), (math.pi, 0, 0))]))
-    assert "upside down" in notes[0] and "mirrored" in notes[0]
+    found, notes = _mount(FakeReader([tf_entry("base_link", "laser", (0.3, 0.0, 0.5), (math.pi, 0, 0))]))
+    assert found.upside_down and notes == []  # upside down and level: a mount, nothing to warn of
 
 
 def test_a_transform_that_never_changes_on_tf_counts_and_one_that_moves_does_not():

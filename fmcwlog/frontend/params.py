@@ -70,9 +70,10 @@ class FrontEndParams(Checked):
     segment: remove the points segmentation judges moving (eq. 17-19).
     deskew: move every point to the sweep's stamp; False matches them where they were seen.
     deskew_motion: the motion the points are moved by: ``"twist"`` the sweep's one twist
-        ``(v, ω)``, held over it; ``"wheels"`` the motion prior's track within the sweep (its
-        shape, at the sweep's twist's mean), where the wheels are in use and the track covers the
-        sweep, else the twist (:mod:`fmcwlog.frontend.deskew_wheels`).
+        ``(v, ω)``, held over it; ``"wheels"`` the motion prior's track within the sweep (its arcs
+        between the ticks, their yaw rates as measured, their speeds scaled to the twist's mean
+        speed) where the wheels are in use, the track covers the sweep and its yaw rate changes
+        within it (``deskew_min_yaw_step``), else the twist (:mod:`fmcwlog.frontend.deskew_wheels`).
     deskew_min_yaw_step: with ``deskew_motion = "wheels"``, the least spread (largest less smallest)
         of the wheels' yaw rates within a sweep for it to be de-skewed by their motion; a steadier
         sweep takes the twist, which the ticks' quantisation does not shake.

@@ -68,6 +68,7 @@ from ..kernels.occupancy import OccupancyGrid, OccupancyParams, Scan
 from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskewed_source
+from .deskew_wheels import SweepKnots, deskewed_source_wheels, wheel_profile
 from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
 from .gaps import bridge_covariance, gap_prior_information, gap_window, seen_before, to_map, within_bridge
 from .gmmsc import DistanceMixture
@@ -114,6 +115,8 @@ class PriorMotion:
         ticks alone (no radii); None without ticks.
     turns_since_last: the same from the previous sweep's stamp to this one's.
     gap: the length (s) of the gap in the sweeps before this one (:mod:`.gaps`), 0 where none.
+    within: the prior's track over ``span`` (:class:`~.deskew_wheels.SweepKnots`), None where it
+        does not cover the sweep or without a prior.
     """
 
     twist: tuple[float, float] | None = None
@@ -122,6 +125,7 @@ class PriorMotion:
     turns: tuple[float, float] | None = None
     turns_since_last: tuple[float, float] | None = None
     gap: float = 0.0
+    within: SweepKnots | None = None
 
 
 @dataclass
@@ -166,6 +170,8 @@ class MotionEstimate:
     twist_covariance: (2, 2) of ``twist`` when it was measured (the Doppler fit), else None.
     fused: Doppler and the wheels fused (:mod:`.twist_fusion`), where Doppler was usable;
         with ``doppler_twist`` off it only sets the ICP's prior, not ``twist``.
+    within: the wheels' track over the sweep (``PriorMotion.within``) where the wheels are in use
+        (not dropped by the sensor checks), else None: what ``deskew_motion = "wheels"`` de-skews by.
     """
 
     twist: tuple[float, float]
@@ -175,6 +181,7 @@ class MotionEstimate:
     segmented: bool = False
     twist_covariance: np.ndarray | None = None
     fused: FusedTwist | None = None
+    within: SweepKnots | None = None
 
 
 class FrontEnd(ABC):
@@ -292,7 +299,13 @@ class FrontEnd(ABC):
         # the points used (neither inside the body mask nor moving) in base_link at t_k, deskewed, and
         # their thinning for registration
         centroid = p.source_thinning == "centroid"
-        if p.deskew:
+        profile = (wheel_profile(motion.within, v, p.deskew_min_yaw_step) if p.deskew and p.deskew_motion == "wheels"
+                   and motion.within is not None else None)
+        if profile is not None:
+            use, pts, source, vel_use = deskewed_source_wheels(xy, t, profile, self.mount, near,
+                                                               motion.moving if n_moving else None, vel,
+                                                               p.source_voxel, centroid)
+        elif p.deskew:
             use, pts, source, vel_use = deskewed_source(xy, t, v, omega, self.mount, near,
                                                         motion.moving if n_moving else None, vel, p.source_voxel,
                                                         centroid)
@@ -426,7 +439,7 @@ class FrontEnd(ABC):
         chord = 0.0 if since is None or not np.hypot(since[0], since[1]) > 0 else math.atan2(since[1], since[0])
         cov = to_map(bridge_covariance(since, prior.gap, self.params.wheel_noise), float(self.pose[2]) + chord)
         return MotionEstimate(motion.twist, predicted, motion.moving, motion.doppler, motion.segmented,
-                              motion.twist_covariance, motion.fused), cov
+                              motion.twist_covariance, motion.fused, motion.within), cov
 
     def _match_after_gap(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                          covariance: np.ndarray) -> tuple[ICPResult, bool, bool]:
@@ -768,14 +781,15 @@ class ImprovedFrontEnd(FrontEnd):
         self.sources.count(doppler is not None, fused, wheels.twist is not None, self.params.doppler_twist)
         if fused is None or not self.params.doppler_twist:
             twist = self.prior_twist(wheels)
-            return MotionEstimate(twist, self.predict(ts, wheels, twist), moving, doppler, segmented, fused=fused)
+            return MotionEstimate(twist, self.predict(ts, wheels, twist), moving, doppler, segmented, fused=fused,
+                                  within=wheels.within)
         twist = (float(fused.twist[0]), float(fused.twist[1]))
         if self.pose is None:
             predicted = np.zeros(3)
         else:  # the twist at the middle of the interval since the last sweep
             v_mid, w_mid = 0.5 * (twist[0] + self.last_twist[0]), 0.5 * (twist[1] + self.last_twist[1])
             predicted = advance(self.pose, v_mid, w_mid, ts - self.last_stamp)
-        return MotionEstimate(twist, predicted, moving, doppler, segmented, fused.covariance, fused)
+        return MotionEstimate(twist, predicted, moving, doppler, segmented, fused.covariance, fused, wheels.within)
 
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:
@@ -942,7 +956,8 @@ class BaselineFrontEnd(FrontEnd):
 
     def estimate_motion(self, sweep: SweepInput, prior: PriorMotion) -> MotionEstimate:
         twist = self.prior_twist(prior)
-        return MotionEstimate(twist, self.predict(sweep.stamp_ns * 1e-9, prior, twist), np.zeros(len(sweep.xy), bool))
+        return MotionEstimate(twist, self.predict(sweep.stamp_ns * 1e-9, prior, twist), np.zeros(len(sweep.xy), bool),
+                              within=prior.within)
 
     def register(self, source: np.ndarray, motion: MotionEstimate, stamp: float,
                  initial: np.ndarray | None = None) -> ICPResult:

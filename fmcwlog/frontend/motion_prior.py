@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import between, interpolate_poses
+from ..geometry import between, compose, interpolate_poses, inverse
 from ..types import WheelCalibration
 from .odometry import body_increments, integrate_arc
 
@@ -107,6 +107,20 @@ class PoseTrack:
     def pose_at(self, t: float | np.ndarray) -> np.ndarray:
         """Interpolated pose(s); clamped to the first/last pose outside the kept span."""
         return interpolate_poses(np.asarray(t, dtype=float), self._t[: self._n], self._p[: self._n])
+
+    def knots(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The track over ``[t0, t1]`` (s), as base_link's motion from ``t0``: times (K,) s after ``t0``
+        (0, the stored stamps strictly inside, ``t1 - t0``) and poses (K, 3) (m, m, rad) in the body
+        frame at ``t0``. None where the track does not cover the interval (it starts after ``t0`` or
+        ends before ``t1``) or ``t1 <= t0``."""
+        n = self._n
+        if n < 2 or not (t1 > t0) or self._t[0] > t0 or self._t[n - 1] < t1:
+            return None
+        stamps = self._t[:n]
+        inner = stamps[int(np.searchsorted(stamps, t0, side="right")):int(np.searchsorted(stamps, t1, side="left"))]
+        times = np.concatenate([[t0], inner, [t1]])
+        poses = self.pose_at(times)
+        return times - t0, compose(inverse(poses[0]), poses)
 
     def delta(self, t0: float, t1: float) -> np.ndarray:
         """Motion of the body from ``t0`` to ``t1`` in its frame at ``t0``."""

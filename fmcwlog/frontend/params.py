@@ -69,6 +69,14 @@ class FrontEndParams(Checked):
     ``icp.use_gmmsc`` and ``icp.use_huber`` switch GMMSC and the Huber kernel):
     segment: remove the points segmentation judges moving (eq. 17-19).
     deskew: move every point to the sweep's stamp; False matches them where they were seen.
+    deskew_motion: the motion the points are moved by: ``"twist"`` the sweep's one twist
+        ``(v, ω)``, held over it; ``"wheels"`` the motion prior's track within the sweep (its arcs
+        between the ticks, their yaw rates as measured, their speeds scaled to the twist's mean
+        speed) where the wheels are in use, the track covers the sweep and its yaw rate changes
+        within it (``deskew_min_yaw_step``), else the twist (:mod:`fmcwlog.frontend.deskew_wheels`).
+    deskew_min_yaw_step: with ``deskew_motion = "wheels"``, the least spread (largest less smallest)
+        of the wheels' yaw rates within a sweep for it to be de-skewed by their motion; a steadier
+        sweep takes the twist, which the ticks' quantisation does not shake.
     doppler_twist: deskew and predict with the Doppler twist; False uses the wheels'.
     doppler_prior: hold the ICP to the Doppler-predicted motion along the path.
     gaps: what a gap in the sweeps is and how it is bridged (:class:`fmcwlog.frontend.gaps.GapParams`).
@@ -111,6 +119,10 @@ class FrontEndParams(Checked):
     self_calibration: SelfCalibrationParams = field(default_factory=SelfCalibrationParams)
     segment: bool = True
     deskew: bool = True
+    deskew_motion: str = param("wheels", "", choices=("twist", "wheels"))
+    # 0.2 rad/s: ten times the spread one tick of yaw (0.34 mrad at 4096 ticks a turn) gives over a
+    # 20 ms segment, a tenth of the yaw-rate step that enters or leaves a turn at speed
+    deskew_min_yaw_step: float = param(0.2, "rad/s", ge=0.0, le=100.0)
     doppler_twist: bool = True
     doppler_prior: bool = True
     # the map scans are matched against, and the recovery from a poor prior (not in the paper)

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LogError
+from ..frontend.deskew_wheels import SweepKnots
 from ..frontend.gaps import GapFinder
 from ..frontend.methods import METHODS, FrontEnd, PriorMotion
 from ..frontend.motion_prior import PoseTrack
@@ -166,7 +167,9 @@ class LogRunner:
             turns = None if ticks is None else (ticks[0] * rad, ticks[1] * rad)
             if self._last_stamp is not None and (ticks := self.prior.ticks_between(self._last_stamp, ts)):
                 turns_since = (ticks[0] * rad, ticks[1] * rad)
-        return PriorMotion((d[0] / span, d[2] / span), since_last, span, turns, turns_since)
+        knots = self.prior.knots(ts, ts + span)
+        within = None if knots is None else SweepKnots(*knots)
+        return PriorMotion((d[0] / span, d[2] / span), since_last, span, turns, turns_since, within=within)
 
     def _process(self, sweep: SweepInput) -> SweepStep:
         ts = sweep.stamp_ns * 1e-9

@@ -23,6 +23,7 @@
 #include <nanobind/stl/tuple.h>
 
 #include <optional>
+#include <string>
 
 namespace fmcwlog {
 namespace {
@@ -79,19 +80,20 @@ nb::ndarray<nb::numpy, double, nb::shape<-1, 2>> deskew_placed(Points xy, Times 
     return nb::ndarray<nb::numpy, double, nb::shape<-1, 2>>(out, {m, 2}, owner);
 }
 
-// deskew.deskewed_source_numpy: use = ~(near | moving) (moving None: ~near), written into use (N,);
-// the used points de-skewed and placed by (c, s, tx, ty) as deskew_placed places them (pts (K, 2));
-// pts thinned by voxel_size as voxel.voxel_downsample (centroid false) or voxel.voxel_centroids
-// (centroid true) thin them (pts itself where voxel_size <= 0 or K == 0); the used points'
-// velocities (K,) where velocity is given. Returns (pts, source, velocities or None).
-nb::tuple deskew_source(Points xy, Times t, Mask near, std::optional<Mask> moving, std::optional<Times> velocity,
-                        double v, double omega, double mx, double my, double myaw, double c, double s, double tx,
-                        double ty, double voxel_size, bool centroid,
-                        nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu> use) {
+// The front end's source cloud of a sweep (deskew.deskewed_source_numpy, deskew_wheels's twin):
+// use = ~(near | moving) (moving None: ~near), written into use (N,); the used points moved by
+// place(x, y, t, ox, oy) (pts (K, 2)); pts thinned by voxel_size as voxel.voxel_downsample (centroid
+// false) or voxel.voxel_centroids (centroid true) thin them (pts itself where voxel_size <= 0 or
+// K == 0); the used points' velocities (K,) where velocity is given. Returns (pts, source,
+// velocities or None).
+template <class Place>
+nb::tuple source_cloud(const char* name, Points xy, Times t, Mask near, std::optional<Mask> moving,
+                       std::optional<Times> velocity, double voxel_size, bool centroid,
+                       nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu> use, const Place& place) {
     const size_t n = xy.shape(0);
     if (t.shape(0) != n || near.shape(0) != n || use.shape(0) != n || (moving && moving->shape(0) != n) ||
         (velocity && velocity->shape(0) != n))
-        throw nb::value_error("deskew_source: xy, t, near, moving, velocity and use differ in length");
+        throw nb::value_error((std::string(name) + ": xy, t, near, moving, velocity and use differ in length").c_str());
     const double* p = xy.data();
     const double* tt = t.data();
     const bool* nr = near.data();
@@ -101,16 +103,15 @@ nb::tuple deskew_source(Points xy, Times t, Mask near, std::optional<Mask> movin
     std::vector<double> pts, thinned, speeds;
     {
         nb::gil_scoped_release release;
-        const Deskewer at(0.0, v, 0.0, omega, mx, my, myaw);
         pts.reserve(2 * n);
         if (vel) speeds.reserve(n);
         for (size_t i = 0; i < n; ++i) {
             u[i] = !(nr[i] || (mv && mv[i]));
             if (!u[i]) continue;
-            double dx, dy;
-            at(p[2 * i], p[2 * i + 1], tt[i], dx, dy);
-            pts.push_back(c * dx - s * dy + tx);
-            pts.push_back(s * dx + c * dy + ty);
+            double ox, oy;
+            place(p[2 * i], p[2 * i + 1], tt[i], ox, oy);
+            pts.push_back(ox);
+            pts.push_back(oy);
             if (vel) speeds.push_back(vel[i]);
         }
         const size_t k = pts.size() / 2;
@@ -130,6 +131,37 @@ nb::tuple deskew_source(Points xy, Times t, Mask near, std::optional<Mask> movin
     return nb::make_tuple(placed, source, kept_velocity);
 }
 
+// deskew.deskewed_source_numpy: source_cloud with each point de-skewed under the constant twist (v, omega)
+// and placed by (c, s, tx, ty) as deskew_placed places them.
+nb::tuple deskew_source(Points xy, Times t, Mask near, std::optional<Mask> moving, std::optional<Times> velocity,
+                        double v, double omega, double mx, double my, double myaw, double c, double s, double tx,
+                        double ty, double voxel_size, bool centroid,
+                        nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu> use) {
+    const Deskewer at(0.0, v, 0.0, omega, mx, my, myaw);
+    return source_cloud("deskew_source", xy, t, near, moving, velocity, voxel_size, centroid, use,
+                        [&](double x, double y, double ti, double& ox, double& oy) {
+                            double dx, dy;
+                            at(x, y, ti, dx, dy);
+                            ox = c * dx - s * dy + tx;
+                            oy = s * dx + c * dy + ty;
+                        });
+}
+
+using Rows = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+// deskew_wheels.deskewed_source_wheels_numpy: source_cloud with each point placed in base_link at the
+// stamp by B(t) (+) L (WheelDeskewer; starts (K,), poses (K, 3), twists (K, 2) the profile).
+nb::tuple deskew_source_wheels(Points xy, Times t, Mask near, std::optional<Mask> moving,
+                               std::optional<Times> velocity, Times starts, Rows poses, Rows twists, double mx,
+                               double my, double myaw, double voxel_size, bool centroid,
+                               nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu> use) {
+    const size_t k = starts.shape(0);
+    if (k == 0 || poses.shape(0) != k || poses.shape(1) != 3 || twists.shape(0) != k || twists.shape(1) != 2)
+        throw nb::value_error("deskew_source_wheels: starts (K,), poses (K, 3) and twists (K, 2) with K >= 1");
+    const WheelDeskewer at(starts.data(), poses.data(), twists.data(), k, mx, my, myaw);
+    return source_cloud("deskew_source_wheels", xy, t, near, moving, velocity, voxel_size, centroid, use, at);
+}
+
 }  // namespace
 
 void bind_deskew(nb::module_& m) {
@@ -142,6 +174,10 @@ void bind_deskew(nb::module_& m) {
           nb::arg("velocity").none(), nb::arg("v"), nb::arg("omega"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"),
           nb::arg("c"), nb::arg("s"), nb::arg("tx"), nb::arg("ty"), nb::arg("voxel_size"), nb::arg("centroid"),
           nb::arg("use"));
+    m.def("deskew_source_wheels", &deskew_source_wheels, nb::arg("xy"), nb::arg("t"), nb::arg("near"),
+          nb::arg("moving").none(), nb::arg("velocity").none(), nb::arg("starts"), nb::arg("poses"),
+          nb::arg("twists"), nb::arg("mx"), nb::arg("my"), nb::arg("myaw"), nb::arg("voxel_size"),
+          nb::arg("centroid"), nb::arg("use"));
 }
 
 }  // namespace fmcwlog

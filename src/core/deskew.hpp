@@ -61,4 +61,61 @@ struct Deskewer {
     }
 };
 
+// De-skewing by a piecewise-constant base_link twist (deskew_wheels.deskew_wheels_numpy): segment j
+// starts at starts[j] (s after the stamp) from base_link's pose poses[j] (in base_link at the stamp)
+// with the twist twists[j] = (v, omega). A point (x, y) seen in the lidar frame at ti goes to
+// base_link at the stamp by B(ti) (+) L, B(ti) = poses[j] (+) exp((ti - starts[j]) (v, 0, omega)) for the
+// last segment j with starts[j] <= ti (the first where ti is before it); L the mount. The same
+// sinc forms as Deskewer; the compositions by the angle-sum formulas (one sincos a point).
+struct WheelDeskewer {
+    const double* starts;
+    const double* twists;
+    size_t k;
+    double mx, my;
+    std::vector<double> seg;  // per segment: x, y, cos, sin of poses[j]'s yaw, cos, sin of (its yaw + myaw)
+
+    WheelDeskewer(const double* starts_, const double* poses, const double* twists_, size_t k_, double mx_,
+                  double my_, double myaw)
+        : starts(starts_), twists(twists_), k(k_), mx(mx_), my(my_), seg(6 * k_) {
+        for (size_t j = 0; j < k; ++j) {
+            const double yaw = poses[3 * j + 2];
+            seg[6 * j] = poses[3 * j];
+            seg[6 * j + 1] = poses[3 * j + 1];
+            seg[6 * j + 2] = std::cos(yaw);
+            seg[6 * j + 3] = std::sin(yaw);
+            seg[6 * j + 4] = std::cos(yaw + myaw);
+            seg[6 * j + 5] = std::sin(yaw + myaw);
+        }
+    }
+
+    void operator()(double x, double y, double ti, double& ox, double& oy) const {
+        size_t j = static_cast<size_t>(std::upper_bound(starts, starts + k, ti) - starts);  // searchsorted right
+        j = j == 0 ? 0 : j - 1;
+        const double v = twists[2 * j], omega = twists[2 * j + 1];
+        const double dt = ti - starts[j];
+        const double th = omega * dt;
+        const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
+        double a, b;  // sin th / th and (1 - cos th) / th
+        if (std::fabs(th) < 1e-4) {
+            const double t2 = th * th;
+            a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
+            b = 0.5 * th * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
+        } else {
+            a = 2.0 * sh * ch / th;
+            b = 2.0 * sh * sh / th;
+        }
+        const double sth = 2.0 * sh * ch, cth = 1.0 - 2.0 * sh * sh;
+        const double bx = a * v * dt, by = b * v * dt;  // the arc over dt in the segment's start frame
+        const double* g = &seg[6 * j];
+        // B = poses[j] (+) arc: translation, and the rotation of its yaw (+ th)
+        const double px = g[0] + g[2] * bx - g[3] * by, py = g[1] + g[3] * bx + g[2] * by;
+        const double cb = g[2] * cth - g[3] * sth, sb = g[3] * cth + g[2] * sth;
+        // B (+) L: the lidar's position, and its rotation (yaw + th + myaw)
+        const double lx = px + cb * mx - sb * my, ly = py + sb * mx + cb * my;
+        const double cl = g[4] * cth - g[5] * sth, sl = g[5] * cth + g[4] * sth;
+        ox = cl * x - sl * y + lx;
+        oy = sl * x + cl * y + ly;
+    }
+};
+
 }  // namespace fmcwlog

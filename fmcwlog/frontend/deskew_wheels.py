@@ -90,6 +90,20 @@ def segment_twists(knots: SweepKnots) -> np.ndarray:
     return np.stack([np.copysign(chord, fx) / dt, dth / dt], -1)
 
 
+def _rate_spread(t: list[float], yaw: list[float]) -> float:
+    """The spread (largest less smallest, rad/s) of the yaw rates between consecutive knots (times
+    ``t`` s, yaws rad), the infinity where two share a time. :func:`wheel_profile`'s segments merge
+    knots closer than :data:`MIN_SEGMENT_S`, and a merged segment's rate is the time-weighted mean
+    of the rates it joins: their spread is at most this one, so a sweep steady here is steady there."""
+    rates = []
+    for i in range(len(t) - 1):
+        dt = t[i + 1] - t[i]
+        if not dt > 0:
+            return math.inf
+        rates.append(math.remainder(yaw[i + 1] - yaw[i], 2 * math.pi) / dt)
+    return max(rates) - min(rates) if rates else 0.0
+
+
 def wheel_profile(knots: SweepKnots, speed: float | None = None, min_step: float | None = None) -> SweepProfile | None:
     """The profile (:class:`SweepProfile`) of the knots' arcs; with ``speed`` (m/s) their speeds scaled
     by one factor so that their time-weighted mean over ``[0, τ_K]`` is ``speed`` (the yaw rates stay
@@ -101,6 +115,8 @@ def wheel_profile(knots: SweepKnots, speed: float | None = None, min_step: float
     t, p = np.asarray(knots.times, dtype=float), np.asarray(knots.poses, dtype=float)
     if t.ndim != 1 or len(t) < 2 or p.shape != (len(t), 3) or not (np.isfinite(t).all() and np.isfinite(p).all()):
         return None
+    if min_step is not None and _rate_spread(t.tolist(), p[:, 2].tolist()) < min_step - 1e-9:
+        return None  # steady: decided on floats, before any array is built
     keep = [0]
     for i in range(1, len(t)):  # knots closer than MIN_SEGMENT_S to the last kept one are merged into it
         if t[i] - t[keep[-1]] >= MIN_SEGMENT_S:

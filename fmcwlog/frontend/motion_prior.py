@@ -14,6 +14,8 @@ that stands keeps its pose: a repeat ``hold_seconds`` after the last stored read
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..geometry import between, compose, interpolate_poses, inverse
@@ -121,6 +123,26 @@ class PoseTrack:
         times = np.concatenate([[t0], inner, [t1]])
         poses = self.pose_at(times)
         return times - t0, compose(inverse(poses[0]), poses)
+
+    def yaw_rate_spread(self, t0: float, t1: float) -> float:
+        """The spread (largest less smallest, rad/s) of the yaw rates between the stored poses from
+        the last at or before ``t0`` to the first at or after ``t1``; infinity where two share a time
+        or fewer than two are stored. :meth:`knots` interpolates within those intervals, so its
+        segments' rates are among these: a spread below a threshold here is below it there."""
+        n = self._n
+        if n < 2:
+            return math.inf
+        stamps = self._t[:n]
+        i0 = max(int(np.searchsorted(stamps, t0, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(stamps, t1, side="left")), n - 1)
+        t, yaw = stamps[i0:i1 + 1].tolist(), self._p[i0:i1 + 1, 2].tolist()
+        rates = []
+        for i in range(len(t) - 1):
+            dt = t[i + 1] - t[i]
+            if not dt > 0:
+                return math.inf
+            rates.append(math.remainder(yaw[i + 1] - yaw[i], 2 * math.pi) / dt)
+        return max(rates) - min(rates) if rates else math.inf
 
     def delta(self, t0: float, t1: float) -> np.ndarray:
         """Motion of the body from ``t0`` to ``t1`` in its frame at ``t0``."""

@@ -76,6 +76,8 @@ class LogRunner:
         self.cal = cal
         self.topics = topics
         self.prior = PoseTrack() if topics.prior else None
+        # the least yaw-rate step within a sweep that the wheels' track de-skews (rad/s); None: never
+        self._wheel_deskew = params.deskew_min_yaw_step if params.deskew and params.deskew_motion == "wheels" else None
         self.source = source
         self.sweeps = 0
         self.beyond_prior = 0  # sweeps that began after the prior's last message (it held its last pose)
@@ -167,8 +169,10 @@ class LogRunner:
             turns = None if ticks is None else (ticks[0] * rad, ticks[1] * rad)
             if self._last_stamp is not None and (ticks := self.prior.ticks_between(self._last_stamp, ts)):
                 turns_since = (ticks[0] * rad, ticks[1] * rad)
-        knots = self.prior.knots(ts, ts + span)
-        within = None if knots is None else SweepKnots(*knots)
+        within = None
+        if self._wheel_deskew is not None and self.prior.yaw_rate_spread(ts, ts + span) >= self._wheel_deskew - 1e-9:
+            knots = self.prior.knots(ts, ts + span)  # a sweep the wheels may de-skew: their track over it
+            within = None if knots is None else SweepKnots(*knots)
         return PriorMotion((d[0] / span, d[2] / span), since_last, span, turns, turns_since, within=within)
 
     def _process(self, sweep: SweepInput) -> SweepStep:

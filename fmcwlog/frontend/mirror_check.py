@@ -165,7 +165,8 @@ class MountCheck:
             self._t0 = stamp
         if not self.params.enabled or self.settled:
             return
-        self._sweeps[stamp] = np.array(xy[:: max(1, len(xy) // self.params.witness_points)], dtype=float)
+        # a strided view, not a copy: a window judges only its first and last sweep (``_judge``)
+        self._sweeps[stamp] = xy[:: max(1, len(xy) // self.params.witness_points)]
         while len(self._sweeps) > self.params.window_sweeps + 2:
             del self._sweeps[min(self._sweeps)]
 
@@ -175,11 +176,13 @@ class MountCheck:
         p = self.params
         if not p.enabled or self.settled:
             return
-        if wheels is None or not np.all(np.isfinite(wheels[:3])) or (self._window and self._window[-1][1] != t_prev):
+        motion = None if wheels is None else [float(v) for v in wheels[:3]]
+        usable = motion is not None and all(map(math.isfinite, motion))
+        if not usable or (self._window and self._window[-1][1] != t_prev):
             self._window.clear()
-            if wheels is None or not np.all(np.isfinite(wheels[:3])):
+            if not usable:
                 return
-        self._window.append((t_prev, stamp, np.asarray(wheels[:3], dtype=float)))
+        self._window.append((t_prev, stamp, np.array(motion)))
         if len(self._window) < p.window_sweeps:
             return
         window, self._window = self._window, []

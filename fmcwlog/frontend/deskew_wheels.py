@@ -90,9 +90,10 @@ def segment_twists(knots: SweepKnots) -> np.ndarray:
     return np.stack([np.copysign(chord, fx) / dt, dth / dt], -1)
 
 
-def _rate_spread(t: list[float], yaw: list[float]) -> float:
+def yaw_rate_spread(t: list[float], yaw: list[float]) -> float:
     """The spread (largest less smallest, rad/s) of the yaw rates between consecutive knots (times
-    ``t`` s, yaws rad), the infinity where two share a time. :func:`wheel_profile`'s segments merge
+    ``t`` s, yaws rad), the infinity where two share a time or fewer than two are given.
+    :func:`wheel_profile`'s segments merge
     knots closer than :data:`MIN_SEGMENT_S`, and a merged segment's rate is the time-weighted mean
     of the rates it joins: their spread is at most this one, so a sweep steady here is steady there."""
     rates = []
@@ -101,7 +102,7 @@ def _rate_spread(t: list[float], yaw: list[float]) -> float:
         if not dt > 0:
             return math.inf
         rates.append(math.remainder(yaw[i + 1] - yaw[i], 2 * math.pi) / dt)
-    return max(rates) - min(rates) if rates else 0.0
+    return max(rates) - min(rates) if rates else math.inf
 
 
 def wheel_profile(knots: SweepKnots, speed: float | None = None, min_step: float | None = None) -> SweepProfile | None:
@@ -115,7 +116,7 @@ def wheel_profile(knots: SweepKnots, speed: float | None = None, min_step: float
     t, p = np.asarray(knots.times, dtype=float), np.asarray(knots.poses, dtype=float)
     if t.ndim != 1 or len(t) < 2 or p.shape != (len(t), 3) or not (np.isfinite(t).all() and np.isfinite(p).all()):
         return None
-    if min_step is not None and _rate_spread(t.tolist(), p[:, 2].tolist()) < min_step - 1e-9:
+    if min_step is not None and yaw_rate_spread(t.tolist(), p[:, 2].tolist()) < min_step - 1e-9:
         return None  # steady: decided on floats, before any array is built
     keep = [0]
     for i in range(1, len(t)):  # knots closer than MIN_SEGMENT_S to the last kept one are merged into it

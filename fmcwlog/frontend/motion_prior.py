@@ -20,6 +20,7 @@ import numpy as np
 
 from ..geometry import between, compose, interpolate_poses, inverse
 from ..types import WheelCalibration
+from .deskew_wheels import yaw_rate_spread
 from .odometry import body_increments, integrate_arc
 
 MAX_HOLD_S = 120.0  # s: the longest gap in the sweeps the track is kept for (:attr:`PoseTrack.hold_from`)
@@ -135,14 +136,7 @@ class PoseTrack:
         stamps = self._t[:n]
         i0 = max(int(np.searchsorted(stamps, t0, side="right")) - 1, 0)
         i1 = min(int(np.searchsorted(stamps, t1, side="left")), n - 1)
-        t, yaw = stamps[i0:i1 + 1].tolist(), self._p[i0:i1 + 1, 2].tolist()
-        rates = []
-        for i in range(len(t) - 1):
-            dt = t[i + 1] - t[i]
-            if not dt > 0:
-                return math.inf
-            rates.append(math.remainder(yaw[i + 1] - yaw[i], 2 * math.pi) / dt)
-        return max(rates) - min(rates) if rates else math.inf
+        return yaw_rate_spread(stamps[i0:i1 + 1].tolist(), self._p[i0:i1 + 1, 2].tolist())
 
     def delta(self, t0: float, t1: float) -> np.ndarray:
         """Motion of the body from ``t0`` to ``t1`` in its frame at ``t0``."""

@@ -17,6 +17,23 @@
 
 namespace fmcwlog {
 
+// The terms of an arc turning by th (rad): a = sin th / th, b = (1 - cos th) / th (their series
+// below 1e-4 rad: next terms < 1e-24 relative, exact at 0, no subnormal halving), and sin th, cos th,
+// from one sincos of th / 2.
+inline void arc_terms(double th, double& a, double& b, double& sth, double& cth) {
+    const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
+    if (std::fabs(th) < 1e-4) {
+        const double t2 = th * th;
+        a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
+        b = 0.5 * th * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
+    } else {
+        a = 2.0 * sh * ch / th;
+        b = 2.0 * sh * sh / th;
+    }
+    sth = 2.0 * sh * ch;
+    cth = 1.0 - 2.0 * sh * sh;
+}
+
 // Lidar-to-reference motion of a sweep (the loop-invariant part of deskew.deskew's column path):
 // L^-1 = (ix, iy, ith) and its rotation's (ci, si), for the mount (mx, my, myaw).
 struct Deskewer {
@@ -37,17 +54,8 @@ struct Deskewer {
     void operator()(double x, double y, double ti, double& ox, double& oy) const {
         const double dt = ti - t_ref;
         const double th = omega * dt;
-        const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
-        double a, b;  // sin th / th and (1 - cos th) / th
-        if (std::fabs(th) < 1e-4) {  // their series (next terms < 1e-24 relative): exact at 0, no subnormal halving
-            const double t2 = th * th;
-            a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
-            b = 0.5 * th * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
-        } else {
-            a = 2.0 * sh * ch / th;
-            b = 2.0 * sh * sh / th;
-        }
-        const double sth = 2.0 * sh * ch, cth = 1.0 - 2.0 * sh * sh;
+        double a, b, sth, cth;
+        arc_terms(th, a, b, sth, cth);
         // se2_exp: the base's displacement over dt
         const double bx = (a * v - b * v_y) * dt, by = (b * v + a * v_y) * dt;
         // compose(L^-1, base): translation ix + R(ith) b, yaw ith + th
@@ -94,17 +102,8 @@ struct WheelDeskewer {
         const double v = twists[2 * j], omega = twists[2 * j + 1];
         const double dt = ti - starts[j];
         const double th = omega * dt;
-        const double sh = std::sin(0.5 * th), ch = std::cos(0.5 * th);
-        double a, b;  // sin th / th and (1 - cos th) / th
-        if (std::fabs(th) < 1e-4) {
-            const double t2 = th * th;
-            a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0);
-            b = 0.5 * th * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0));
-        } else {
-            a = 2.0 * sh * ch / th;
-            b = 2.0 * sh * sh / th;
-        }
-        const double sth = 2.0 * sh * ch, cth = 1.0 - 2.0 * sh * sh;
+        double a, b, sth, cth;
+        arc_terms(th, a, b, sth, cth);
         const double bx = a * v * dt, by = b * v * dt;  // the arc over dt in the segment's start frame
         const double* g = &seg[6 * j];
         // B = poses[j] (+) arc: translation, and the rotation of its yaw (+ th)

@@ -141,7 +141,9 @@ def _check_parquet(path: Path) -> None:
     """A trajectories.parquet that can be read whole, with the columns report needs."""
     try:
         with open(path, "rb") as fh:  # opened here: Arrow takes a path as UTF-8, which a name need not be
-            table = pq.read_table(fh)
+            # one thread: Arrow's pool, torn down at the exit after a read from a Python file, can abort the
+            # process (SIGABRT, apache/arrow#34314); these tables are small
+            table = pq.read_table(fh, use_threads=False)
     except (pa.ArrowException, OSError, ValueError) as exc:
         first = (str(exc).splitlines() or [type(exc).__name__])[0]
         raise ReportError(f"{path}: damaged, cannot be read ({first})") from None
@@ -320,7 +322,7 @@ def _open_log(out_dir: Path, run: dict, log: str | Path | None) -> tuple[Path, L
 def _sweep_times(out_dir: Path, log: Path, reader: Log, run: dict) -> tuple[np.ndarray, np.ndarray]:
     """Method and ms of every row of trajectories.parquet, once its stamps are checked against the log."""
     with open(out_dir / "trajectories.parquet", "rb") as fh:  # Arrow takes a path as UTF-8; a name need not be
-        table = pq.read_table(fh, columns=["method", "stamp_ns", "ms"])
+        table = pq.read_table(fh, columns=["method", "stamp_ns", "ms"], use_threads=False)  # one thread: _check_parquet
     _check_log_matches(out_dir, log, reader, run, np.unique(table.column("stamp_ns").to_numpy()))
     return table.column("method").to_numpy(zero_copy_only=False), table.column("ms").to_numpy()
 

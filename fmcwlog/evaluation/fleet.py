@@ -163,7 +163,8 @@ def _from_folder(row: dict[str, Any], folder: Path) -> tuple[float, float] | Non
     min_corr = int(((run.get("params") or {}).get("icp") or {}).get("min_correspondences", 10))
     try:
         with open(folder / "trajectories.parquet", "rb") as fh:  # Arrow takes a path as UTF-8; a name need not be
-            table = pq.read_table(fh, columns=["method", "t", "icp_iterations", "correspondences"])
+            table = pq.read_table(fh, columns=["method", "t", "icp_iterations", "correspondences"],
+                                  use_threads=False)  # one thread: evaluate._check_parquet says why
     except (OSError, ValueError, KeyError):
         return None
     t = table.column("t").to_numpy()

@@ -303,8 +303,7 @@ def deskewed_source(
             and sweep_columns(xy, t, near, moving)):
         mx, my, myaw = mount.tolist()
         if math.isfinite(myaw):
-            fast_velocity = (type(velocity) is np.ndarray and velocity.dtype == np.float64
-                             and velocity.shape == t.shape and velocity.flags.c_contiguous)
+            fast_velocity = core_velocity(velocity, t)
             use = np.empty(len(xy), bool)
             points, source, kept = core.deskew_source(
                 xy, t, near, moving, velocity if fast_velocity else None, v, omega, mx, my, myaw, math.cos(myaw),
@@ -328,10 +327,28 @@ def deskewed_source_numpy(
     centroid: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`deskewed_source` as its steps: the reference the compiled kernel is tested against."""
-    use = ~(near | moving) if moving is not None else ~near
-    points = deskew_placed_numpy(xy, t, v, omega, mount, mount, use)
+    use = used_points(near, moving)
+    return thinned_source(use, deskew_placed_numpy(xy, t, v, omega, mount, mount, use), velocity, voxel_size, centroid)
+
+
+def used_points(near: np.ndarray, moving: np.ndarray | None) -> np.ndarray:
+    """The points (N,, bool) neither in the body mask ``near`` nor ``moving`` (None: none moving)."""
+    return ~(near | moving) if moving is not None else ~near
+
+
+def thinned_source(use: np.ndarray, points: np.ndarray, velocity: np.ndarray | None, voxel_size: float,
+                   centroid: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """``(use, points, source, velocity)`` of the numpy references: ``points`` (the used ones, placed)
+    thinned to ``source`` as :func:`deskewed_source` says, and the used points' Doppler."""
     source = (voxel_centroids_numpy if centroid else voxel_downsample_numpy)(points, voxel_size)
     return use, points, source, None if velocity is None else velocity[use]
+
+
+def core_velocity(velocity: np.ndarray | None, t: np.ndarray) -> bool:
+    """Whether the compiled kernels take ``velocity`` as it is (float64, C-contiguous, one per point
+    of ``t``); else the caller indexes it with the kernel's ``use``."""
+    return (type(velocity) is np.ndarray and velocity.dtype == np.float64 and velocity.shape == t.shape
+            and velocity.flags.c_contiguous)
 
 
 def sweep_columns(xy: object, t: object, *masks: object) -> bool:

@@ -47,8 +47,7 @@ import numpy as np
 
 from ..geometry import compose, transform_points
 from ..kernels import compiled
-from ..kernels.voxel import voxel_centroids_numpy, voxel_downsample_numpy
-from .deskew import se2_exp, sweep_columns
+from .deskew import core_velocity, se2_exp, sweep_columns, thinned_source, used_points
 
 MIN_SEGMENT_S = 1e-4  # s: knots closer than this are merged (a twist over a shorter time is noise)
 MIN_SCALED_SPEED = 0.05  # m/s: below this wheel speed the profile's speed is shifted, not scaled
@@ -185,8 +184,7 @@ def deskewed_source_wheels(
     mount = np.asarray(mount, dtype=float)
     if (core is not None and near is not None and mount.shape == (3,) and np.isfinite(mount).all()
             and sweep_columns(xy, t, near, moving)):
-        fast_velocity = (type(velocity) is np.ndarray and velocity.dtype == np.float64
-                         and velocity.shape == t.shape and velocity.flags.c_contiguous)
+        fast_velocity = core_velocity(velocity, t)
         use = np.empty(len(xy), bool)
         mx, my, myaw = mount.tolist()
         points, source, kept = core.deskew_source_wheels(
@@ -210,7 +208,5 @@ def deskewed_source_wheels_numpy(
     centroid: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`deskewed_source_wheels` as its steps: the reference the compiled kernel is tested against."""
-    use = ~(near | moving) if moving is not None else ~near
-    points = deskew_wheels_numpy(xy[use], t[use], profile, mount)
-    source = (voxel_centroids_numpy if centroid else voxel_downsample_numpy)(points, voxel_size)
-    return use, points, source, None if velocity is None else velocity[use]
+    use = used_points(near, moving)
+    return thinned_source(use, deskew_wheels_numpy(xy[use], t[use], profile, mount), velocity, voxel_size, centroid)

@@ -237,8 +237,9 @@ def _gap_rows(gaps: Any) -> list[tuple[str, str]]:
         return [("gaps in the sweeps", f"{len(gaps)} (bridged by the motion prior)")]
     listed = ", ".join(f"{length:.1f} s at {start:.3f} s" for start, length in spans[:5])
     more = f" and {len(spans) - 5} more" if len(spans) > 5 else ""
+    bridged_by = gaps[0].get("bridged_by", "the motion prior") if isinstance(gaps[0], dict) else "the motion prior"
     return [("gaps in the sweeps", f"{len(spans)}, {sum(s[1] for s in spans):.1f} s in all ({listed}{more}): "
-                                   "bridged by the motion prior, the poses across them are as good as it is")]
+                                   f"bridged by {bridged_by}; the poses across them are as good as that is")]
 
 
 def _jump_rows(jumps: Any) -> list[tuple[str, str]]:

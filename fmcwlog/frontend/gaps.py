@@ -34,13 +34,14 @@ import dataclasses
 import math
 import statistics
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..config import Checked, param
 from ..kernels.correlative import CorrelativeParams
 from ..kernels.occupancy import OccupancyGrid
+from .odometry_drift import OdometryDriftParams
 from .twist_fusion import WheelNoise
 
 
@@ -66,6 +67,8 @@ class GapParams(Checked):
         (on the 30 s corridor sample with 4 s of sweeps removed at its corner, 11 cm back along the
         new corridor with every point, where the wheels' bridge was 3 cm from the truth: ATE 3.4
         cm, 0.9 cm with the seen points).
+    drift: the motion prior's heading and distance drift, learnt while the scans match and taken
+        out of the bridge (:class:`~.odometry_drift.OdometryDriftParams`).
     """
 
     min_periods: float = param(3.0, "sweep periods", gt=1.0, le=1000.0)
@@ -75,18 +78,25 @@ class GapParams(Checked):
     max_angular_window_deg: float = param(45.0, "deg", gt=0.0, le=180.0)
     max_mahalanobis: float = param(8.0, "standard deviations", gt=0.0, le=1000.0)
     seen_only: bool = True
+    drift: OdometryDriftParams = field(default_factory=OdometryDriftParams)
+
+
+BY_PRIOR = "the motion prior"
+BY_HOLD = "the last twist held (no motion prior: a turn inside a gap is not known)"
 
 
 @dataclass(frozen=True)
 class SweepGap:
     """A gap: ``start`` (s, log time) where the first missing sweep was due (the last sweep's stamp
-    plus one period), ``length`` (s) until the next sweep less that period."""
+    plus one period), ``length`` (s) until the next sweep less that period, and what bridged it
+    (:data:`BY_PRIOR` or :data:`BY_HOLD`)."""
 
     start: float
     length: float
+    bridged_by: str = BY_PRIOR
 
-    def to_json(self) -> dict[str, float]:
-        return {"start_s": round(self.start, 6), "length_s": round(self.length, 6)}
+    def to_json(self) -> dict[str, float | str]:
+        return {"start_s": round(self.start, 6), "length_s": round(self.length, 6), "bridged_by": self.bridged_by}
 
 
 class GapFinder:
@@ -102,8 +112,9 @@ class GapFinder:
     EVERY = 10
     MIN_SEEN = 5
 
-    def __init__(self, min_periods: float, scan_rate: float | None = None):
+    def __init__(self, min_periods: float, scan_rate: float | None = None, bridged_by: str = BY_PRIOR):
         self.min_periods = min_periods
+        self.bridged_by = bridged_by
         self.period = 1.0 / scan_rate if scan_rate else math.inf  # s
         self._given = bool(scan_rate)
         self._last: float | None = None
@@ -119,7 +130,7 @@ class GapFinder:
         dt = stamp - last
         gap = dt > self.min_periods * self.period and (self._given or self._seen >= self.MIN_SEEN)
         if gap:
-            self.gaps.append(SweepGap(last + self.period, dt - self.period))
+            self.gaps.append(SweepGap(last + self.period, dt - self.period, self.bridged_by))
         if not self._given and dt > 0:
             self._recent.append(dt)
             self._seen += 1
@@ -136,7 +147,7 @@ class GapFinder:
         return (f"{len(self.gaps)} gap{'s' if len(self.gaps) > 1 else ''} in the sweeps on {scan_topic} "
                 f"(no sweep, or none with a usable point, for more than {self.min_periods:g} sweep periods; "
                 f"{total:.1f} s in all, the longest {longest.length:.1f} s at {longest.start:.3f} s): "
-                "bridged by the motion prior, the poses across them are as good as it is")
+                f"bridged by {self.bridged_by}; the poses across them are as good as that is")
 
 
 def bridge_covariance(motion: np.ndarray | None, gap: float, noise: WheelNoise) -> np.ndarray:

@@ -76,6 +76,7 @@ from .icp import ICPResult
 from .keyframe_map import KeyframeMap
 from .mirror_check import EITHER, SCANNER, MountCheck
 from .mirror_check import WHEELS as WHEELS_FAULT
+from .odometry_drift import OdometryDrift
 from .params import FrontEndParams
 from .point_to_point_icp import register_point_to_point
 from .recovery import inlier_fraction
@@ -213,6 +214,8 @@ class FrontEnd(ABC):
         self._gap_information: np.ndarray | None = None  # the ICP's soft prior while a gap is bridged
         self._gap_by_prior = False  # the last gap was bridged by the motion prior (else by the hold)
         self.jumps = JumpWatch(params.relocalise)  # sweeps that stop fitting the map: a robot carried away
+        self.drift = OdometryDrift(params.gaps.drift)  # the motion prior's drift, taken out of the gaps' bridges
+        self._registered_prev = False  # the last sweep was matched (its pose is the scans')
 
     # --- what the methods do differently -------------------------------------------------
     @abstractmethod
@@ -356,6 +359,10 @@ class FrontEnd(ABC):
         if jump is not None:
             self.last_key = self.last_grid = None  # the sweep that ends a jump starts the map again from there
         keyframe = False if suspect else self._update_maps(pose, static_map, skew, lidar)
+        registered = iterations > 0 and bridge is None and jump is None and not suspect
+        if registered and self._registered_prev and prior.since_last is not None and self.pose is not None:
+            self.drift.observe(prior.since_last, between_floats(self.pose, pose) or between(self.pose, pose))
+        self._registered_prev = registered
         self.after_step(pose, ts, iterations > 0, prior)
         if prior.twist is None:
             self.hold.update(pose, ts, (v, omega), 0.5 * duration)
@@ -430,11 +437,14 @@ class FrontEnd(ABC):
         return prior.since_last
 
     def _bridge(self, prior: PriorMotion, motion: MotionEstimate) -> tuple[MotionEstimate, np.ndarray]:
-        """The sweep after a gap (:mod:`.gaps`): predicted by the motion prior's motion over the gap
-        (else the estimate's own hold), and the bridge's covariance (3, 3) in the map frame."""
+        """The sweep after a gap (:mod:`.gaps`): predicted by the motion prior's motion over the gap,
+        its drift taken out (:mod:`.odometry_drift`; else the estimate's own hold), and the bridge's
+        covariance (3, 3) in the map frame."""
         assert self.pose is not None
         since = self.gap_motion(prior)
         self._gap_by_prior = since is not None
+        if since is not None:
+            since = self.drift.corrected(since)
         predicted = motion.predicted if since is None else compose(self.pose, since)
         chord = 0.0 if since is None or not np.hypot(since[0], since[1]) > 0 else math.atan2(since[1], since[0])
         cov = to_map(bridge_covariance(since, prior.gap, self.params.wheel_noise), float(self.pose[2]) + chord)

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import LogError
 from ..frontend.deskew_wheels import SweepKnots
-from ..frontend.gaps import GapFinder
+from ..frontend.gaps import BY_HOLD, BY_PRIOR, GapFinder
 from ..frontend.methods import METHODS, FrontEnd, PriorMotion
 from ..frontend.motion_prior import PoseTrack
 from ..frontend.params import FrontEndParams
@@ -89,7 +89,8 @@ class LogRunner:
         self._last_queued_ns: int | None = None
         self._last_stamp: float | None = None  # of the last sweep processed, s
         self._wheel0: np.ndarray | None = None
-        self.gaps = GapFinder(params.gaps.min_periods, cal.scan_rate)  # gaps in the sweeps (:mod:`fmcwlog.frontend.gaps`)
+        self.gaps = GapFinder(params.gaps.min_periods, cal.scan_rate,  # gaps in the sweeps (:mod:`fmcwlog.frontend.gaps`)
+                              BY_PRIOR if topics.prior else BY_HOLD)
 
     def run(self, inputs: Iterable[SweepInput | TicksInput | OdomInput]) -> Iterator[SweepStep]:
         """Process every sweep of ``inputs``; raises :class:`LogError` for input that cannot be."""

@@ -4,9 +4,10 @@ removing (or emptying) the sweeps of a window across its corner (the robot turns
 holding the last twist across the gap goes straight on where the robot turned.
 
 Measured (improved method, ATE RMSE, this sample): clean 0.9 cm; sweeps of 22-24, 21-25, 20-26 s
-removed: 1.0, 0.9, 2.1 cm bridged (41, 204, 199 cm with the last twist held; 1.0, 3.3, 3.3 cm
-bridged but matching every point of the sweep after the gap; wheel odometry 16 cm); 60 empty
-sweeps (20-26 s): 2.1 cm. The thresholds are about twice those.
+removed: 1.0, 1.0, 1.2 cm bridged (41, 204, 199 cm with the last twist held; 1.0, 2.2, 2.1 cm with
+the wheels' drift left in the bridge; 1.0, 3.3, 39 cm bridged but matching every point of the
+sweep after the gap; wheel odometry 16 cm); 60 empty sweeps (20-26 s): 1.2 cm. The target is twice
+the clean log's ATE.
 """
 
 from __future__ import annotations
@@ -68,12 +69,12 @@ def clean_ate(tmp_path_factory) -> float:
     return ate
 
 
-@pytest.mark.parametrize("seconds, limit_m", [(2, 0.02), (4, 0.02), (6, 0.045)])
-def test_a_gap_is_bridged_and_reported(tmp_path, clean_ate, seconds, limit_m):
+@pytest.mark.parametrize("seconds", [2, 4, 6])
+def test_a_gap_is_bridged_and_reported(tmp_path, clean_ate, seconds):
     start = 23.0 - seconds / 2
     log = _gapped(tmp_path / "gap.mcap", start, start + seconds)
     ate, run = _run(log, tmp_path / "out")
-    assert ate < limit_m, f"{seconds} s gap: ATE {100 * ate:.1f} cm (clean {100 * clean_ate:.1f} cm)"
+    assert ate < 2 * clean_ate, f"{seconds} s gap: ATE {100 * ate:.1f} cm (clean {100 * clean_ate:.1f} cm)"
     assert len(run["gaps"]) == 1
     gap = run["gaps"][0]
     assert gap["length_s"] == pytest.approx(seconds, abs=0.05)
@@ -92,6 +93,15 @@ def test_without_the_bridge_the_last_twist_goes_astray(tmp_path):
     assert len(run["gaps"]) == 1
 
 
+def test_the_wheels_drift_left_in_the_bridge_turns_the_rest(tmp_path, clean_ate):
+    """The ablation of ``drift``: the wheels' radii turn their heading 4.4 mrad per metre; left in the
+    bridge of the 6 s across the corner, 19 mrad of heading stays in every pose after it (measured
+    2.1 cm against 1.2, clean 0.9)."""
+    log = _gapped(tmp_path / "gap.mcap", 20.0, 26.0)
+    ate, _ = _run(log, tmp_path / "out", "--set", "frontend.gaps.drift.enabled=false")
+    assert ate > 2 * clean_ate, f"ATE {100 * ate:.1f} cm (clean {100 * clean_ate:.1f} cm)"
+
+
 def test_matching_every_point_after_a_gap_slides_back(tmp_path):
     """The ablation of ``seen_only``: the sweep after a 4 s gap at the corner, matched with the points
     of the new corridor the map has not seen, slides back along it (measured 3.3 cm against 0.9)."""
@@ -103,7 +113,7 @@ def test_matching_every_point_after_a_gap_slides_back(tmp_path):
 def test_sixty_empty_sweeps_are_a_gap(tmp_path):
     log = _gapped(tmp_path / "empty.mcap", 20.0, 26.0, empty=True)
     ate, run = _run(log, tmp_path / "out")
-    assert ate < 0.045, f"ATE {100 * ate:.1f} cm"
+    assert ate < 0.025, f"ATE {100 * ate:.1f} cm"
     assert run["skipped_sweeps"] == 60
     assert len(run["gaps"]) == 1 and run["gaps"][0]["length_s"] == pytest.approx(6.0, abs=0.05)
     assert any("gap" in w for w in run["warnings"]) and any("skipped 60 sweeps" in w for w in run["warnings"])

@@ -38,8 +38,11 @@ see 'fmcwlog compare'.
 A batch folder (what 'fmcwlog process' wrote for many logs) gets each log's report in
 its folder, and fleet.html and fleet.json: a row per log (duration, distance, sweeps,
 ms per sweep, warnings, why it failed, ATE and feature errors where there is ground
-truth), totals, and the logs that need a look: failed ones; with ground truth, the worst
-errors; without, where the two methods disagree most or ICP ran out of correspondences.
+truth), totals, bars of each log's errors and times, each log's map as a thumbnail, and
+the logs that need a look: failed ones; the outliers by ATE, feature error or (without
+ground truth) the methods' disagreement, once there are at least 8 logs to tell an
+outlier by (median + 3.5 x 1.4826 x MAD) and never under 5 cm ATE, 5 % feature error or
+10 cm disagreement; where ICP ran out of correspondences.
 """
 
 
@@ -118,7 +121,7 @@ def _compare(results: list[dict], target: Path) -> None:
 
 def _report_fleet(out_dir: Path) -> None:
     """A batch folder: each log's report (a bar on a terminal), the fleet table, the logs that need a look."""
-    from ..evaluation.fleet import FLEET_HEADER, fleet_rows
+    from ..evaluation.fleet import FLEET_HEADER, fleet_rows, rule_sentences
     from ..evaluation.pages import terminal_table
     from ..evaluation.report import report_fleet
 
@@ -136,6 +139,8 @@ def _report_fleet(out_dir: Path) -> None:
         console.info(f"\nneeds a look ({len(result['flagged'])}):")
         for f in result["flagged"]:
             console.info(f"  {f['name']}: " + "; ".join(f["flags"]))
+    for said in rule_sentences(result)[1:]:  # per metric: ranked, or too few logs to
+        console.info(said)
     for r in result["logs"]:
         if r["report_error"]:
             console.warning(f"{r['name']}: no report: {r['report_error']}")

@@ -274,12 +274,20 @@ def compare_runs(out_dirs: Sequence[str | Path], target: str | Path) -> dict[str
     dirs = [Path(d) for d in out_dirs]
     check_runs(dirs)
     evs = [evaluate(d) for d in dirs]
-    doc = comparison(evs, run_names(dirs))
+    doc, pages = comparison_pages(evs)
     target = Path(target)
     with reported_write_errors(target), created_parents(target / "compare.html"), atomic_batch():
-        write_text(target / "compare.json", json_text(doc))
-        write_text(target / "compare.html", render_html(doc, evs))
+        for name, text in pages.items():
+            write_text(target / name, text)
     return doc
+
+
+def comparison_pages(evs: Sequence[Evaluation]) -> tuple[dict[str, Any], dict[str, str]]:
+    """compare.json's document for the evaluated runs ``evs`` (named by :func:`run_names` of their
+    folders), and the texts of compare.json and compare.html by file name; ``compare`` and a
+    ``report`` of several folders both write these."""
+    doc = comparison(evs, run_names([ev.out_dir for ev in evs]))
+    return doc, {"compare.json": json_text(doc), "compare.html": render_html(doc, evs)}
 
 
 def comparison(evs: Sequence[Evaluation], names: Sequence[str]) -> dict[str, Any]:

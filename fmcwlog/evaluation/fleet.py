@@ -485,7 +485,7 @@ def rule_sentences(result: dict[str, Any]) -> list[str]:
                        f"(at least {rule.get('min_logs', MIN_LOGS_TO_FLAG)} needed).")
         else:
             unit = _unit(m["metric"])
-            out.append(f"{what.capitalize()}: {m['logs']} logs {m['population']}, median {unit(m['median'])}, "
+            out.append(f"{what[0].upper()}{what[1:]}: {m['logs']} logs {m['population']}, median {unit(m['median'])}, "
                        f"flagged above {unit(m['threshold'])}.")
     return out
 

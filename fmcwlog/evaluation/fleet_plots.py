@@ -24,6 +24,7 @@ from .plots import Box, _map_image, _occupied_box, _pyplot, color, label, png
 
 BAR_METHODS = ("improved", "baseline")  # wheel odometry's metres would squash the methods' centimetres
 ROW_IN = 0.32  # inches of figure per log row
+LOG_SPAN = 30.0  # bars whose values span more than this factor get a logarithmic axis
 MAX_THUMBNAILS = 60  # a bigger fleet shows the flagged logs first, then the rest up to this many
 _FLAGGED = "#b71c1c"
 
@@ -36,23 +37,43 @@ def _by_method(rows: list[dict[str, Any]], key: str, methods: tuple[str, ...] | 
             if any(r[key].get(m) is not None for r in rows)]
 
 
-def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str) -> None:
+def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str) -> str:
     """Grouped horizontal bars, one group per name (top to bottom), one bar per series; each bar's value
-    written at its end; a missing value is no bar."""
+    written at its end; a missing value is no bar. Where the values span more than
+    :data:`LOG_SPAN` (a centimetre beside metres), the x axis is logarithmic so the small bars show;
+    returns ``", log scale"`` then for the axis label, else ``""``."""
     y = np.arange(len(names))[::-1].astype(float)
     height = 0.8 / max(1, len(series))
-    top = max([v * unit_scale for _, _, vals in series for v in vals if v is not None] or [1.0])
+    shown = [v * unit_scale for _, _, vals in series for v in vals if v is not None and v > 0]
+    top, low = max(shown or [1.0]), min(shown or [1.0])
+    log = top > LOG_SPAN * low
+    left = 10 ** np.floor(np.log10(low / 2)) if log else 0.0
     for j, (name, colour, vals) in enumerate(series):
         off = (j - (len(series) - 1) / 2) * height
-        xs = [0.0 if v is None else v * unit_scale for v in vals]
-        ax.barh(y - off, xs, height=height * 0.95, color=colour, label=name)
+        xs = [left if v is None else max(v * unit_scale, left) - left for v in vals]
+        ax.barh(y - off, xs, left=left, height=height * 0.95, color=colour, label=name)
         for yi, v in zip(y - off, vals):
             if v is not None:
-                ax.text(v * unit_scale + 0.01 * top, yi, fmt.format(v * unit_scale), va="center", fontsize=7)
+                at = v * unit_scale * 1.08 if log else v * unit_scale + 0.01 * top
+                ax.text(max(at, left), yi, fmt.format(v * unit_scale), va="center", fontsize=7)
     ax.set_yticks(y, names, fontsize=8)
     ax.set_ylim(-0.6, len(names) - 0.4)
-    ax.set_xlim(0, top * 1.15)
+    if log:
+        _log_x(ax)
+        ax.set_xlim(left, top * 3)
+    else:
+        ax.set_xlim(0, top * 1.15)
     ax.grid(True, axis="x", alpha=0.3)
+    return ", log scale" if log else ""
+
+
+def _log_x(ax) -> None:
+    """A log x axis labelled with plain numbers (0.1, 1, 10), as the report's log axes."""
+    from matplotlib.ticker import FuncFormatter, NullLocator
+
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_locator(NullLocator())
 
 
 def _red_flagged(ax, flagged: set[str]) -> None:
@@ -65,8 +86,8 @@ def _red_flagged(ax, flagged: set[str]) -> None:
 def _threshold(ax, rule: dict[str, Any] | None, scale: float) -> None:
     if rule and not rule["too_few"] and rule["threshold"] is not None:
         x = rule["threshold"] * scale
-        ax.axvline(x, color=_FLAGGED, ls="--", lw=1, label=f"outlier threshold ({x:.1f})")
-        ax.set_xlim(0, max(ax.get_xlim()[1], x * 1.1))
+        ax.axvline(x, color=_FLAGGED, ls="--", lw=1, label=f"flagged above ({x:.1f} cm)")
+        ax.set_xlim(right=max(ax.get_xlim()[1], x * 1.1))
 
 
 def _rule(result: dict[str, Any], metric: str) -> dict[str, Any] | None:
@@ -93,19 +114,19 @@ def errors_per_log(result: dict[str, Any]):
     for ax, (kind, rows) in zip(axes[:, 0], panels):
         names = [r["name"] for r in rows]
         if kind == "gt":
-            _bars(ax, names, _by_method(rows, "ate_rmse_m", BAR_METHODS), 100.0, "{:.1f}")
+            scale = _bars(ax, names, _by_method(rows, "ate_rmse_m", BAR_METHODS), 100.0, "{:.1f}")
             _threshold(ax, _rule(result, "ate_rmse_m"), 100.0)
-            ax.set_xlabel("ATE RMSE (cm; SE(2)-aligned to ground truth, as evo_ape -a)")
+            ax.set_xlabel(f"ATE RMSE (cm{scale}; SE(2)-aligned to ground truth, as evo_ape -a)")
             ax.set_title(f"Position error per log ({len(rows)} logs with ground truth)", fontsize=10)
         else:
-            _bars(ax, names, [("improved vs baseline", "#7b1fa2", [r["methods_disagreement_m"] for r in rows])],
-                  100.0, "{:.1f}")
+            scale = _bars(ax, names, [("improved vs baseline", "#7b1fa2", [r["methods_disagreement_m"] for r in rows])],
+                          100.0, "{:.1f}")
             _threshold(ax, _rule(result, "methods_disagreement_m"), 100.0)
-            ax.set_xlabel("disagreement between improved and baseline (cm RMSE after SE(2) alignment)")
+            ax.set_xlabel(f"disagreement between improved and baseline (cm RMSE after SE(2) alignment{scale})")
             ax.set_title(f"How far the methods part per log ({len(rows)} logs without ground truth: "
                          "not an error)", fontsize=10)
         _red_flagged(ax, flagged)
-        ax.legend(fontsize=8, loc="lower right", framealpha=0.9)
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # never over a bar
     return fig
 
 
@@ -120,14 +141,14 @@ def time_per_log(result: dict[str, Any]):
     names = [r["name"] for r in rows]
     h = ROW_IN * len(rows) * max(1, len(methods)) + 1.2
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, h), sharey=False, layout="constrained")
-    _bars(left, names, [("wall clock", "#5c6bc0", [r["wall_s"] for r in rows])], 1.0, "{:.1f}")
-    left.set_xlabel("processing time of the log (s, wall clock)")
+    scale = _bars(left, names, [("wall clock", "#5c6bc0", [r["wall_s"] for r in rows])], 1.0, "{:.1f}")
+    left.set_xlabel(f"processing time of the log (s, wall clock{scale})")
     left.set_title("Processing time per log", fontsize=10)
     if methods:
-        _bars(right, names, _by_method(rows, "ms_per_sweep", methods), 1.0, "{:.1f}")
-        right.set_xlabel("median time per sweep (ms, each method's own step)")
+        scale = _bars(right, names, _by_method(rows, "ms_per_sweep", methods), 1.0, "{:.2f}")
+        right.set_xlabel(f"median time per sweep (ms, each method's own step{scale})")
         right.set_title("Time per sweep per log and method", fontsize=10)
-        right.legend(fontsize=8, loc="lower right", framealpha=0.9)
+        right.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     else:
         right.set_axis_off()
     return fig

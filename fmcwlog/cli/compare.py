@@ -37,8 +37,6 @@ Nothing is written into the runs' folders.
 def compare_cmd(runs: tuple[Path, ...], output: Path) -> None:
     from ..evaluation.compare import check_runs, compare_runs, terminal_rows
     from ..evaluation.pages import terminal_table
-    from ..evaluation.plots import label
-
     check_runs(list(runs))  # before any run is measured; a folder that is not a run: evaluate's one line
     check_folder_can_be_made(output)
     doc = compare_runs(list(runs), output)
@@ -48,7 +46,13 @@ def compare_cmd(runs: tuple[Path, ...], output: Path) -> None:
     for d in doc["differences"]:
         console.info(f"differs: {d['key']}: " + "; ".join(f"{r['name']}={v}" for r, v in zip(doc["runs"], d["values"])))
     console.info(terminal_table(*terminal_rows(doc)))
-    for row in doc["metrics"]:
-        if row["verdict"]:
-            console.info(f"{label(row['method'])}, {row['label']}: {row['verdict']}")
+    for line in said_of(doc):
+        console.info(line)
     console.info(f"wrote {output / 'compare.html'} (and compare.json)")
+
+
+def said_of(doc: dict) -> list[str]:
+    """compare.json's verdicts as lines for the terminal (``compare`` and ``report`` of several runs)."""
+    from ..evaluation.plots import label
+
+    return [f"{label(row['method'])}, {row['label']}: {row['verdict']}" for row in doc["metrics"] if row["verdict"]]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -13,6 +14,9 @@ from .console import console
 from .exits import UserError
 from .paths import as_path
 from .progress import progress
+
+if TYPE_CHECKING:
+    from ..evaluation.evaluate import Evaluation
 
 _REPORT_HELP = """Measure what 'fmcwlog process' wrote in OUT_DIR against the ground truth of the
 log it came from (found through run.json, or --log), and write into OUT_DIR:
@@ -30,16 +34,20 @@ deg/m), each labelled feature's length in the map each method built and its erro
 paper's Tables 2 and 3, and the reduction of the average), precision/recall/F1 of the moving
 points, ms per sweep. What cannot be computed is left empty with the reason.
 
-With several OUT_DIRs, each gets its report and a comparison table is printed and
-written to comparison.md/.json in --output (default: the current folder); for a page
-with what differs, the best run per metric and verdicts beyond the log's own spread,
-see 'fmcwlog compare'.
+With several OUT_DIRs, each gets its report, a comparison table and the verdicts are
+printed, and --output (default: the current folder) gets what 'fmcwlog compare' writes,
+compare.html (what differs between the runs, the best run per metric, verdicts beyond
+the log's own spread, the errors over time overlaid) and compare.json, and the table as
+comparison.md/.json.
 
 A batch folder (what 'fmcwlog process' wrote for many logs) gets each log's report in
 its folder, and fleet.html and fleet.json: a row per log (duration, distance, sweeps,
 ms per sweep, warnings, why it failed, ATE and feature errors where there is ground
-truth), totals, and the logs that need a look: failed ones; with ground truth, the worst
-errors; without, where the two methods disagree most or ICP ran out of correspondences.
+truth), totals, bars of each log's errors and times, each log's map as a thumbnail, and
+the logs that need a look: failed ones; the outliers by ATE, feature error or (without
+ground truth) the methods' disagreement, once there are at least 8 logs to tell an
+outlier by (median + 3.5 x 1.4826 x MAD) and never under 5 cm ATE, 5 % feature error or
+10 cm disagreement; where ICP ran out of correspondences.
 """
 
 
@@ -48,7 +56,7 @@ errors; without, where the two methods disagree most or ICP ran out of correspon
 @click.option("--log", "log", type=click.Path(), callback=as_path, default=None,
               help="The log the folder was processed from (default: the one run.json names).")
 @click.option("-o", "--output", "comparison_dir", type=click.Path(file_okay=False), callback=as_path, default=None,
-              help="Where comparison.md/.json go when several folders are given.  [default: .]")
+              help="Where compare.html/.json and comparison.md/.json go when several folders are given.  [default: .]")
 @click.option("--relations", type=click.Path(dir_okay=False), callback=as_path, default=None,
               help="A Freiburg relations file (t1 t2 x y z roll pitch yaw): the Kuemmerle et al. 2009 metric, "
                    "beside the published figures for that dataset.")
@@ -62,14 +70,22 @@ def report_cmd(out_dirs, log, comparison_dir, relations=None):
         _report_fleet(batches[0])
         return
     if len(out_dirs) > 1:  # refused before any folder gets its report
+        from ..evaluation.compare import check_runs
+
+        check_runs(list(out_dirs))
         check_folder_can_be_made(comparison_dir or Path("."))
-    results = [report_folder(out_dir, log, relations) for out_dir in out_dirs]
-    if len(results) > 1:
-        _compare(results, comparison_dir or Path("."))
+    evs = [report_evaluation(out_dir, log, relations) for out_dir in out_dirs]
+    if len(evs) > 1:
+        _compare(evs, comparison_dir or Path("."))
 
 
 def report_folder(out_dir: Path, log: Path | None, relations: Path | None) -> dict:
     """One output folder's report (``report`` and ``run``): its tables printed, its result returned."""
+    return report_evaluation(out_dir, log, relations).result
+
+
+def report_evaluation(out_dir: Path, log: Path | None, relations: Path | None) -> Evaluation:
+    """One output folder's report: its tables printed, its evaluation returned."""
     from ..evaluation.pages import (
         DISAGREEMENT_HEADER,
         RELATIONS_HEADER,
@@ -102,23 +118,27 @@ def report_folder(out_dir: Path, log: Path | None, relations: Path | None) -> di
         console.info(f"average feature error over the {cmp['features']} feature(s) both maps measure: "
                      f"{change_words(cmp['reduction_pct'])} (the paper: a {PAPER_FEATURE_ERROR_REDUCTION_PCT} % reduction)")
     console.info(f"wrote {ev.out_dir / 'report.html'} (and report.md, report.json)")
-    return ev.result
+    return ev
 
 
-def _compare(results: list[dict], target: Path) -> None:
-    """Several folders' results side by side: a table printed, comparison.md/.json written in ``target``."""
+def _compare(evs: list[Evaluation], target: Path) -> None:
+    """Several folders side by side: the reports' table and compare's verdicts printed; in ``target``,
+    comparison.md/.json and compare's page, compare.html/.json."""
     from ..evaluation.pages import comparison_rows, terminal_table
-    from ..evaluation.report import compare
+    from ..evaluation.report import compare_reported
+    from .compare import said_of
 
-    header, rows = comparison_rows(results)
+    header, rows = comparison_rows([ev.result for ev in evs])
     console.info("\n" + terminal_table(header, rows))
-    written = compare(results, target)
-    console.info(f"wrote {written} and comparison.json")
+    doc = compare_reported(evs, target)
+    for line in said_of(doc):
+        console.info(line)
+    console.info(f"wrote {target / 'compare.html'} (and compare.json, comparison.md, comparison.json)")
 
 
 def _report_fleet(out_dir: Path) -> None:
     """A batch folder: each log's report (a bar on a terminal), the fleet table, the logs that need a look."""
-    from ..evaluation.fleet import FLEET_HEADER, fleet_rows
+    from ..evaluation.fleet import FLEET_HEADER, fleet_rows, rule_sentences
     from ..evaluation.pages import terminal_table
     from ..evaluation.report import report_fleet
 
@@ -136,6 +156,8 @@ def _report_fleet(out_dir: Path) -> None:
         console.info(f"\nneeds a look ({len(result['flagged'])}):")
         for f in result["flagged"]:
             console.info(f"  {f['name']}: " + "; ".join(f["flags"]))
+    for said in rule_sentences(result)[1:]:  # per metric: ranked, or too few logs to
+        console.info(said)
     for r in result["logs"]:
         if r["report_error"]:
             console.warning(f"{r['name']}: no report: {r['report_error']}")

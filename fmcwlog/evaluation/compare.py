@@ -274,12 +274,20 @@ def compare_runs(out_dirs: Sequence[str | Path], target: str | Path) -> dict[str
     dirs = [Path(d) for d in out_dirs]
     check_runs(dirs)
     evs = [evaluate(d) for d in dirs]
-    doc = comparison(evs, run_names(dirs))
+    doc, pages = comparison_pages(evs)
     target = Path(target)
     with reported_write_errors(target), created_parents(target / "compare.html"), atomic_batch():
-        write_text(target / "compare.json", json_text(doc))
-        write_text(target / "compare.html", render_html(doc, evs))
+        for name, text in pages.items():
+            write_text(target / name, text)
     return doc
+
+
+def comparison_pages(evs: Sequence[Evaluation]) -> tuple[dict[str, Any], dict[str, str]]:
+    """compare.json's document for the evaluated runs ``evs`` (named by :func:`run_names` of their
+    folders), and the texts of compare.json and compare.html by file name; ``compare`` and a
+    ``report`` of several folders both write these."""
+    doc = comparison(evs, run_names([ev.out_dir for ev in evs]))
+    return doc, {"compare.json": json_text(doc), "compare.html": render_html(doc, evs)}
 
 
 def comparison(evs: Sequence[Evaluation], names: Sequence[str]) -> dict[str, Any]:
@@ -420,27 +428,29 @@ def errors_over_time(evs: Sequence[Evaluation], names: Sequence[str]):
             t, _, err = ev.aligned[m]
             t0 = float(t[0])
             ax.plot(t - t0, np.maximum(100.0 * err, 1e-3), color=colours[j % len(colours)], lw=1,
-                    label=f"{name} (RMSE {100 * _rms(err):.1f} cm)")
+                    ls=_DASHES[j % len(_DASHES)], label=f"{name} (RMSE {100 * _rms(err):.1f} cm)")
             if j == 0:
                 for part in np.array_split(t - t0, SEGMENTS)[1:]:
                     ax.axvline(float(part[0]), color="#999999", lw=0.6, ls=":")
         _log_y(ax)
         ax.set_ylabel(f"{label(m)}\nerror (cm, log)")
         ax.grid(True, which="major", alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left", frameon=False, ncol=min(3, len(evs)))
+        ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)  # beside: never on a line
     axes[-1, 0].set_xlabel("time since the run's first pose (s); dotted: the segments the spread is measured on")
     fig.suptitle("Position error along the path, each run (SE(2)-aligned to ground truth, as evo_ape -a)")
     return fig
 
 
+_DASHES = ("-", "--", ":", "-.")  # a run equal to another (its wheel odometry, say) still shows under it
 _EXTRA_STYLE = """
 td.best { font-weight: bold; background: #e8f5e9; } td.beyond { color: #b71c1c; }
+tbody td:not(.text) { white-space: nowrap; }
 """
 
 
 def render_html(doc: dict, evs: Sequence[Evaluation]) -> str:
-    """compare.html: the runs, what differs between them, the metrics with the best marked and the
-    verdicts, each trajectory's error over time overlaid across runs, and the notes."""
+    """compare.html: the runs, what differs between them, the verdicts, each trajectory's error over
+    time overlaid across runs, the metrics with the best marked, and the notes."""
     from .pages import _STYLE
     from .plots import png
 
@@ -461,15 +471,15 @@ def render_html(doc: dict, evs: Sequence[Evaluation]) -> str:
     html.escape(f"The runs come from {len(doc['logs'])} different logs: their differences mix the logs' and the settings'.")}</p>
 <h2>What differs between the runs</h2>
 {_differences_html(doc)}
-<h2>Metrics</h2>
-<p>Each cell: the run's value ± its spread, measured from the log's own segments: {html.escape(SPREAD_METHOD)}.
-★ marks the best run of each row; red, a run beyond the spread from it.</p>
-{_metrics_html(doc)}
 <h2>Verdicts</h2>
 {"<ul>" + "".join(f"<li>{html.escape(v)}</li>" for v in verdicts) + "</ul>" if verdicts else
  "<p>No difference between the runs exceeds the spread.</p>"}
 <h2>Position error along the path</h2>
 {figure or "<p>No position errors (no ground truth).</p>"}
+<h2>Metrics</h2>
+<p>Each cell: the run's value ± its spread, measured from the log's own segments: {html.escape(SPREAD_METHOD)}.
+★ marks the best run of each row; red, a run beyond the spread from it.</p>
+{_metrics_html(doc)}
 <h2>Notes</h2>
 {f"<ul>{notes}</ul>" if notes else "<p>None.</p>"}
 </body></html>

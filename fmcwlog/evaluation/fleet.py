@@ -16,24 +16,29 @@ a value cannot be computed):
   ``methods_disagreement_m``, ``icp_starved_sweeps`` (per method), ``flags``;
 - ``totals``: counts, sums, and per method the median and worst ATE over the logs with
   ground truth;
-- ``flagged``: ``{name, flags}`` of every log with a flag, worst first.
+- ``flagged``: ``{name, flags}`` of every log with a flag, worst first;
+- ``outlier_rule``: ``min_logs``, ``z``, ``floors`` (per metric, in its unit) and ``metrics``: per metric
+  and population ranked, ``logs``, ``too_few``, ``median`` and ``threshold`` (None when too few).
 
 What is flagged, and why a person should look:
 
 - a failed log (its reason: more than half of its sweeps skipped as damaged is one, unless
   ``--keep-going``), a log whose report failed, a log cut off before its summary, a log that lost
   more than 5 % of its sweeps;
-- with ground truth: the worst ``FLAG_FRACTION`` of the logs by the improved method's ATE
-  RMSE, and by its average feature-length error, when also ``OUTLIER_RATIO`` times the
-  median of those logs (the worst of a fleet of good logs needs no look);
-- without ground truth: the same by the methods' disagreement (the RMSE
-  between the improved and baseline positions at the same sweeps after the best SE(2)
+- with ground truth: a log whose improved method's ATE RMSE, or average feature-length error, is an
+  outlier among the logs with ground truth (:func:`outliers`);
+- without ground truth: a log whose methods' disagreement is an outlier among the logs without (the
+  RMSE between the improved and baseline positions at the same sweeps after the best SE(2)
   alignment of one onto the other: where two independent estimates part, at least one is
   wrong), and any log where ICP ran out of correspondences (fewer than
   ``icp.min_correspondences`` pairs, so that sweep kept its motion prior) on more than
   ``STARVED_FRACTION`` of its sweeps.
 
-A ranking needs at least two logs to compare; with one log only the absolute flags apply.
+An outlier needs a sample that can show one: fewer than ``MIN_LOGS_TO_FLAG`` logs with a value and
+none is flagged (the page says there are too few to tell); and a value under the metric's
+``ABSOLUTE_FLOOR`` is never flagged, however far from the others (the best of a fleet of good logs
+needs no look). ``outlier_rule`` in fleet.json records the rule and, per metric, how many logs it
+ranked and its threshold.
 """
 
 from __future__ import annotations
@@ -41,7 +46,6 @@ from __future__ import annotations
 import dataclasses
 import html
 import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,8 +61,13 @@ from .evaluate import Evaluation
 from .metrics import ate
 
 FLEET_SCHEMA = "fmcwlog.fleet/1"
-FLAG_FRACTION = 0.10  # the worst tenth of a ranking is flagged (at least one log)...
-OUTLIER_RATIO = 2.0  # ...when it is also at least twice the ranking's median: the worst of good logs is good
+MIN_LOGS_TO_FLAG = 8  # fewer logs with a value: no outlier is flagged, the sample cannot tell one
+OUTLIER_Z = 3.5  # modified z-score (Iglewicz and Hoaglin, 1993) beyond which a value is an outlier
+MAD_TO_SIGMA = 1.4826  # the MAD of a normal sample times this is its standard deviation
+# never flagged below these, whatever the other logs do (the units are the metrics' own)
+ABSOLUTE_FLOOR = {"ate_rmse_m": 0.05, "feature_avg_rel_error_pct": 5.0, "methods_disagreement_m": 0.10}
+FLOOR_WORDS = {"ate_rmse_m": "5 cm ATE RMSE", "feature_avg_rel_error_pct": "5 % average feature-length error",
+               "methods_disagreement_m": "10 cm RMSE disagreement between the methods"}
 STARVED_FRACTION = 0.01  # more than 1 % of sweeps without enough ICP pairs
 _IMPROVED, _BASELINE = IMPROVED, BASELINE
 
@@ -219,24 +228,66 @@ def _primary(row: FleetRow, key: str) -> tuple[str, float] | None:
     return None
 
 
-def _flag_worst(rows: list[FleetRow], value: Callable[[FleetRow], float | None],
-                describe: Callable[[FleetRow, float], str], population: str) -> None:
-    """Flag the worst FLAG_FRACTION (at least one) of ``rows`` by ``value(row)`` (larger is worse)
-    that are also at least OUTLIER_RATIO times the median."""
+@dataclass(frozen=True)
+class OutlierTest:
+    """What :func:`outliers` found for one metric over one population of logs.
+
+    ``threshold`` is in the metric's unit (None when too few logs); ``flagged`` indexes the values given.
+    """
+
+    n: int
+    median: float | None
+    threshold: float | None
+    flagged: tuple[int, ...]
+
+    @property
+    def too_few(self) -> bool:
+        """Fewer values than :data:`MIN_LOGS_TO_FLAG`: nothing could be flagged."""
+        return self.n < MIN_LOGS_TO_FLAG
+
+
+def outliers(values: list[float], floor: float, min_logs: int = MIN_LOGS_TO_FLAG, z: float = OUTLIER_Z) -> OutlierTest:
+    """Which of ``values`` (one per log, larger is worse, any unit) are outliers worth a person's look.
+
+    A value is flagged when all three hold:
+
+    - there are at least ``min_logs`` values (with fewer, the median and the spread say too little:
+      with three logs, "4 times the median" is one bad draw);
+    - it lies above ``median + z * 1.4826 * MAD`` (MAD: the median absolute deviation from the
+      median; 1.4826 * MAD estimates the standard deviation of normal data and, unlike the standard
+      deviation, is not pulled up by the outliers themselves; z = 3.5 is Iglewicz and Hoaglin's
+      modified z-score cut-off); with MAD = 0 (most values equal) any value above the median passes
+      this test and the floor decides;
+    - it is at least ``floor`` (same unit as ``values``): small in absolute terms is never worth a look.
+    """
+    n = len(values)
+    if n < min_logs:
+        return OutlierTest(n, float(np.median(values)) if n else None, None, ())
+    v = np.asarray(values, dtype=float)
+    median = float(np.median(v))
+    threshold = median + z * MAD_TO_SIGMA * float(np.median(np.abs(v - median)))
+    flagged = tuple(int(i) for i in np.flatnonzero((v > threshold) & (v >= floor)))
+    return OutlierTest(n, median, max(threshold, floor), flagged)
+
+
+def _flag_outliers(rows: list[FleetRow], value: Callable[[FleetRow], float | None],
+                   describe: Callable[[FleetRow, float], str], fmt: Callable[[float], str], key: str,
+                   population: str) -> dict[str, Any]:
+    """Flag the rows whose ``value`` is an outlier (:func:`outliers`, the floor of ``key``); returns
+    fleet.json's ``outlier_rule.metrics`` entry for this metric and population."""
     scored = [(v, r) for r in rows if (v := value(r)) is not None]
-    if len(scored) < 2:
-        return
-    k = max(1, math.ceil(FLAG_FRACTION * len(scored)))
-    median = float(np.median([v for v, _ in scored]))
-    for v, r in sorted(scored, key=lambda x: -x[0])[:k]:
-        if v >= OUTLIER_RATIO * median:
-            r.flags.append(f"{describe(r, v)}: among the worst {k} of the {len(scored)} logs {population}, "
-                              f"{v / median:.1f} times their median" if median > 0 else
-                              f"{describe(r, v)}: the worst of the {len(scored)} logs {population}")
+    test = outliers([v for v, _ in scored], ABSOLUTE_FLOOR[key])
+    for i in test.flagged:
+        v, r = scored[i]
+        r.flags.append(f"{describe(r, v)}: an outlier among the {test.n} logs {population} (their median "
+                       f"{fmt(test.median or 0.0)}; flagged above {fmt(test.threshold or 0.0)})")
+    return {"metric": key, "population": population, "logs": test.n, "too_few": test.too_few,
+            "median": test.median, "threshold": test.threshold, "floor": ABSOLUTE_FLOOR[key]}
 
 
-def flag_logs(rows: list[FleetRow]) -> None:
-    """Add to each row's ``flags`` why a person should look at it (see the module's docstring)."""
+def flag_logs(rows: list[FleetRow]) -> list[dict[str, Any]]:
+    """Add to each row's ``flags`` why a person should look at it (see the module's docstring); returns
+    per metric and population what the outlier rule ranked (fleet.json's ``outlier_rule.metrics``)."""
     for r in rows:
         if r.status == "failed":
             r.flags.append(f"failed: {r.reason}")
@@ -250,8 +301,9 @@ def flag_logs(rows: list[FleetRow]) -> None:
     done = [r for r in rows if r.status == "done"]
     with_gt = [r for r in done if r.ground_truth]
     without = [r for r in done if not r.ground_truth]
+    ranked: list[dict[str, Any]] = []
 
-    def ranked(key: str, what: str, fmt: Callable[[float], str]) -> None:
+    def by(key: str, what: str, fmt: Callable[[float], str]) -> None:
         def value(r: FleetRow) -> float | None:
             p = _primary(r, key)
             return None if p is None else p[1]
@@ -260,17 +312,25 @@ def flag_logs(rows: list[FleetRow]) -> None:
             p = _primary(r, key)
             return f"{what} {fmt(v)} ({p[0] if p else '?'})"
 
-        _flag_worst(with_gt, value, describe, "with ground truth")
+        if with_gt:
+            ranked.append(_flag_outliers(with_gt, value, describe, fmt, key, "with ground truth"))
 
-    ranked("ate_rmse_m", "ATE RMSE", lambda v: f"{v * 100:.1f} cm")
-    ranked("feature_avg_rel_error_pct", "feature error", lambda v: f"{v:.2f} %")
-    _flag_worst(without, lambda r: r.methods_disagreement_m,
-                lambda r, v: f"improved and baseline disagree by {v * 100:.1f} cm RMSE", "without ground truth")
+    by("ate_rmse_m", "ATE RMSE", _cm)
+    by("feature_avg_rel_error_pct", "feature error", lambda v: f"{v:.2f} %")
+    if any(r.methods_disagreement_m is not None for r in without):
+        ranked.append(_flag_outliers(without, lambda r: r.methods_disagreement_m,
+                                     lambda r, v: f"improved and baseline disagree by {_cm(v)} RMSE", _cm,
+                                     "methods_disagreement_m", "without ground truth"))
     for r in without:
         sweeps = max(int(r.sweeps or 0), 1)
         for m, n in r.icp_starved_sweeps.items():
             if n > STARVED_FRACTION * sweeps:
                 r.flags.append(f"ICP ({m}) ran out of correspondences on {n} of {sweeps} sweeps")
+    return ranked
+
+
+def _cm(v: float) -> str:
+    return f"{v * 100:.1f} cm"
 
 
 def _totals(rows: list[FleetRow], batch: dict[str, Any]) -> dict[str, Any]:
@@ -292,11 +352,13 @@ def _totals(rows: list[FleetRow], batch: dict[str, Any]) -> dict[str, Any]:
 
 def fleet_result(out_dir: Path, rows: list[FleetRow], batch: dict[str, Any]) -> dict[str, Any]:
     """fleet.json's document: rows flagged, totals, the flagged logs (most flags first)."""
-    flag_logs(rows)
+    ranked = flag_logs(rows)
     flagged = sorted((r for r in rows if r.flags), key=lambda r: (r.status != "failed", -len(r.flags), r.name))
     return {"schema": FLEET_SCHEMA, "out_dir": str(out_dir), "executor": batch.get("executor"),
             "options_sha256": batch.get("options_sha256"), "totals": _totals(rows, batch),
-            "flagged": [{"name": r.name, "flags": r.flags} for r in flagged], "logs": [r.to_json() for r in rows]}
+            "flagged": [{"name": r.name, "flags": r.flags} for r in flagged], "logs": [r.to_json() for r in rows],
+            "outlier_rule": {"min_logs": MIN_LOGS_TO_FLAG, "z": OUTLIER_Z, "floors": dict(ABSOLUTE_FLOOR),
+                             "metrics": ranked}}
 
 
 def _fmt(x: Any, digits: int = 1, scale: float = 1.0) -> str:
@@ -325,7 +387,11 @@ def _cell(text: str, link: str | None = None) -> str:
     return f'<td><a href="{html.escape(link)}">{body}</a></td>' if link else f"<td>{body}</td>"
 
 
-def render_fleet_html(result: dict[str, Any]) -> str:
+def render_fleet_html(result: dict[str, Any], figures: dict[str, str] | None = None) -> str:
+    """fleet.html: totals, the logs that need a look and the rule that flagged them, the figures
+    (``figures``: :func:`fmcwlog.evaluation.fleet_plots.fleet_plots`'s data URIs; none without), the
+    table of every log, the warnings."""
+    figures = figures or {}
     t = result["totals"]
     rows_html = []
     for r, cells in zip(result["logs"], fleet_rows(result)):
@@ -349,6 +415,10 @@ table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.88em; }}
 th, td {{ border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }}
 th {{ background: #f3f3f3; }} td:first-child, th:first-child {{ text-align: left; }}
 tr.failed td {{ background: #fde0e0; }} tr.flagged td {{ background: #fff4d6; }}
+figure {{ margin: 1em 0; }} img {{ max-width: 100%; border: 1px solid #eee; }}
+figcaption {{ font-size: 0.85em; color: #555; }}
+.thumbs {{ display: flex; flex-wrap: wrap; gap: 0.8em; }} .thumbs figure {{ margin: 0; width: 262px; }}
+.thumbs figure.flagged img {{ border: 2px solid #b71c1c; }}
 </style></head><body>
 <h1>fmcwlog fleet: {html.escape(result['out_dir'])}</h1>
 <p>{t['logs']} logs: {t['done']} done, {t['failed']} failed; {t['with_ground_truth']} with ground truth.
@@ -356,20 +426,80 @@ tr.failed td {{ background: #fde0e0; }} tr.flagged td {{ background: #fff4d6; }}
 {_fmt(t['processing_s'])} s of processing{_batch_rate(t)}.</p>
 <h2>Needs a look ({len(result['flagged'])})</h2>
 {"<ul>" + flagged + "</ul>" if flagged else "<p>Nothing flagged.</p>"}
+{_rule_html(result)}
 <h2>ATE over the logs with ground truth</h2>
 {_ate_table(method_rows)}
+{_figure(figures, "errors", "errors per log: ATE RMSE per method (logs with ground truth), how far the methods "
+         "part (logs without); dashed, the outlier threshold where there were logs enough to rank; a flagged "
+         "log's name in red")}
+{_figure(figures, "times", "time per log: processing wall-clock time, and each method's median ms per sweep")}
+{_thumbnails_html(result, figures)}
 <h2>Every log</h2>
 <table><thead><tr>{head}</tr></thead><tbody>{''.join(rows_html)}</tbody></table>
 <p>Each log's name links to its own report. Disagreement: RMSE between the improved and baseline positions
 after the best SE(2) alignment of one onto the other. ICP starved: sweeps where ICP kept fewer pairs than
-it needs and the sweep kept its motion prior.
-Flags: the worst {FLAG_FRACTION:.0%} of the logs with ground
-truth by ATE and by feature error; without ground truth, the worst {FLAG_FRACTION:.0%} by disagreement
-(each only when at least {OUTLIER_RATIO:g} times the median); and any log where ICP ran out of
-correspondences on more than {STARVED_FRACTION:.0%} of its sweeps.</p>
+it needs and the sweep kept its motion prior.</p>
 <h2>Warnings</h2>{"<ul>" + warn + "</ul>" if warn else "<p>None.</p>"}
 </body></html>
 """
+
+
+def _figure(figures: dict[str, str], key: str, caption: str) -> str:
+    if key not in figures:
+        return ""
+    return (f'<figure><img alt="{html.escape(caption)}" src="{figures[key]}"><figcaption>{html.escape(caption)}'
+            "</figcaption></figure>")
+
+
+def _thumbnails_html(result: dict[str, Any], figures: dict[str, str]) -> str:
+    """Each log's map thumbnail (flagged logs first, outlined), its name linking to its report."""
+    by_name = {r["name"]: r for r in result["logs"]}
+    flagged = {f["name"] for f in result["flagged"]}
+    names = [k.split(":", 1)[1] for k in figures if k.startswith("map:")]
+    if not names:
+        return ""
+    outlined = ' class="flagged"'
+    items = "".join(
+        f'<figure{outlined if n in flagged else ""}><img alt="map of {html.escape(n)}" '
+        f'src="{figures["map:" + n]}"><figcaption>{_link(by_name[n])}</figcaption></figure>' for n in names)
+    done = sum(r["status"] == "done" for r in result["logs"])
+    more = f"<p>{done - len(names)} more logs: their maps are in their reports.</p>" if done > len(names) else ""
+    return (f"<h2>Maps</h2><p>The map each log's improved method built (the baseline's where there is none), "
+            f"with its trajectory; flagged logs first, outlined in red.</p><div class=\"thumbs\">{items}</div>{more}")
+
+
+def rule_sentences(result: dict[str, Any]) -> list[str]:
+    """The outlier rule in words, and per metric whether the fleet had logs enough to rank (the page and
+    the terminal say the same)."""
+    rule = result.get("outlier_rule") or {}
+    out = [f"Outliers: a log is flagged by a metric when at least {rule.get('min_logs', MIN_LOGS_TO_FLAG)} logs have "
+           f"it and its value lies above the median + {rule.get('z', OUTLIER_Z):g} × 1.4826 × MAD of those logs "
+           "(a modified z-score over 3.5, robust to the outliers themselves), and never below "
+           + ", ".join(FLOOR_WORDS[k] for k in ABSOLUTE_FLOOR) + f"; failed logs, logs whose report failed, cut "
+           f"off or with many damaged sweeps, and logs where ICP ran out of correspondences on more than "
+           f"{STARVED_FRACTION:.0%} of the sweeps are flagged whatever their number."]
+    for m in rule.get("metrics", []):
+        what = _METRIC_WORDS.get(m["metric"], m["metric"])
+        if m["too_few"]:
+            out.append(f"Too few logs {m['population']} to flag outliers by {what}: {m['logs']} "
+                       f"(at least {rule.get('min_logs', MIN_LOGS_TO_FLAG)} needed).")
+        else:
+            unit = _unit(m["metric"])
+            out.append(f"{what[0].upper()}{what[1:]}: {m['logs']} logs {m['population']}, median {unit(m['median'])}, "
+                       f"flagged above {unit(m['threshold'])}.")
+    return out
+
+
+_METRIC_WORDS = {"ate_rmse_m": "ATE RMSE", "feature_avg_rel_error_pct": "feature error",
+                 "methods_disagreement_m": "the methods' disagreement"}
+
+
+def _unit(metric: str) -> Callable[[float], str]:
+    return (lambda v: f"{v:.2f} %") if metric.endswith("_pct") else _cm
+
+
+def _rule_html(result: dict[str, Any]) -> str:
+    return "".join(f"<p>{html.escape(s)}</p>" for s in rule_sentences(result))
 
 
 def _ate_table(method_rows: str) -> str:
@@ -393,5 +523,7 @@ def _batch_rate(t: dict[str, Any]) -> str:
 def write_fleet(out_dir: Path, result: dict[str, Any]) -> list[Path]:
     """fleet.json and fleet.html in ``out_dir`` (each through a temporary name)."""
     write_text(out_dir / "fleet.json", json_text(result))
-    write_text(out_dir / "fleet.html", render_fleet_html(result))
+    from .fleet_plots import fleet_plots
+
+    write_text(out_dir / "fleet.html", render_fleet_html(result, fleet_plots(out_dir, result)))
     return [out_dir / "fleet.json", out_dir / "fleet.html"]

@@ -41,6 +41,7 @@ COLORS = {"improved": "#1b7837", "baseline": "#c2185b", "wheel_odometry": "#6e6e
           "improved_frontend": "#8fd18a", "baseline_frontend": "#f59ac3"}
 _OTHER_COLORS = ("#1f77b4", "#ff7f0e", "#9467bd", "#17becf", "#bcbd22")
 DPI = 100
+LEGEND_CHARS_PER_INCH = 14.0  # characters of a 9-point legend label per inch of figure, about
 ERROR_CMAP = "turbo"  # dark at both ends, so low and high errors both stand out on white
 
 
@@ -54,6 +55,12 @@ def color(m: str) -> str:
     if m in COLORS:
         return COLORS[m]
     return _OTHER_COLORS[sum(map(ord, m)) % len(_OTHER_COLORS)]  # a peer: stable across runs
+
+
+def line(m: str) -> str:
+    """A trajectory's line style: dashed for a front end's own (often the same as its method's final
+    trajectory, which it would otherwise hide), solid for the rest."""
+    return "--" if m.endswith("_frontend") else "-"
 
 
 def _pyplot():
@@ -82,9 +89,13 @@ def _walls(ax, walls: np.ndarray | None) -> None:
 
 
 def _legend_below(fig, ax, ncol: int) -> None:
-    """A legend under the axes and their x label (the figure must use the constrained layout)."""
+    """A legend under the axes and their x label (the figure must use the constrained layout), in at
+    most ``ncol`` columns and no wider than the figure: a legend wider than its axes would widen the
+    saved image and shrink the whole figure on the page."""
     handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, ncol), fontsize=9, frameon=False)
+    width_chars = fig.get_figwidth() * LEGEND_CHARS_PER_INCH
+    fit = int(width_chars // (max((len(t) for t in labels), default=1) + 6))  # + the line sample and gap
+    fig.legend(handles, labels, loc="outside lower center", ncol=max(1, min(ncol, fit)), fontsize=9, frameon=False)
 
 
 def _log_y(ax, scale: str = "log", **kw) -> None:
@@ -186,7 +197,7 @@ def trajectories_over_walls(ev: Evaluation):
     far = _frame_axes(ax, box, {m: est for m, (_, est, _) in ev.aligned.items()})
     ax.plot(ev.gt[:, 0], ev.gt[:, 1], color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
     for m, (_, est, _) in ev.aligned.items():
-        ax.plot(est[:, 0], est[:, 1], color=color(m), lw=1.2, label=_leaves_label(m, far))
+        ax.plot(est[:, 0], est[:, 1], color=color(m), ls=line(m), lw=1.2, label=_leaves_label(m, far))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title("Trajectories (SE(2)-aligned to ground truth) over the world's walls")
@@ -219,7 +230,7 @@ def xy_yaw_over_time(ev: Evaluation):
         gt_i = ev.gt[:, i] if i < 2 else np.degrees(gt_yaw)
         ax.plot(ev.gt_t - t0, gt_i, color=COLORS["truth"], lw=1.2, ls="--", label="ground truth")
         for m, (t, _, _) in ev.aligned.items():
-            ax.plot(t - t0, series[m][i], color=color(m), lw=1)
+            ax.plot(t - t0, series[m][i], color=color(m), ls=line(m), lw=1)
         framed = np.concatenate([gt_i, *(series[m][i] for m in best)])
         lo, hi = float(np.min(framed)), float(np.max(framed))
         pad = 0.05 * (hi - lo) + (0.5 if i < 2 else 5.0)
@@ -228,7 +239,7 @@ def xy_yaw_over_time(ev: Evaluation):
         ax.set_ylabel(name)
         ax.grid(True, alpha=0.3)
     for m in ev.aligned:  # the legend's entries, once
-        axes[0].plot([], [], color=color(m), lw=1,
+        axes[0].plot([], [], color=color(m), ls=line(m), lw=1,
                      label=f"{label(m)} (leaves the frame)" if m in leaves else label(m))
     axes[-1].set_xlabel("time since the first sweep (s)")
     axes[0].set_title("x, y and yaw over time (SE(2)-aligned to ground truth, as evo_traj --plot)")
@@ -294,7 +305,7 @@ def ate_over_time(ev: Evaluation):
     t0 = _t0(ev)
     fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, (t, _, err) in ev.aligned.items():
-        ax.plot(t - t0, np.maximum(err * 100, 1e-3), color=color(m), lw=1,
+        ax.plot(t - t0, np.maximum(err * 100, 1e-3), color=color(m), ls=line(m), lw=1,
                 label=f"{label(m)} (RMSE {100 * np.sqrt(np.mean(err**2)):.1f} cm)")
     ax.set_xlabel("time since the first sweep (s)")
     ax.set_ylabel("position error (cm, log)")
@@ -318,7 +329,7 @@ def rpe_over_distance(ev: Evaluation):
                     continue
                 marker = "." if len(s.start_m) <= 60 else None  # dots only where they can be told apart
                 for col, y in enumerate((s.trans_pct, s.rot_deg_per_m)):
-                    axes[row, col].plot(s.start_m, np.maximum(y, 1e-4), color=color(m), lw=1, marker=marker, ms=4,
+                    axes[row, col].plot(s.start_m, np.maximum(y, 1e-4), color=color(m), ls=line(m), lw=1, marker=marker, ms=4,
                                         label=label(m))
         axes[row, 0].set_ylabel(f"over {delta:g} m:\ntranslation (% of {delta:g} m)")
         axes[row, 1].set_ylabel(f"over {delta:g} m:\nyaw (deg/m)")
@@ -339,7 +350,7 @@ def heading_over_time(ev: Evaluation):
     t0 = _t0(ev)
     fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, h in ev.heading.items():
-        ax.plot(ev.aligned[m][0] - t0, h, color=color(m), lw=1,
+        ax.plot(ev.aligned[m][0] - t0, h, color=color(m), ls=line(m), lw=1,
                 label=f"{label(m)} (RMSE {np.sqrt(np.mean(h**2)):.2f}°, largest {np.max(np.abs(h)):.2f}°)")
     ax.axhline(0.0, color="#444444", lw=0.6)
     _log_y(ax, "symlog", linthresh=0.1)  # tenths of a degree and tens of degrees on one axis
@@ -495,7 +506,7 @@ def aligned_over_reference_map(ev: Evaluation):
     ax.plot(ref_poses[:, 0], ref_poses[:, 1], color=color(ref), lw=1.4, label=f"{label(ref)} (reference)",
             zorder=3)
     for m, d in ev.disagreements.items():
-        ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), lw=1.1, label=f"{_leaves_label(m, far)}, aligned")
+        ax.plot(d.aligned[:, 0], d.aligned[:, 1], color=color(m), ls=line(m), lw=1.1, label=f"{_leaves_label(m, far)}, aligned")
     ax.set_xlabel(f"x in {ref}/odom (m)")
     ax.set_ylabel(f"y in {ref}/odom (m)")
     ax.set_title(f"Trajectories SE(2)-aligned onto the {label(ref)} one, over its map")
@@ -512,7 +523,7 @@ def disagreement_along(ev: Evaluation):
         return None
     fig, ax = plt.subplots(figsize=(10, 3.4), layout="constrained")
     for m, d in ev.disagreements.items():
-        ax.plot(d.along_m, d.gap_m, color=color(m), lw=1, label=f"{label(m)} (RMSE {d.stats.rmse:.2f} m)")
+        ax.plot(d.along_m, d.gap_m, color=color(m), ls=line(m), lw=1, label=f"{label(m)} (RMSE {d.stats.rmse:.2f} m)")
     ax.set_xlabel(f"distance travelled along the {label(ref)} trajectory (m)")
     ax.set_ylabel(f"distance to {label(ref)} (m)")
     ax.set_title(f"Disagreement with the {label(ref)} trajectory after SE(2) alignment (not an error: "

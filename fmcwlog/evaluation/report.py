@@ -7,7 +7,7 @@ the folder as it was).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -64,8 +64,28 @@ def report_fleet(out_dir: str | Path, on_log: Callable[[int, int, str], None] | 
 def compare(results: list[dict], target: str | Path) -> Path:
     """comparison.md and comparison.json of several reports' results in ``target``; returns the .md."""
     target = Path(target)
-    header, rows = comparison_rows(results)
     with reported_write_errors(target), created_parents(target / "comparison.md"), atomic_batch():
-        write_text(target / "comparison.md", markdown_table(header, rows) + "\n")
-        write_text(target / "comparison.json", json_text(results))
+        for name, text in _comparison_tables(results).items():
+            write_text(target / name, text)
     return target / "comparison.md"
+
+
+def compare_reported(evs: Sequence[Evaluation], target: str | Path) -> dict[str, Any]:
+    """What ``report`` writes for several folders, in ``target``: comparison.md and comparison.json (the
+    reports' tables) and ``compare``'s page, compare.html and compare.json
+    (:func:`fmcwlog.evaluation.compare.comparison_pages`): all four or, if a write fails, none.
+    Returns compare.json's document."""
+    from .compare import check_runs, comparison_pages
+
+    check_runs([ev.out_dir for ev in evs])
+    doc, pages = comparison_pages(evs)
+    target = Path(target)
+    with reported_write_errors(target), created_parents(target / "comparison.md"), atomic_batch():
+        for name, text in {**_comparison_tables([ev.result for ev in evs]), **pages}.items():
+            write_text(target / name, text)
+    return doc
+
+
+def _comparison_tables(results: list[dict]) -> dict[str, str]:
+    header, rows = comparison_rows(results)
+    return {"comparison.md": markdown_table(header, rows) + "\n", "comparison.json": json_text(results)}

@@ -105,3 +105,28 @@ def test_bad_inputs_are_one_line(runs, tmp_path):
         assert not (tmp_path / "out").exists()
     proc = _cli("compare", a, str(runs / "voxel02"))
     assert proc.returncode == 2 and "-o" in proc.stderr
+
+
+@pytest.mark.slow
+def test_report_of_several_runs_writes_compares_page(runs, tmp_path):
+    """``report A B`` gives each run its report and writes what ``compare A B`` writes (one
+    implementation: the same compare.json), beside the reports' table."""
+    import shutil
+
+    for name in ("default", "voxel02"):  # report writes into the runs' folders: copies, the fixture's stay as made
+        shutil.copytree(runs / name, tmp_path / name)
+    a, b = str(tmp_path / "default"), str(tmp_path / "voxel02")
+    proc = _cli("report", a, b, "-o", str(tmp_path / "rep"))
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "default" / "report.html").is_file() and (tmp_path / "voxel02" / "report.html").is_file()
+    assert sorted(p.name for p in (tmp_path / "rep").iterdir()) == ["compare.html", "compare.json", "comparison.json",
+                                                                     "comparison.md"]
+    assert _cli("compare", a, b, "-o", str(tmp_path / "cmp")).returncode == 0
+    assert (tmp_path / "rep" / "compare.json").read_text() == (tmp_path / "cmp" / "compare.json").read_text()
+    doc = json.loads((tmp_path / "rep" / "compare.json").read_text())
+    verdicts = [r["verdict"] for r in doc["metrics"] if r["verdict"]]
+    assert verdicts and all(v in proc.stdout for v in verdicts)  # printed as compare prints them
+    page = (tmp_path / "rep" / "compare.html").read_text()
+    assert "★" in page and "source_voxel" in page
+    proc = _cli("report", a, a, "-o", str(tmp_path / "twice"))  # refused before any report is written
+    assert proc.returncode == 2 and "given twice" in proc.stderr and not (tmp_path / "twice").exists()

@@ -103,7 +103,7 @@ def disk(monkeypatch):
     return d
 
 
-_WHOLE_NAMES = {"run.json", "report.json", MARKER, "comparison.md", "comparison.json"}
+_WHOLE_NAMES = {"run.json", "report.json", MARKER, "comparison.md", "comparison.json", "compare.json"}
 
 
 def _kind(path: str) -> str:
@@ -249,11 +249,12 @@ def test_comparison_on_a_full_disk(tmp_path, disk, short_log):
             shutil.copytree(made, root / name)
 
     args = ["-q", "report", str(root / "a"), str(root / "b"), "-o", str(root / "cmp" / "here")]
-    # the disk fills at comparison.json, when comparison.md is written under its temporary name: neither
-    # may appear, nor the folders made for them; each folder's report was finished before, and stays
-    points = _fill_at_each_file(disk, root, args, prepare, only={"comparison.json"},
+    # the disk fills at comparison.json, when comparison.md is written under its temporary name, or at
+    # compare.json, the page's data: none of the four may appear, nor the folders made for them; each
+    # folder's report was finished before, and stays
+    points = _fill_at_each_file(disk, root, args, prepare, only={"comparison.json", "compare.json"},
                                 complete={"report.json", "report.md", "report.html", "gt.tum"})
-    assert points["comparison.md"] < points["comparison.json"], points
+    assert points["comparison.md"] < points["comparison.json"] < points["compare.json"], points
 
 
 def test_import_on_a_full_disk(tmp_path, disk):

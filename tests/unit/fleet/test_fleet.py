@@ -377,7 +377,7 @@ def _row(name: str, gt: bool, ate: float | None = None, disagree: float | None =
 
 def test_flags_go_to_the_clear_outliers_only():
     rows = [_row(f"gt{i}", True, ate=0.01 + 0.001 * i) for i in range(9)] + [_row("gt-bad", True, ate=0.5)]
-    rows += [_row(f"free{i}", False, disagree=0.02) for i in range(4)] + [_row("free-bad", False, disagree=0.4)]
+    rows += [_row(f"free{i}", False, disagree=0.02) for i in range(7)] + [_row("free-bad", False, disagree=0.4)]
     rows += [_row("starved", False, disagree=0.02, starved=5)]
     flag_logs(rows)
     assert {r.name for r in rows if r.flags} == {"gt-bad", "free-bad", "starved"}
@@ -385,6 +385,9 @@ def test_flags_go_to_the_clear_outliers_only():
     even = [_row(f"e{i}", True, ate=0.01 + 0.0001 * i) for i in range(10)]
     flag_logs(even)
     assert not any(r.flags for r in even)  # the worst of ten good logs needs no look
+    few = [_row(f"f{i}", False, disagree=0.02) for i in range(4)] + [_row("far", False, disagree=0.4)]
+    flag_logs(few)
+    assert not any(r.flags for r in few)  # five logs cannot show an outlier
 
 
 @pytest.mark.slow

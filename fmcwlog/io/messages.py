@@ -106,6 +106,15 @@ def pose7(pose: np.ndarray) -> tuple[float, float, float, float, float, float, f
     return float(pose[0]), float(pose[1]), 0.0, float(q[0]), float(q[1]), float(q[2]), float(q[3])
 
 
+def pose7_array(poses: np.ndarray) -> np.ndarray:
+    """:func:`pose7` of each of ``poses`` (N, 3) at once: (N, 7) float64, the same numbers."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    out = np.zeros((len(poses), 7))
+    out[:, :2] = poses[:, :2]
+    out[:, 3:] = yaw_to_quaternion(poses[:, 2])
+    return out
+
+
 def pose_dict(pose: np.ndarray) -> dict:
     """``geometry_msgs/Pose`` of a planar pose ``(x, y, yaw)``."""
     x, y, z, qx, qy, qz, qw = pose7(pose)

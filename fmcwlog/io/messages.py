@@ -17,6 +17,7 @@ from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 
 # PointField datatype codes (sensor_msgs/PointField) -> numpy dtypes, little-endian.
 POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 8: "<f8"}
+POINTFIELD_NUMPY = {code: np.dtype(name) for code, name in POINTFIELD_DTYPES.items()}  # made once, not per field read
 FLOAT32 = 7
 
 
@@ -75,9 +76,9 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
     out = {}
     for name in names:
         f = by_name[name]
-        if f.datatype not in POINTFIELD_DTYPES:
+        dt = POINTFIELD_NUMPY.get(f.datatype)
+        if dt is None:
             raise ValueError(f"field {name!r} has unknown datatype {f.datatype}")
-        dt = np.dtype(POINTFIELD_DTYPES[f.datatype])
         if n == 0:
             out[name] = np.zeros(0)
             continue

@@ -39,7 +39,7 @@ import numpy as np
 from ..errors import LogError
 from ..types import Calibration, SweepInput
 from .clouds import TIME_FIELD_HELP, CloudReading, TimeField, choose_time_field, is_3d, planar_doppler, plane_band, ring_field
-from .messages import POINTFIELD_DTYPES, pointcloud_columns, stamp_ns
+from .messages import POINTFIELD_NUMPY, pointcloud_columns, stamp_ns
 
 MAX_SPEED = 100.0  # m/s: beyond any wheeled robot carrying a 2-D LiDAR
 MAX_ODOM_POSITION = 1e8  # m: beyond any map frame on Earth (UTM northings reach 1e7 m)
@@ -109,14 +109,14 @@ def _cloud_layout_problem(msg: Any, wanted: list[str]) -> str | None:
     step, n = int(msg.point_step), int(msg.width) * int(msg.height)
     spans = []
     for f in msg.fields:
-        dtype = POINTFIELD_DTYPES.get(f.datatype)
+        dtype = POINTFIELD_NUMPY.get(f.datatype)
         if dtype is None:
             if f.name in wanted:
                 return f"field {f.name!r} has unknown datatype {f.datatype}"
             continue
         if f.name in wanted and f.count < 1:
             return f"field {f.name!r} has count {f.count}"
-        spans.append((int(f.offset), int(f.offset) + np.dtype(dtype).itemsize * max(int(f.count), 1), f.name))
+        spans.append((int(f.offset), int(f.offset) + dtype.itemsize * max(int(f.count), 1), f.name))
     spans.sort()
     end = max((e for _, e, _ in spans), default=0)
     if step < end or step == 0:
@@ -136,18 +136,22 @@ def _check_points(path: Path, what: str, ns: int, xy: np.ndarray, t: np.ndarray,
     """Finite values, point times within the sweep, points within the sensor's reach."""
     if len(t) == 0:
         raise Rejected(path, what, ns, "empty", "no points")
+    # array methods rather than numpy's functions (np.all, np.max): the same reductions, without
+    # the dispatch wrappers, a third of this check's time on a sweep of 1,000 points
     for name, a in (("x or y", xy), ("t", t), ("velocity", velocity)):
-        if a is not None and not np.all(np.isfinite(a)):
+        if a is not None and not np.isfinite(a).all():
             raise Rejected(path, what, ns, "nonfinite", f"{name} holds NaN or infinite values")
     slack = time_slack(limits.max_sweep_s)
-    if t.min() < -slack or t.max() > limits.max_sweep_s + slack:
-        raise Rejected(path, what, ns, "times", f"point times span [{t.min():.10g}, {t.max():.10g}] s"
+    t_min, t_max = t.min(), t.max()
+    if t_min < -slack or t_max > limits.max_sweep_s + slack:
+        raise Rejected(path, what, ns, "times", f"point times span [{t_min:.10g}, {t_max:.10g}] s"
                                                 f"{limits.sweep_bound()}")
-    reach = float(np.max(np.hypot(xy[:, 0], xy[:, 1])))
+    reach = float(np.hypot(xy[:, 0], xy[:, 1]).max())
     if reach > limits.max_range_m:
         raise Rejected(path, what, ns, "range", f"a point lies {reach:.4g} m from the sensor")
-    if velocity is not None and float(np.max(np.abs(velocity))) > 2 * MAX_SPEED:
-        raise Rejected(path, what, ns, "velocity", f"a radial velocity of {float(np.max(np.abs(velocity))):.4g} m/s")
+    fastest = float(np.abs(velocity).max()) if velocity is not None else 0.0
+    if fastest > 2 * MAX_SPEED:
+        raise Rejected(path, what, ns, "velocity", f"a radial velocity of {fastest:.4g} m/s")
 
 
 @dataclass(frozen=True)
@@ -168,8 +172,13 @@ def _drop_no_returns(cols: dict[str, np.ndarray], names: tuple[str, ...]) -> int
     """Remove from every column of ``cols`` the points that are no-returns: a non-finite value in one
     of ``names`` (those read), or ``x`` = ``y`` (= ``z``) = 0. Returns how many were removed."""
     read = [cols[k] for k in names if k in cols]
-    keep = np.logical_and.reduce([np.isfinite(a) for a in read])
-    at_origin = np.logical_and.reduce([cols[k] == 0 for k in ("x", "y", "z") if k in cols])
+    keep = np.isfinite(read[0])  # and-ed in place, column by column (no stacked (k, N) temporary)
+    for a in read[1:]:
+        keep &= np.isfinite(a)
+    origin = [cols[k] for k in ("x", "y", "z") if k in cols]
+    at_origin = origin[0] == 0
+    for a in origin[1:]:
+        at_origin &= a == 0
     keep &= ~at_origin
     dropped = int(keep.size - np.count_nonzero(keep))
     if dropped:

@@ -104,12 +104,13 @@ PARQUET_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
 }
 def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
     """TUM trajectory file: seconds (9 decimals), position (m), quaternion (x, y, z, w)."""
-    q = yaw_to_quaternion(poses[:, 2])
+    q = yaw_to_quaternion(poses[:, 2]).tolist()  # Python floats: the same digits, without numpy scalars per value
     t = np.asarray(stamps_ns, dtype=np.int64)
+    xy = np.asarray(poses, dtype=np.float64)[:, :2].tolist()
     lines = [
         f"{s // 1_000_000_000}.{s % 1_000_000_000:09d} {p[0]:.6f} {p[1]:.6f} 0.0 "
         f"{qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}"
-        for s, p, qq in zip(t.tolist(), poses, q)
+        for s, p, qq in zip(t.tolist(), xy, q)
     ]
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
 

@@ -200,9 +200,10 @@ class TrajectoryRows:
         ints = [values.get(k) for k in self.INTS]
         floats = [values.get(k) for k in self.FLOATS]
         self.method.append(values["method"])
-        self._ints.append([0 if v is None else v for v in ints])
-        self._floats.append([0 if v is None else v for v in floats])
-        self._valid.append([v is not None for v in ints + floats])
+        # tuples: GrowingArray stores them a batch at a time, where a list is converted on its own
+        self._ints.append(tuple(0 if v is None else v for v in ints))
+        self._floats.append(tuple(0 if v is None else v for v in floats))
+        self._valid.append(tuple(v is not None for v in ints + floats))
 
     def column(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Column ``name``'s values (0 where null, a view for the float columns) and validity."""
@@ -284,6 +285,9 @@ def _cloud(stamp: Stamp, frame: str, xy: np.ndarray, velocity: np.ndarray | None
 def _planar_twist(v: float, omega: float) -> tuple[float, ...]:
     """A Twist's linear and angular parts (vx, vy, vz, wx, wy, wz) of a forward speed and a yaw rate."""
     return float(v), 0.0, 0.0, 0.0, 0.0, float(omega)
+
+
+_TEN_DEGREES = np.radians(10)  # rad: a published path keeps a pose at least this far turned from the last
 
 
 class PathPoses:
@@ -393,8 +397,8 @@ class ProcessOutputs:
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
         kept = self._kept.get(name)
-        if kept is None or np.hypot(*(pose[:2] - kept[:2])) >= 0.25 or \
-                abs((pose[2] - kept[2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
+        if kept is None or np.hypot(pose[0] - kept[0], pose[1] - kept[1]) >= 0.25 or \
+                abs((pose[2] - kept[2] + np.pi) % (2 * np.pi) - np.pi) >= _TEN_DEGREES:
             self._kept[name] = pose
             self._decimated[name].append(stamp_ns, p7)
         return at, p7

@@ -118,7 +118,7 @@ class _CloudPlan:
     time: TimeField | None
     time_error: str | None
     ring: str | None
-    wanted: tuple[tuple[str, np.dtype, int], ...]
+    wanted: tuple[tuple[str, np.dtype | None, int], ...]  # a None dtype only where field_problem says so
     field_problem: str | None  # a field read has an unknown datatype or no element
     end: int  # bytes a point's fields span
     overlap: str | None  # two fields share bytes

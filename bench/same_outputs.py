@@ -9,11 +9,12 @@ give the two folders. ``compare`` wants every file byte for byte the same except
 or the moment and place of the run, which differs from run to run of the same commit:
 
 - JSON: the keys ``wall_seconds``, ``seconds``, ``ms_per_sweep_*``, ``sweeps_per_second``,
-  ``report_date_utc`` and ``out_dir`` (the output folder's own path) are left out;
+  ``wall_sweeps_per_second``, ``report_date_utc`` and ``out_dir`` (the output folder's own path) are left out;
 - ``trajectories.parquet``: its ``ms`` column is left out (the other columns compared exactly);
 - text files: the output folder's own path is read as ``OUT``;
 - report pages (``report.md``, ``report.html``): the ``reported by`` line, table columns headed by a
-  time (``ms``, ``sweeps/s``) and the time-per-sweep figure are left out.
+  time (``ms``, ``sweeps/s``), the whole run's wall clock and rate and the time-per-sweep figure are
+  left out.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 REPO = Path(__file__).resolve().parents[1]
-TIMING_KEYS = re.compile(r"^(wall_seconds|seconds|ms_per_sweep\w*|sweeps_per_second|report_date_utc|out_dir)$")
+TIMING_KEYS = re.compile(r"^(wall_seconds|seconds|ms_per_sweep\w*|(wall_)?sweeps_per_second|report_date_utc|out_dir)$")
+WALL_CLOCK = re.compile(r"[0-9.]+ s of wall clock, [0-9.]+ sweeps/s")  # the report's sentence on the whole run
 TIME_HEADER = re.compile(r"\bms\b|sweeps/s")
 SAMPLES = ("corridor_30s", "crowd_30s")
 
@@ -60,7 +62,7 @@ def _without_timings(doc):
 
 def _markdown_page(text: str) -> list[str]:
     lines, masked = [], set()
-    for line in text.splitlines():
+    for line in WALL_CLOCK.sub("*", text).splitlines():
         if line.startswith("- reported by:"):
             continue
         if line.startswith("|"):
@@ -77,7 +79,7 @@ def _markdown_page(text: str) -> list[str]:
 
 
 def _html_page(text: str) -> str:
-    text = re.sub(r"<tr><td>reported by</td><td>[^<]*</td></tr>", "", text)
+    text = re.sub(r"<tr><td>reported by</td><td>[^<]*</td></tr>", "", WALL_CLOCK.sub("*", text))
     text = re.sub(r'<figure><img alt="time per sweep[^"]*" src="[^"]*">', "<figure>", text)
 
     def table(m: re.Match) -> str:

@@ -60,6 +60,7 @@ _.keyframes  # fmcwlog/frontend/keyframe_map.py
 integrate_arcs  # fmcwlog/frontend/odometry.py
 UNITS  # fmcwlog/frontend/self_calibration.py
 pointcloud_message  # fmcwlog/io/messages.py
+pointcloud_columns  # fmcwlog/io/messages.py: a decoded PointCloud2's columns, checked (bench/, tests/; sweeps reads through its cached layout)
 path_message  # fmcwlog/io/messages.py
 find_correspondences  # fmcwlog/kernels/nearest.py
 _.cell_of  # fmcwlog/kernels/occupancy.py

@@ -149,10 +149,16 @@ def ring_field(fields: dict[str, int]) -> str | None:
 def is_3d(z: np.ndarray | None, ring: np.ndarray | None) -> bool:
     """Whether a cloud is 3-D: its ``z`` spreads over more than :data:`FLAT_Z_SPREAD` m, or its ring
     field holds more than one ring."""
-    if ring is not None and len(ring) and np.any(ring != ring[0]):
+    if ring is not None and len(ring) and (ring != ring[0]).any():
         return True
-    finite = z[np.isfinite(z)] if z is not None else np.zeros(0)
-    return bool(len(finite)) and float(np.ptp(finite)) > FLAT_Z_SPREAD
+    if z is None or not len(z):
+        return False
+    finite = np.isfinite(z)
+    if not finite.all():
+        z = z[finite]
+        if not len(z):
+            return False
+    return float(z.max() - z.min()) > FLAT_Z_SPREAD  # np.ptp, without its dispatch
 
 
 def elevation(xyz: np.ndarray) -> np.ndarray:

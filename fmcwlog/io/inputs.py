@@ -210,28 +210,31 @@ class LogInputs:
                 if ns < held[0]:
                     self._skip(stream, "stamp_jump", f"{held[0] * 1e-9:.3f} s between {(stream.last_ns or 0) * 1e-9:.3f} "
                                                      f"s and {ns * 1e-9:.3f} s")
-                else:
-                    yield from self._accept(stream, *held)
+                elif (item := self._accept(stream, *held)) is not None:
+                    yield item
             if stream.last_ns is not None and (ns - stream.last_ns) * 1e-9 > MAX_CLOCK_GAP_S:
                 stream.held = (ns, fields)  # a lone damaged stamp, or a gap in the recording: the next says
                 continue
-            yield from self._accept(stream, ns, fields)
+            if (item := self._accept(stream, ns, fields)) is not None:
+                yield item
         for stream in (self.scan, self.prior):
             if stream is not None and stream.held is not None:  # the log ends after the jump: a gap
                 held, stream.held = stream.held, None
-                yield from self._accept(stream, *held)
+                if (item := self._accept(stream, *held)) is not None:
+                    yield item
         self._check_usable()
 
-    def _accept(self, stream: _Stream, ns: int, fields: Any) -> Iterator[SweepInput | TicksInput | OdomInput]:
+    def _accept(self, stream: _Stream, ns: int, fields: Any) -> SweepInput | TicksInput | OdomInput | None:
+        """The input a message accepted in order makes (None: its gate skipped it)."""
         item = fields if stream is self.scan else self._prior_item(ns, fields)
         if item is None:
-            return
+            return None
         stream.last_ns = ns
         if stream.first_ns is None:
             stream.first_ns = ns
         stream.accepted += 1
         self._check_clocks()
-        yield item
+        return item
 
     def _skip(self, stream: _Stream, kind: str, detail: str) -> None:
         stream.skipped[kind] = stream.skipped.get(kind, 0) + 1
@@ -265,7 +268,7 @@ class LogInputs:
 
     def _read_prior(self, m: Any) -> tuple[int, tuple[int, int] | np.ndarray]:
         """The stamp and the counts (ticks) or pose (odometry) of a motion-prior message."""
-        if self._ticks is not None and not all(hasattr(m.msg, f) for f in ("header", "left", "right")):
+        if self._ticks is not None and not (hasattr(m.msg, "header") and hasattr(m.msg, "left") and hasattr(m.msg, "right")):
             raise LogError(f"{self.path}: {m.topic} is {m.datatype} without the fields header, left and right of "
                            "fmcwlog_msgs/msg/WheelTicks (docs/log-format.md)")
         ns = header_stamp(self.path, "motion prior", m.msg.header)

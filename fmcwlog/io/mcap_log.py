@@ -126,13 +126,48 @@ def tf_cdr(transforms: Sequence[tuple[Stamp, str, str, Pose7]]) -> bytes:
     out = bytearray(_CDR_LE)
     out += _U32.pack(len(transforms))
     for stamp, parent, child, pose in transforms:
-        _pad(out, 4)
-        out += _STAMP.pack(*stamp)
-        _string(out, parent)
-        _string(out, child)
-        _pad(out, 8)
-        out += _POSE7.pack(*pose)
+        _transform(out, stamp, parent, child, pose)
     return bytes(out)
+
+
+def _transform(out: bytearray, stamp: Stamp, parent: str, child: str, pose: Pose7) -> tuple[int, int]:
+    """One TransformStamped of a TFMessage; returns where in ``out`` its stamp and its pose begin."""
+    _pad(out, 4)
+    stamp_at = len(out)
+    out += _STAMP.pack(*stamp)
+    _string(out, parent)
+    _string(out, child)
+    _pad(out, 8)
+    pose_at = len(out)
+    out += _POSE7.pack(*pose)
+    return stamp_at, pose_at
+
+
+def tf_cdr_arrays(stamps_ns: np.ndarray, frames: Sequence[tuple[str, str]], poses: np.ndarray) -> list[bytes]:
+    """:func:`tf_cdr` of M messages of the same K transforms (``frames``: parent and child of each),
+    all of a message's at its stamp: ``stamps_ns`` (M,) int64 ns, ``poses`` (M, K, 7) float64 pose7s.
+    One template (a message of these frames) repeated, with the stamps and poses written in by numpy:
+    1,200 messages of 3 transforms in 1 ms, against 10 ms one by one."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    poses = np.asarray(poses, dtype=np.float64).reshape(len(stamps_ns), len(frames), 7)
+    if len(stamps_ns) == 0:
+        return []
+    out = bytearray(_CDR_LE)
+    out += _U32.pack(len(frames))
+    at = [_transform(out, (0, 0), parent, child, (0.0,) * 7) for parent, child in frames]
+    sec, nanosec = _stamp_columns(stamps_ns)
+    names, formats, offsets = [], [], []
+    for k, (stamp_at, pose_at) in enumerate(at):
+        names += [f"sec{k}", f"nanosec{k}", f"pose{k}"]
+        formats += ["<i4", "<u4", ("<f8", (7,))]
+        offsets += [stamp_at, stamp_at + 4, pose_at]
+    size = len(out)
+    raw = bytearray(bytes(out) * len(stamps_ns))
+    records = np.frombuffer(raw, np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": size}))
+    for k in range(len(frames)):
+        records[f"sec{k}"], records[f"nanosec{k}"], records[f"pose{k}"] = sec, nanosec, poses[:, k]
+    data = bytes(raw)
+    return [data[i:i + size] for i in range(0, len(data), size)]
 
 
 def _dict_pose7(position: dict, orientation: dict) -> Pose7:
@@ -174,12 +209,50 @@ def path_cdr(stamp: Stamp, frame_id: str, poses: PathEntries) -> bytes:
         if name is None:
             raw = frame.encode()
             name = names[frame] = _U32.pack(len(raw) + 1) + raw + b"\0"
-        _pad(out, 4)
-        out += _STAMP.pack(*pose_stamp)
-        out += name  # a string at a 4-byte boundary (after the stamp): no padding before it
-        _pad(out, 8)
-        out += _POSE7.pack(*pose)
+        _path_pose(out, pose_stamp, name, pose)
     return bytes(out)
+
+
+def _path_pose(out: bytearray, stamp: Stamp, name: bytes, pose: Pose7) -> None:
+    """One of a Path's PoseStamped: its header (``name``: the frame as a CDR string), then the 7 float64."""
+    _pad(out, 4)
+    out += _STAMP.pack(*stamp)
+    out += name  # a string at a 4-byte boundary (after the stamp): no padding before it
+    _pad(out, 8)
+    out += _POSE7.pack(*pose)
+
+
+def path_cdr_arrays(stamp: Stamp, frame_id: str, pose_frame: str, stamps_ns: np.ndarray, poses: np.ndarray) -> bytes:
+    """:func:`path_cdr` of poses that share one frame, given as arrays: ``stamps_ns`` (N,) int64 ns and
+    ``poses`` (N, 7) float64, each a pose7; the same bytes. The first pose is encoded as path_cdr does;
+    it ends 8-aligned, so every later pose has the layout of one encoded at the start, and those are
+    that template repeated with the stamps and poses written in by numpy (:func:`_batch_bytes`): a
+    1,200-pose path 0.2 ms, where path_cdr reads it pose by pose in 1.2 ms (3.7 ms making pose7 per pose)."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+    if len(stamps_ns) != len(poses):
+        raise ValueError(f"{len(stamps_ns)} stamps for {len(poses)} poses")
+    if len(stamps_ns) == 0:
+        return path_cdr(stamp, frame_id, [])
+    first = (stamp_pair(int(stamps_ns[0])), pose_frame, tuple(poses[0].tolist()))
+    head = path_cdr(stamp, frame_id, _Counted([first], len(stamps_ns)))
+    template = bytearray(_CDR_LE)  # a pose encoded at an 8-aligned start
+    raw = pose_frame.encode()
+    _path_pose(template, (0, 0), _U32.pack(len(raw) + 1) + raw + b"\0", (0.0,) * 7)
+    return head + _batch_bytes(bytes(template[4:]), 0, stamps_ns[1:], poses[1:])
+
+
+class _Counted:
+    """Path entries that say there are ``count`` of them but give only ``entries`` (the rest follow)."""
+
+    def __init__(self, entries: list, count: int):
+        self.entries, self.count = entries, count
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]:
+        return iter(self.entries)
 
 
 def _path_cdr(m: dict) -> bytes:
@@ -268,12 +341,24 @@ def _pointcloud2_cdr(m: dict) -> bytes:
 def _batch(template: bytes, stamp_at: int, stamps_ns: np.ndarray, tail: np.ndarray) -> list[bytes]:
     """Copies of ``template`` with the stamp of ``stamps_ns[i]`` (int64 ns) as ``(int32 sec, uint32
     nanosec)`` at byte ``stamp_at`` and ``tail[i]`` (N, k) as the last bytes, little endian."""
-    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
-    if len(stamps_ns) == 0:
-        return []
+    size, data = len(template), _batch_bytes(template, stamp_at, stamps_ns, tail)
+    return [data[i:i + size] for i in range(0, len(data), size)]
+
+
+def _stamp_columns(stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sec, nanosec)`` of int64 ns, as :func:`stamp_pair` splits one; the seconds must fit an int32."""
     sec, nanosec = np.divmod(stamps_ns, 1_000_000_000)  # floor, as stamp_pair
     if sec.min() < -(2**31) or sec.max() >= 2**31:
         raise ValueError("a stamp's seconds do not fit a builtin_interfaces/Time (int32)")
+    return sec, nanosec
+
+
+def _batch_bytes(template: bytes, stamp_at: int, stamps_ns: np.ndarray, tail: np.ndarray) -> bytes:
+    """:func:`_batch`'s copies, one after the other in one ``bytes``."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    if len(stamps_ns) == 0:
+        return b""
+    sec, nanosec = _stamp_columns(stamps_ns)
     size, n = len(template), len(stamps_ns)
     tail = np.asarray(tail)
     layout = np.dtype({"names": ["sec", "nanosec", "tail"],
@@ -283,8 +368,7 @@ def _batch(template: bytes, stamp_at: int, stamps_ns: np.ndarray, tail: np.ndarr
     raw = bytearray(template * n)
     records = np.frombuffer(raw, layout)
     records["sec"], records["nanosec"], records["tail"] = sec, nanosec, tail
-    data = bytes(raw)
-    return [data[i:i + size] for i in range(0, size * n, size)]
+    return bytes(raw)
 
 
 _NO_COVARIANCE = (0.0,) * 36

@@ -17,6 +17,7 @@ from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 
 # PointField datatype codes (sensor_msgs/PointField) -> numpy dtypes, little-endian.
 POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "<i2", 4: "<u2", 5: "<i4", 6: "<u4", 7: "<f4", 8: "<f8"}
+POINTFIELD_NUMPY = {code: np.dtype(name) for code, name in POINTFIELD_DTYPES.items()}  # made once, not per field read
 FLOAT32 = 7
 
 
@@ -75,9 +76,9 @@ def pointcloud_columns(msg: Any, names: Iterable[str] = POINT_FIELDS) -> dict[st
     out = {}
     for name in names:
         f = by_name[name]
-        if f.datatype not in POINTFIELD_DTYPES:
+        dt = POINTFIELD_NUMPY.get(f.datatype)
+        if dt is None:
             raise ValueError(f"field {name!r} has unknown datatype {f.datatype}")
-        dt = np.dtype(POINTFIELD_DTYPES[f.datatype])
         if n == 0:
             out[name] = np.zeros(0)
             continue
@@ -104,6 +105,15 @@ def pose7(pose: np.ndarray) -> tuple[float, float, float, float, float, float, f
     """The 7 numbers of a ``geometry_msgs/Pose`` (position, orientation) of a planar pose ``(x, y, yaw)``."""
     q = yaw_to_quaternion(pose[2])
     return float(pose[0]), float(pose[1]), 0.0, float(q[0]), float(q[1]), float(q[2]), float(q[3])
+
+
+def pose7_array(poses: np.ndarray) -> np.ndarray:
+    """:func:`pose7` of each of ``poses`` (N, 3) at once: (N, 7) float64, the same numbers."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    out = np.zeros((len(poses), 7))
+    out[:, :2] = poses[:, :2]
+    out[:, 3:] = yaw_to_quaternion(poses[:, 2])
+    return out
 
 
 def pose_dict(pose: np.ndarray) -> dict:

@@ -33,7 +33,6 @@ input has the robot start at its origin (an imported CARMEN log does).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -52,15 +51,16 @@ from .mcap_log import (
     Stamp,
     float32_cloud_cdr,
     odometry_cdr,
-    path_cdr,
+    path_cdr_arrays,
     point_labels_cdr,
     stamp_pair,
-    tf_cdr,
+    tf_cdr_arrays,
 )
 from .messages import (
     occupancy_grid_message,
     planar_covariance,
     pose7,
+    pose7_array,
     tf_message,
     transform_dict,
 )
@@ -104,12 +104,13 @@ PARQUET_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
 }
 def write_tum(path: Path, stamps_ns: np.ndarray, poses: np.ndarray) -> None:
     """TUM trajectory file: seconds (9 decimals), position (m), quaternion (x, y, z, w)."""
-    q = yaw_to_quaternion(poses[:, 2])
+    q = yaw_to_quaternion(poses[:, 2]).tolist()  # Python floats: the same digits, without numpy scalars per value
     t = np.asarray(stamps_ns, dtype=np.int64)
+    xy = np.asarray(poses, dtype=np.float64)[:, :2].tolist()
     lines = [
         f"{s // 1_000_000_000}.{s % 1_000_000_000:09d} {p[0]:.6f} {p[1]:.6f} 0.0 "
         f"{qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}"
-        for s, p, qq in zip(t.tolist(), poses, q)
+        for s, p, qq in zip(t.tolist(), xy, q)
     ]
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
 
@@ -199,9 +200,10 @@ class TrajectoryRows:
         ints = [values.get(k) for k in self.INTS]
         floats = [values.get(k) for k in self.FLOATS]
         self.method.append(values["method"])
-        self._ints.append([0 if v is None else v for v in ints])
-        self._floats.append([0 if v is None else v for v in floats])
-        self._valid.append([v is not None for v in ints + floats])
+        # tuples: GrowingArray stores them a batch at a time, where a list is converted on its own
+        self._ints.append(tuple(0 if v is None else v for v in ints))
+        self._floats.append(tuple(0 if v is None else v for v in floats))
+        self._valid.append(tuple(v is not None for v in ints + floats))
 
     def column(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Column ``name``'s values (0 where null, a view for the float columns) and validity."""
@@ -285,10 +287,13 @@ def _planar_twist(v: float, omega: float) -> tuple[float, ...]:
     return float(v), 0.0, 0.0, 0.0, 0.0, float(omega)
 
 
+_TEN_DEGREES = np.radians(10)  # rad: a published path keeps a pose at least this far turned from the last
+
+
 class PathPoses:
     """A published path's poses in ``frame``, as numbers: the stamp (ns) and the 7 float64 of the
     pose (:func:`~fmcwlog.io.messages.pose7`) each, 64 bytes a pose where a tuple of Python objects
-    per pose held ~420; read as :func:`~fmcwlog.io.mcap_log.path_cdr`'s entries, the same values."""
+    per pose held ~420; encoded by :func:`~fmcwlog.io.mcap_log.path_cdr_arrays`."""
 
     def __init__(self, frame: str):
         self.frame = frame
@@ -303,23 +308,15 @@ class PathPoses:
     def __len__(self) -> int:
         return len(self._stamps)
 
-    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]:
-        for ns, p in zip(self._stamps.values.tolist(), self._poses.values.tolist()):
-            yield stamp_pair(ns), self.frame, tuple(p)
+    @property
+    def stamps_ns(self) -> np.ndarray:
+        """(N,) int64 ns: each pose's stamp."""
+        return self._stamps.values
 
-
-class _WholePath:
-    """Every pose of a trajectory, stamps (S,) ns and poses (S, 3), as path_cdr's entries."""
-
-    def __init__(self, frame: str, stamps_ns: np.ndarray, poses: np.ndarray):
-        self.frame, self.stamps_ns, self.poses = frame, stamps_ns, poses
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-    def __iter__(self) -> Iterator[tuple[Stamp, str, Pose7]]:
-        for ns, p in zip(self.stamps_ns.tolist(), self.poses):
-            yield stamp_pair(ns), self.frame, pose7(p)
+    @property
+    def poses(self) -> np.ndarray:
+        """(N, 7) float64: each pose's pose7."""
+        return self._poses.values
 
 
 ODOMETRY, POINTCLOUD2 = "nav_msgs/msg/Odometry", "sensor_msgs/msg/PointCloud2"
@@ -400,8 +397,8 @@ class ProcessOutputs:
         self.trajectories[name][0].append(stamp_ns)
         self.trajectories[name][1].append(pose)
         kept = self._kept.get(name)
-        if kept is None or np.hypot(*(pose[:2] - kept[:2])) >= 0.25 or \
-                abs((pose[2] - kept[2] + np.pi) % (2 * np.pi) - np.pi) >= np.radians(10):
+        if kept is None or np.hypot(pose[0] - kept[0], pose[1] - kept[1]) >= 0.25 or \
+                abs((pose[2] - kept[2] + np.pi) % (2 * np.pi) - np.pi) >= _TEN_DEGREES:
             self._kept[name] = pose
             self._decimated[name].append(stamp_ns, p7)
         return at, p7
@@ -462,13 +459,15 @@ class ProcessOutputs:
         before compression: 56 a pose, 1 a cell)."""
         size = 0
         for name, (stamps, poses) in self.trajectories.items():
-            # the whole path (final) from the kept numpy rows, or the decimated one: either made entry
-            # by entry as path_cdr reads it, not held as a list of tuples (~420 bytes a pose)
-            entries = _WholePath(odom_frame(name), stamps.values, poses.values) if final else self._decimated[name]
-            if entries:
-                self.writer.write_cdr(f"/{name}/path", "nav_msgs/msg/Path",
-                                      path_cdr(stamp_pair(stamp_ns), odom_frame(name), entries), stamp_ns)
-                size += 56 * len(entries)
+            # the whole path (final) from the kept numpy rows, or the decimated one
+            if final:
+                path_stamps, path_poses = stamps.values, pose7_array(poses.values)
+            else:
+                path_stamps, path_poses = self._decimated[name].stamps_ns, self._decimated[name].poses
+            if len(path_stamps):
+                self.writer.write_cdr(f"/{name}/path", "nav_msgs/msg/Path", path_cdr_arrays(
+                    stamp_pair(stamp_ns), odom_frame(name), odom_frame(name), path_stamps, path_poses), stamp_ns)
+                size += 56 * len(path_stamps)
         for name, grid in grids.items():
             if grid.width:
                 size += grid.width * grid.height
@@ -502,13 +501,22 @@ class ProcessOutputs:
         row = np.concatenate([np.arange(len(s)) for _, s, _ in kept])
         order = np.lexsort((which, stamps))  # by stamp, then in the trajectories' order
         stamps, which, row = stamps[order], which[order], row[order]
-        starts = np.flatnonzero(np.r_[True, stamps[1:] != stamps[:-1]]).tolist() + [len(stamps)]
+        starts = np.flatnonzero(np.r_[True, stamps[1:] != stamps[:-1]])
+        ends = np.r_[starts[1:], len(stamps)]
         frames = [(odom_frame(n), base_frame(n)) for n, _, _ in kept]
-        for a, b in zip(starts[:-1], starts[1:]):
-            ns = int(stamps[a])
-            at = stamp_pair(ns)
-            self.writer.write_cdr(TF_TOPIC, "tf2_msgs/msg/TFMessage", tf_cdr(
-                [(at, *frames[i], pose7(kept[i][2][j])) for i, j in zip(which[a:b].tolist(), row[a:b].tolist())]), ns)
+        poses7 = [pose7_array(poses) for _, _, poses in kept]
+        # the messages of one set of trajectories share a layout: encoded together (tf_cdr_arrays)
+        groups: dict[tuple[int, ...], list[int]] = {}
+        for m, (a, b) in enumerate(zip(starts.tolist(), ends.tolist())):
+            groups.setdefault(tuple(which[a:b].tolist()), []).append(m)
+        data: list[bytes] = [b""] * len(starts)
+        for members, messages in groups.items():
+            first = starts[messages]
+            poses = np.stack([poses7[i][row[first + k]] for k, i in enumerate(members)], axis=1)
+            for m, encoded in zip(messages, tf_cdr_arrays(stamps[first], [frames[i] for i in members], poses)):
+                data[m] = encoded
+        for ns, encoded in zip(stamps[starts].tolist(), data):
+            self.writer.write_cdr(TF_TOPIC, "tf2_msgs/msg/TFMessage", encoded, ns)
 
     def ms_median(self) -> dict[str, float]:
         """Per trajectory, the median processing time of its sweeps (ms); those never timed are left out."""

@@ -239,13 +239,14 @@ def test_processed_messages_are_encoded_as_mcap_ros2_encodes_them():
     from mcap_ros2._dynamic import serialize_dynamic
 
     from fmcwlog.io import outputs
-    from fmcwlog.io.mcap_log import odometry_cdr, path_cdr, stamp_pair, tf_cdr
+    from fmcwlog.io.mcap_log import odometry_cdr, path_cdr, path_cdr_arrays, stamp_pair, tf_cdr, tf_cdr_arrays
     from fmcwlog.io.messages import (
         odometry_message,
         path_message,
         planar_covariance,
         pointcloud_message,
         pose7,
+        pose7_array,
         tf_message,
         transform_dict,
     )
@@ -278,13 +279,21 @@ def test_processed_messages_are_encoded_as_mcap_ros2_encodes_them():
         reference_path = path(path_message(ns, frame, stamps, poses))
         assert path_cdr(stamp_pair(ns), frame, [(stamp_pair(s), frame, pose7(p)) for s, p in zip(stamps, poses)]) == \
             reference_path
-        # the published paths' poses as process keeps them (numbers, made into entries as read)
+        # the published paths' poses as process keeps them (numbers): the decimated path's pose7s, and
+        # the whole path's (x, y, yaw) made into pose7s at once
         kept = outputs.PathPoses(frame)
         for s, p in zip(stamps, poses):
             kept.append(s, pose7(p))
-        whole = outputs._WholePath(frame, np.array(stamps, np.int64), np.array(poses).reshape(-1, 3))
-        assert len(kept) == len(whole) == n
-        assert path_cdr(stamp_pair(ns), frame, kept) == path_cdr(stamp_pair(ns), frame, whole) == reference_path
+        assert len(kept) == n
+        whole = pose7_array(np.array(poses).reshape(-1, 3))
+        assert path_cdr_arrays(stamp_pair(ns), frame, frame, kept.stamps_ns, kept.poses) == \
+            path_cdr_arrays(stamp_pair(ns), frame, frame, np.array(stamps, np.int64), whole) == reference_path
+        # /tf as process writes it: messages of the same transforms encoded together
+        frames = [(frame, child * k) for k in range(n % 4)]
+        many = rng.normal(size=(3, len(frames), 3)) * 10
+        at = ns + np.arange(3, dtype=np.int64) * 10**8
+        assert tf_cdr_arrays(at, frames, pose7_array(many.reshape(-1, 3)).reshape(3, len(frames), 7)) == [
+            tf(tf_message([transform_dict(int(s), f[0], f[1], p) for f, p in zip(frames, ps)])) for s, ps in zip(at, many)]
 
 
 def test_planar_covariance_places_x_y_yaw_in_the_6x6():

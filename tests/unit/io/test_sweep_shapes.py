@@ -118,3 +118,24 @@ def test_a_scan_beyond_a_full_turn_by_more_than_a_beam_is_refused():
     with pytest.raises(Rejected) as err:
         sweep_from_laserscan(LOG, laserscan(740, -math.pi, 2 * math.pi / 720, 0.1 / 740), limits(10.0))
     assert err.value.kind == "angles"
+
+
+def test_what_a_cloud_layout_allows_is_judged_per_message_after_others_of_the_same_fields():
+    """The fields' own checks are made once per layout; what depends on each message (its byte order,
+    point_step, rows, data) is judged on each, whatever was read before with the same fields."""
+    good = cloud(np.linspace(0.0, 0.09, 40))
+    sweep, _ = sweep_from_pointcloud(LOG, good, limits(10.0))
+    assert len(sweep.xy) == 40
+    bad = [({"is_bigendian": True}, "big-endian"), ({"point_step": 8}, "point_step 8 is smaller"),
+           ({"data": good.data[:-1]}, "data holds"), ({"height": 2, "width": 20}, "rows padded"),
+           ({"height": 2}, "data holds")]
+    for changes, words in bad:
+        msg = SimpleNamespace(**{**vars(good), **changes})
+        with pytest.raises(Rejected, match=words):
+            sweep_from_pointcloud(LOG, msg, limits(10.0))
+    again, _ = sweep_from_pointcloud(LOG, good, limits(10.0))  # and the good one still reads as it did
+    assert np.array_equal(again.xy, sweep.xy) and np.array_equal(again.t, sweep.t)
+    renamed = SimpleNamespace(**{**vars(good), "fields": [SimpleNamespace(**{**vars(f), "name": "y" if f.name == "x" else f.name})
+                                                           for f in good.fields]})
+    with pytest.raises(Rejected, match="no field 'x'"):
+        sweep_from_pointcloud(LOG, renamed, limits(10.0))

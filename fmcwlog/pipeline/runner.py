@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..allocator import release_freed_memory
 from ..errors import LogError
 from ..frontend.deskew_wheels import SweepKnots
 from ..frontend.gaps import GapFinder
@@ -46,7 +45,6 @@ from ..geometry import compose, inverse
 from ..types import MAX_CLOCK_GAP_S, Calibration, InputTopics, OdomInput, SweepInput, SweepResult, TicksInput
 
 MIN_SPAN_S = 1e-3  # s: the shortest window a sweep's prior twist is taken over (a cloud without point times)
-RELEASE_EVERY_SWEEPS = 100  # the heap's freed pages go back to the system this often (allocator.release_freed_memory)
 
 
 @dataclass
@@ -199,6 +197,4 @@ class LogRunner:
         self.doppler = sweep.velocity is not None
         self.sweeps += 1
         self._last_stamp = ts
-        if self.sweeps % RELEASE_EVERY_SWEEPS == 0:
-            release_freed_memory()
         return SweepStep(sweep, results, wheel_pose, prior.twist)

@@ -21,7 +21,6 @@ freed pages back first (``malloc_trim``); the blocks stay the heap's, faulted in
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 from collections.abc import Callable
 from functools import cache
 
@@ -56,10 +55,21 @@ def release_freed_memory() -> bool:
 
 
 @cache
-def _glibc(name: str) -> Callable[..., int] | None:
-    """glibc's function ``name``, looked up once (``find_library`` runs a subprocess); None where
-    there is no such function (macOS, musl without it, Windows)."""
+def _libc() -> ctypes.CDLL | None:
+    """The C library this process runs on, without a lookup: ``dlopen(NULL)`` (the program and what it
+    loaded, libc among them). ``ctypes.util.find_library`` would start ``ldconfig`` in a child, which
+    the kernel charges with this process's peak memory as that child's own (``RUSAGE_CHILDREN``)."""
     try:
-        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
-    except (OSError, AttributeError):
+        return ctypes.CDLL(None)
+    except (OSError, TypeError):  # TypeError: Windows, where there is no such handle
+        return None
+
+
+@cache
+def _glibc(name: str) -> Callable[..., int] | None:
+    """glibc's function ``name``, looked up once; None where there is no such function (macOS, musl
+    without it, Windows)."""
+    try:
+        return getattr(_libc(), name)
+    except AttributeError:
         return None

@@ -64,27 +64,25 @@ def revisit_distances(points: Sequence[np.ndarray], path_m: np.ndarray, frontend
     if candidates.size == 0:
         return None
     queries = candidates[np.unique(np.linspace(0, candidates.size - 1, min(MAX_QUERIES, candidates.size)).astype(int))]
-    thinned: dict[int, np.ndarray] = {}
-
-    def thin(i: int) -> np.ndarray:
-        if i not in thinned:
-            thinned[i] = voxel_downsample(np.asarray(points[i], float), MAP_VOXEL)
-        return thinned[i]
-
-    mine_thinned = {int(q): voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL) for q in queries}
-    per_trajectory = []
-    for poses in (frontend, optimised):
-        distances = []
-        earlier = np.empty((0, 2))
-        nearest, in_tree = None, 0
-        for q in queries:
-            n = int(prefix[q])
-            if nearest is None or n >= in_tree + REBUILD_NODES:  # the earlier map grown by a few metres
-                added = [transform_points(poses[i], thin(i)) for i in range(in_tree, n)]
-                earlier = voxel_downsample(np.concatenate([earlier, *added]), MAP_VOXEL)
-                nearest, in_tree = _Nearest(earlier), n
-            distances.append(np.minimum(nearest.distances(poses[q], mine_thinned[int(q)]), CAP_M))
-        per_trajectory.append(np.concatenate(distances) if distances else np.empty(0))
+    # both trajectories in one pass: each node's points are read (a node's may come back from the
+    # back end's point store) and thinned once, where both earlier maps take them, and none is kept after
+    trajectories = (frontend, optimised)
+    distances: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
+    earlier = [np.empty((0, 2)), np.empty((0, 2))]
+    nearest: list[_Nearest] = []
+    in_tree = 0
+    for q in queries:
+        n = int(prefix[q])
+        if not nearest or n >= in_tree + REBUILD_NODES:  # the earlier maps grown by a few metres
+            added = [voxel_downsample(np.asarray(points[i], float), MAP_VOXEL) for i in range(in_tree, n)]
+            earlier = [voxel_downsample(np.concatenate([e, *(transform_points(poses[i], a) for i, a in
+                                                                zip(range(in_tree, n), added))]), MAP_VOXEL)
+                       for e, poses in zip(earlier, trajectories)]
+            nearest, in_tree = [_Nearest(e) for e in earlier], n
+        mine = voxel_downsample(np.asarray(points[q], float), QUERY_VOXEL)
+        for d, near, poses in zip(distances, nearest, trajectories):
+            d.append(np.minimum(near.distances(poses[q], mine), CAP_M))
+    per_trajectory = [np.concatenate(d) if d else np.empty(0) for d in distances]
     d_front, d_opt = per_trajectory
     revisit = (d_front < CAP_M) | (d_opt < CAP_M)
     if not revisit.any():

@@ -10,6 +10,8 @@ the scan-to-map ICP, in the map frame).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ..geometry import between, rot2
@@ -45,6 +47,20 @@ class Node:
         """Move the points into ``store`` (once); :attr:`points` reads them back."""
         if self._points is not None:
             self._where, self._store, self._points = store.put(self._points), store, None
+
+
+class NodePoints(Sequence):
+    """The points of ``nodes`` (each (N_i, 2) float32, base_link), read one node at a time where they
+    are asked for: those in a :class:`PointStore` are not all brought back into memory at once."""
+
+    def __init__(self, nodes: Sequence[Node]):
+        self._nodes = nodes
+
+    def __len__(self) -> int:
+        return len(self._nodes)
+
+    def __getitem__(self, i):  # an int only
+        return self._nodes[i].points
 
 
 def is_new_node(last: Node | None, pose: np.ndarray, p: BackendParams) -> bool:

@@ -39,7 +39,7 @@ from ..types import SweepResult
 from .candidates import closure_candidates
 from .consistency import RevisitDistances, revisit_distances, worse
 from .graph import Edge, PoseGraph
-from .keyframes import Node, is_new_node, odometry_covariance
+from .keyframes import Node, NodePoints, is_new_node, odometry_covariance
 from .local_edges import LocalMatcher
 from .params import BackendParams
 from .point_store import PointStore
@@ -308,7 +308,7 @@ class PoseGraphBackend:
         revisits = None
         frontend = np.array([n.frontend_pose for n in self.nodes]).reshape(-1, 3)
         if self.records:
-            revisits = revisit_distances([n.points for n in self.nodes], np.array([n.path_m for n in self.nodes]),
+            revisits = revisit_distances(NodePoints(self.nodes), np.array([n.path_m for n in self.nodes]),
                                          frontend, self._estimates)
         keep = revisits is not None and worse(revisits)
         if keep:  # the front end's own: every sweep where it put it, the map from its nodes

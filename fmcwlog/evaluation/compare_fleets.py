@@ -337,10 +337,9 @@ def _bars_figure(doc: dict, row: dict) -> Any:
     logs = [lg["name"] for lg in doc["logs"]]
     series = [(n, colours[j % len(colours)], [vs[j] for vs in row["values"]]) for j, n in enumerate(names)]
     marked = [{names.index(n) for n in best} if len(best) < len(names) else set() for best in row["best"]]
-    fig, ax = plt.subplots(figsize=(9, ROW_IN * len(logs) * max(2, len(names)) * 0.8 + 1.0), layout="constrained")
+    fig, ax = plt.subplots(figsize=(7, ROW_IN * len(logs) * max(2, len(names)) * 0.75 + 0.9), layout="constrained")
     scale = _bars(ax, logs, series, row["scale"], "{:.2f}", marked)
-    ax.set_xlabel(f"{row['label']} ({row['unit']}{scale}); ★ the best fleet of each log")
-    ax.set_title(f"{label(row['method'])}: {row['label']} per log", fontsize=10)
+    ax.set_xlabel(f"{row['label']} ({row['unit']}{scale}); ★ the best fleet of the log")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     return fig
 
@@ -387,6 +386,12 @@ def terminal_rows(doc: dict) -> tuple[list[str], list[list[str]]]:
     return ["trajectory", "metric (median over the paired logs)", *names], rows
 
 
+_PAIR_STYLE = """
+body { max-width: 1300px; } .pair { display: flex; flex-wrap: wrap; gap: 1.5em; align-items: flex-start; }
+.pair figure { flex: 0 1 640px; margin: 0; } .pair > div { flex: 1 1 380px; }
+"""
+
+
 def render_fleets_html(doc: dict) -> str:
     """compare.html of fleets: the fleets, the logs not in every fleet, what differs, the fleet-level
     verdicts and the rule behind them, and per trajectory and metric the per-log bars and table."""
@@ -409,13 +414,13 @@ def render_fleets_html(doc: dict) -> str:
     for row in doc["metrics"]:
         fig = _bars_figure(doc, row)
         what = f"{label(row['method'])}: {row['label']} per log"
-        sections.append(f"<h3>{html.escape(what)}</h3><figure><img alt=\"{html.escape(what)}\" src=\"{png(fig)}\">"
-                        f"<figcaption>{html.escape(what)}; a bar per fleet, the best of each log outlined and ★"
-                        f"</figcaption></figure>{_metric_table(doc, row)}")
+        sections.append(f"<h3>{html.escape(what)}</h3><div class=\"pair\"><figure><img alt=\"{html.escape(what)}\" "
+                        f"src=\"{png(fig)}\"><figcaption>a group of bars per log, a bar per fleet; the best of each log "
+                        f"outlined and ★</figcaption></figure><div>{_metric_table(doc, row)}</div></div>")
     notes = "".join(f"<li>{html.escape(n)}</li>" for n in doc["notes"])
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
-<style>{_STYLE}{_EXTRA_STYLE}</style></head><body>
+<style>{_STYLE}{_EXTRA_STYLE}{_PAIR_STYLE}</style></head><body>
 <h1>{html.escape(title)}</h1>
 <h2>Fleets</h2>
 {fleets}

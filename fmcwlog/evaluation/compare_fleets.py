@@ -81,8 +81,7 @@ SCHEMA = "fmcwlog.compare_fleets/1"
 MIN_PAIRED_LOGS = 5  # fewer paired logs: too few to judge a fleet-level difference
 ALPHA = 0.05  # two-sided significance of the paired t-test
 DISAGREEMENT = "improved vs baseline"  # the trajectory name of the methods' disagreement rows
-_DISAGREEMENT_METRIC = Metric("methods_disagreement_m", "disagreement between improved and baseline (no ground truth)",
-                              "cm", 100.0)
+_DISAGREEMENT_METRIC = Metric("methods_disagreement_m", "disagreement (logs without ground truth)", "cm", 100.0)
 FLEET_METRICS: tuple[Metric, ...] = tuple(m for m in METRICS if m.key in ("ate_rmse_m", "ms_per_sweep_median"))
 TEST_METHOD = (f"per log, the ratio of the two fleets' values, d = ln(B / A); over the n logs with both, the mean d̄, "
                f"its standard error SE = s / √n (s: the standard deviation of d, n − 1 in its denominator); a "
@@ -334,9 +333,11 @@ def _bars_figure(doc: dict, row: dict) -> Any:
     plt = _pyplot()
     names = [f["name"] for f in doc["fleets"]]
     colours = plt.get_cmap("tab10").colors
-    logs = [lg["name"] for lg in doc["logs"]]
-    series = [(n, colours[j % len(colours)], [vs[j] for vs in row["values"]]) for j, n in enumerate(names)]
-    marked = [{names.index(n) for n in best} if len(best) < len(names) else set() for best in row["best"]]
+    shown = _measured(row)
+    logs = [doc["logs"][i]["name"] for i in shown]
+    series = [(n, colours[j % len(colours)], [row["values"][i][j] for i in shown]) for j, n in enumerate(names)]
+    marked = [{names.index(n) for n in best} if len(best) < len(names) else set()
+              for best in (row["best"][i] for i in shown)]
     fig, ax = plt.subplots(figsize=(7, ROW_IN * len(logs) * max(2, len(names)) * 0.75 + 0.9), layout="constrained")
     scale = _bars(ax, logs, series, row["scale"], "{:.2f}", marked)
     ax.set_xlabel(f"{row['label']} ({row['unit']}{scale}); ★ the best fleet of the log")
@@ -349,13 +350,19 @@ def _metric_table(doc: dict, row: dict) -> str:
     names = [f["name"] for f in doc["fleets"]]
     head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
     body = []
-    for lg, vs, best in zip(doc["logs"], row["values"], row["best"]):
+    for i in _measured(row):
+        lg, vs, best = doc["logs"][i], row["values"][i], row["best"][i]
         cells = "".join(_value_td(metric, v, n in best and len(best) < len(names)) for n, v in zip(names, vs))
         body.append(f'<tr><td class="text">{html.escape(lg["name"])}</td>{cells}</tr>')
     medians = "".join(f"<td><b>{html.escape(_cell(metric, v))}</b></td>" for v in row["medians"])
     body.append(f'<tr><td class="text"><b>median over the logs</b></td>{medians}</tr>')
     return (f'<table><thead><tr><th class="text">log</th>{head}</tr></thead><tbody>{"".join(body)}</tbody></table>'
             + "".join(f"<p>{html.escape(_said(c))}</p>" for c in row["comparisons"]))
+
+
+def _measured(row: dict) -> list[int]:
+    """The paired logs (their indices) with a value of this row in at least one fleet."""
+    return [i for i, vs in enumerate(row["values"]) if any(v is not None for v in vs)]
 
 
 def _said(c: dict) -> str:

@@ -53,9 +53,11 @@ def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str,
     for j, (name, colour, vals) in enumerate(series):
         off = (j - (len(series) - 1) / 2) * height
         xs = [left if v is None else max(v * unit_scale, left) - left for v in vals]
-        stars = [marked is not None and j in marked[i] for i in range(len(vals))]
-        ax.barh(y - off, xs, left=left, height=height * 0.95, color=colour, label=name,
-                edgecolor=["#111111" if st else colour for st in stars], linewidth=[1.4 if st else 0 for st in stars])
+        stars = [marked is not None and j in marked[i] and v is not None for i, v in enumerate(vals)]
+        ax.barh(y - off, xs, left=left, height=height * 0.95, color=colour, label=name)
+        if any(stars):  # the outline drawn apart: the legend's swatch stays plain
+            ax.barh([yi for yi, st in zip(y - off, stars) if st], [x for x, st in zip(xs, stars) if st], left=left,
+                    height=height * 0.95, fill=False, edgecolor="#111111", linewidth=1.4)
         for yi, v, st in zip(y - off, vals, stars):
             if v is not None:
                 at = v * unit_scale * 1.08 if log else v * unit_scale + 0.01 * top

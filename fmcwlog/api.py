@@ -16,6 +16,7 @@ half-written behind. This module only gathers the names; each lives in its layer
 from __future__ import annotations
 
 from .evaluation.compare import compare_runs
+from .evaluation.compare_fleets import compare_fleets
 from .evaluation.evaluate import Evaluation, evaluate
 from .evaluation.report import compare, report, report_fleet
 from .fleet.batch import BatchSummary, process_many
@@ -35,4 +36,4 @@ from .sim.scenarios import scenario
 __all__ = ["SimConfig", "ProcessParams", "FrontEndParams", "ProcessOptions", "ProcessSummary", "Evaluation", "Limits",
            "BatchSummary", "RecordSummary", "ImportSummary", "ImportOutcome", "CalibrateSummary",
            "scenario", "record", "process", "process_many", "evaluate", "report", "report_fleet", "is_batch_folder",
-           "compare", "compare_runs", "import_carmen", "import_carmen_many", "calibrate"]
+           "compare", "compare_runs", "compare_fleets", "import_carmen", "import_carmen_many", "calibrate"]

@@ -27,6 +27,16 @@ position errors along the path, the per-pair RPE, the time of each sweep) is cut
 segments, the metric computed on each; a difference counts beyond twice the two runs'
 spreads combined. Runs of different logs are compared too, and the page says so.
 Nothing is written into the runs' folders.
+
+\b
+Fleets: given batch folders only (what 'fmcwlog process' writes for many logs, e.g. the
+same logs with two settings), the logs are paired across them by the log they were made
+from (sha256), and compare.html shows what differs between the fleets, per metric (ATE
+RMSE, median ms per sweep; without ground truth, how far improved and baseline part) a
+group of bars per log with a bar per fleet and the best marked, a table with each
+fleet's median, and a verdict only where a paired t-test on the per-log ratios says
+p < 0.05 (5 paired logs at least). Logs not in every fleet are listed, not compared.
+A run and a batch folder cannot be mixed.
 """
 
 
@@ -35,8 +45,10 @@ Nothing is written into the runs' folders.
 @click.option("-o", "--output", type=click.Path(file_okay=False), callback=as_path, required=True,
               help="The folder compare.html and compare.json go into (made if missing).")
 def compare_cmd(runs: tuple[Path, ...], output: Path) -> None:
-    from ..evaluation.compare import check_runs, compare_runs, terminal_rows
+    from ..evaluation.compare import check_runs, compare_runs, is_batch, terminal_rows
     from ..evaluation.pages import terminal_table
+    if runs and is_batch(runs[0]):
+        return _compare_fleets(list(runs), output)
     check_runs(list(runs))  # before any run is measured; a folder that is not a run: evaluate's one line
     check_folder_can_be_made(output)
     doc = compare_runs(list(runs), output)
@@ -56,3 +68,23 @@ def said_of(doc: dict) -> list[str]:
     from ..evaluation.plots import label
 
     return [f"{label(row['method'])}, {row['label']}: {row['verdict']}" for row in doc["metrics"] if row["verdict"]]
+
+
+def _compare_fleets(fleets: list[Path], output: Path) -> None:
+    """Batch folders: their logs paired, per-log values per fleet, the fleet-level verdicts."""
+    from ..evaluation.compare_fleets import check_fleets, compare_fleets, terminal_rows, verdict_lines
+    from ..evaluation.pages import terminal_table
+    check_fleets(fleets)  # before any log is measured
+    check_folder_can_be_made(output)
+    doc = compare_fleets(fleets, output)
+    for u in doc["unpaired"]:
+        console.warning(f"{u['name']}: only in {', '.join(u['in'])}: not compared")
+    for d in doc["differences"]:
+        console.info(f"differs: {d['key']}: " + "; ".join(f"{f['name']}={v}" for f, v in zip(doc["fleets"], d["values"])))
+    console.info(terminal_table(*terminal_rows(doc)))
+    if len(doc["logs"]) < doc["test"]["min_logs"]:
+        console.warning(f"{len(doc['logs'])} paired log(s): too few to judge the fleets (at least "
+                        f"{doc['test']['min_logs']} needed); the per-log values are on the page")
+    for line in verdict_lines(doc) or ["no clear difference between the fleets on any metric"]:
+        console.info(line)
+    console.info(f"wrote {output / 'compare.html'} (and compare.json)")

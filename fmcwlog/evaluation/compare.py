@@ -22,7 +22,8 @@ moving-point F1 have no segment series: their rows are marked best but carry no 
 - ``runs``: per run ``name`` (the folder's name, its parent's too where two share one),
   ``out_dir``, ``log``, ``log_sha256``, ``sweeps``, ``wall_seconds``, ``wall_sweeps_per_second``,
   ``params_sha256_12``;
-- ``same_log``: whether every run comes from one log (by run.json's sha256, else its path), and
+- ``same_log``: whether every run comes from one log (:func:`log_identity`: run.json's sha256, else
+  the log's file name), and
   ``logs``: the distinct logs;
 - ``differences``: every run.json setting that differs between the runs: ``key`` (``params.a.b``
   for a parameter, else run.json's own key) and ``values`` (per run, ``null`` where a run lacks it);
@@ -252,9 +253,19 @@ def differences(runs: Sequence[dict]) -> list[dict[str, Any]]:
             if any(f.get(k) != flats[0].get(k) for f in flats[1:])]
 
 
+def log_identity(run: dict) -> str:
+    """Which log a run was made from, to tell runs of one log: run.json's ``log_sha256`` where it has
+    one, else the log's file name (a run written before logs were digested)."""
+    sha = run.get("log_sha256")
+    if isinstance(sha, str) and sha:
+        return sha
+    return Path(str(run.get("log") or "")).name
+
+
 def check_runs(out_dirs: Sequence[Path]) -> None:
     """Refuse, in one line naming the folder, what cannot be compared: fewer than two runs, a folder
-    given twice, a batch folder; a folder that is not a run is refused by :func:`evaluate`."""
+    given twice, a batch folder among runs; a folder that is not a run is refused by :func:`evaluate`.
+    Batch folders only are fleets (:mod:`fmcwlog.evaluation.compare_fleets`)."""
     if len(out_dirs) < 2:
         raise ReportError(f"{out_dirs[0] if out_dirs else 'compare'}: compare needs two runs or more "
                           "('fmcwlog report' measures one)")
@@ -264,8 +275,14 @@ def check_runs(out_dirs: Sequence[Path]) -> None:
         if key in seen:
             raise ReportError(f"{d}: given twice (as {seen[key]})")
         seen[key] = d
-        if is_batch_folder(d) and not (d / "run.json").is_file():
-            raise ReportError(f"{d}: a batch folder (many logs), not a run; compare its log folders, e.g. {d}/<log>")
+        if is_batch(d):
+            raise ReportError(f"{d}: a batch folder (many logs) among single runs; compare batch folders with batch "
+                              f"folders only, or its log folders, e.g. {d}/<log>, with runs")
+
+
+def is_batch(d: Path) -> bool:
+    """A batch folder (many logs' results), not one run."""
+    return is_batch_folder(d) and not (d / "run.json").is_file()
 
 
 def compare_runs(out_dirs: Sequence[str | Path], target: str | Path) -> dict[str, Any]:
@@ -293,7 +310,7 @@ def comparison_pages(evs: Sequence[Evaluation]) -> tuple[dict[str, Any], dict[st
 def comparison(evs: Sequence[Evaluation], names: Sequence[str]) -> dict[str, Any]:
     """compare.json's document for the evaluated runs ``evs`` named ``names``."""
     runs = [_run_row(ev, n) for ev, n in zip(evs, names)]
-    logs = list(dict.fromkeys(r["log_sha256"] or r["log"] for r in runs))
+    logs = list(dict.fromkeys(log_identity(ev.run) for ev in evs))
     notes = []
     if len(logs) > 1:
         notes.append(f"the runs come from {len(logs)} different logs: a difference between them mixes the logs' "
@@ -402,11 +419,11 @@ def _runs_html(doc: dict) -> str:
     return _table(["run", "folder", "log", "sweeps", "sweeps/s (the run's wall clock)", "parameters digest"], rows)
 
 
-def _differences_html(doc: dict) -> str:
-    if not doc["differences"]:
-        return "<p>None: every run.json setting and parameter is the same in every run.</p>"
-    names = [r["name"] for r in doc["runs"]]
-    return _table(["setting", *names], [[d["key"], *(_plain(v) for v in d["values"])] for d in doc["differences"]])
+def differences_html(differences: list[dict], names: Sequence[str], what: str = "run") -> str:
+    """The table of ``differences`` (:func:`differences`), a column per run (or fleet) named ``names``."""
+    if not differences:
+        return f"<p>None: every run.json setting and parameter is the same in every {what}.</p>"
+    return _table(["setting", *names], [[d["key"], *(_plain(v) for v in d["values"])] for d in differences])
 
 
 def errors_over_time(evs: Sequence[Evaluation], names: Sequence[str]):
@@ -470,7 +487,7 @@ def render_html(doc: dict, evs: Sequence[Evaluation]) -> str:
 <p>{"All runs come from one log." if doc["same_log"] else
     html.escape(f"The runs come from {len(doc['logs'])} different logs: their differences mix the logs' and the settings'.")}</p>
 <h2>What differs between the runs</h2>
-{_differences_html(doc)}
+{differences_html(doc["differences"], names)}
 <h2>Verdicts</h2>
 {"<ul>" + "".join(f"<li>{html.escape(v)}</li>" for v in verdicts) + "</ul>" if verdicts else
  "<p>No difference between the runs exceeds the spread.</p>"}

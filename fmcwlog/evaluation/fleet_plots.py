@@ -37,9 +37,11 @@ def _by_method(rows: list[dict[str, Any]], key: str, methods: tuple[str, ...] | 
             if any(r[key].get(m) is not None for r in rows)]
 
 
-def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str) -> str:
+def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str,
+          marked: list[set[int]] | None = None) -> str:
     """Grouped horizontal bars, one group per name (top to bottom), one bar per series; each bar's value
-    written at its end; a missing value is no bar. Where the values span more than
+    written at its end; a missing value is no bar; ``marked[i]``: the series whose bar of name ``i`` is
+    outlined and starred (the best of its group). Where the values span more than
     :data:`LOG_SPAN` (a centimetre beside metres), the x axis is logarithmic so the small bars show;
     returns ``", log scale"`` then for the axis label, else ``""``."""
     y = np.arange(len(names))[::-1].astype(float)
@@ -51,11 +53,16 @@ def _bars(ax, names: list[str], series: Series, unit_scale: float, fmt: str) -> 
     for j, (name, colour, vals) in enumerate(series):
         off = (j - (len(series) - 1) / 2) * height
         xs = [left if v is None else max(v * unit_scale, left) - left for v in vals]
+        stars = [marked is not None and j in marked[i] and v is not None for i, v in enumerate(vals)]
         ax.barh(y - off, xs, left=left, height=height * 0.95, color=colour, label=name)
-        for yi, v in zip(y - off, vals):
+        if any(stars):  # the outline drawn apart: the legend's swatch stays plain
+            ax.barh([yi for yi, st in zip(y - off, stars) if st], [x for x, st in zip(xs, stars) if st], left=left,
+                    height=height * 0.95, fill=False, edgecolor="#111111", linewidth=1.4)
+        for yi, v, st in zip(y - off, vals, stars):
             if v is not None:
                 at = v * unit_scale * 1.08 if log else v * unit_scale + 0.01 * top
-                ax.text(max(at, left), yi, fmt.format(v * unit_scale), va="center", fontsize=7)
+                ax.text(max(at, left), yi, fmt.format(v * unit_scale) + (" ★" if st else ""), va="center",
+                        fontsize=7, fontweight="bold" if st else "normal")
     ax.set_yticks(y, names, fontsize=8)
     ax.set_ylim(-0.6, len(names) - 0.4)
     if log:

@@ -85,6 +85,7 @@ def _compare_fleets(fleets: list[Path], output: Path) -> None:
     if len(doc["logs"]) < doc["test"]["min_logs"]:
         console.warning(f"{len(doc['logs'])} paired log(s): too few to judge the fleets (at least "
                         f"{doc['test']['min_logs']} needed); the per-log values are on the page")
-    for line in verdict_lines(doc) or ["no clear difference between the fleets on any metric"]:
-        console.info(line)
+    else:
+        for line in verdict_lines(doc) or ["no clear difference between the fleets on any metric"]:
+            console.info(line)
     console.info(f"wrote {output / 'compare.html'} (and compare.json)")

@@ -266,18 +266,24 @@ def check_runs(out_dirs: Sequence[Path]) -> None:
     """Refuse, in one line naming the folder, what cannot be compared: fewer than two runs, a folder
     given twice, a batch folder among runs; a folder that is not a run is refused by :func:`evaluate`.
     Batch folders only are fleets (:mod:`fmcwlog.evaluation.compare_fleets`)."""
+    check_distinct(out_dirs, "runs", "'fmcwlog report' measures one")
+    for d in out_dirs:
+        if is_batch(d):
+            raise ReportError(f"{d}: a batch folder (many logs) among single runs; compare batch folders with batch "
+                              f"folders only, or its log folders, e.g. {d}/<log>, with runs")
+
+
+def check_distinct(out_dirs: Sequence[Path], what: str, one: str) -> None:
+    """Refuse, in one line naming the folder, fewer than two folders (``what``: "runs", "fleets";
+    ``one``: what to do with one instead) and a folder given twice."""
     if len(out_dirs) < 2:
-        raise ReportError(f"{out_dirs[0] if out_dirs else 'compare'}: compare needs two runs or more "
-                          "('fmcwlog report' measures one)")
+        raise ReportError(f"{out_dirs[0] if out_dirs else 'compare'}: compare needs two {what} or more ({one})")
     seen: dict[Path, Path] = {}
     for d in out_dirs:
         key = d.resolve()
         if key in seen:
             raise ReportError(f"{d}: given twice (as {seen[key]})")
         seen[key] = d
-        if is_batch(d):
-            raise ReportError(f"{d}: a batch folder (many logs) among single runs; compare batch folders with batch "
-                              f"folders only, or its log folders, e.g. {d}/<log>, with runs")
 
 
 def is_batch(d: Path) -> bool:

@@ -67,6 +67,7 @@ from .compare import (
     Metric,
     _cell,
     _table,
+    check_distinct,
     differences,
     differences_html,
     is_batch,
@@ -116,15 +117,8 @@ def fleet_logs(out_dir: Path) -> list[FleetLog]:
 def check_fleets(out_dirs: Sequence[Path]) -> None:
     """Refuse, in one line naming the folder: fewer than two fleets, a folder given twice, a folder that
     is not a batch folder (a single run among fleets included)."""
-    if len(out_dirs) < 2:
-        raise ReportError(f"{out_dirs[0] if out_dirs else 'compare'}: compare needs two fleets or more "
-                          "('fmcwlog report' gives one fleet's page)")
-    seen: dict[Path, Path] = {}
+    check_distinct(out_dirs, "fleets", "'fmcwlog report' gives one fleet's page")
     for d in out_dirs:
-        key = d.resolve()
-        if key in seen:
-            raise ReportError(f"{d}: given twice (as {seen[key]})")
-        seen[key] = d
         if not d.is_dir():
             raise ReportError(f"{d}: no such folder")
         if not is_batch(d):

@@ -1,4 +1,4 @@
-"""The motion prior's heading drift, learnt from the scans while they match: what a gap's bridge corrects.
+"""The motion prior's drift in heading and distance, learnt from the scans while they match: what a gap's bridge corrects.
 
 Frames and units: base_link; metres, radians.
 

@@ -472,11 +472,13 @@ def _taken(caught: list[warnings.WarningMessage]) -> list[tuple[str, type[Warnin
 def _inputs(task: ChildTask) -> Iterator[SweepInput | TicksInput | OdomInput]:
     """The log's inputs, read here as the parent reads them; the reading's warnings dropped (the
     parent's say them), an error reading it :class:`_InputsFailed` (the parent's is raised)."""
-    items = iter(LogInputs(open_log(task.log), task.topics, task.cal, task.reading))
+    items: Iterator[SweepInput | TicksInput | OdomInput] | None = None
     while True:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
+                if items is None:  # opened here too: what opening the log says, the parent said
+                    items = iter(LogInputs(open_log(task.log), task.topics, task.cal, task.reading))
                 item = next(items)
             except StopIteration:
                 return

@@ -38,6 +38,7 @@ bridge's motion: ``s = s_w / (1 + c)``, ``Δψ = (Δψ_w - a s) / (1 + b)``, the
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,7 +144,7 @@ class OdometryDrift:
         self.distance = RunningFit(1)  # x = (s_s,), e = s_w - s_s
         self.path = 0.0  # m of registered intervals observed
 
-    def observe(self, prior_motion: np.ndarray, scan_motion: np.ndarray) -> None:
+    def observe(self, prior_motion: Sequence[float] | np.ndarray, scan_motion: Sequence[float] | np.ndarray) -> None:
         """One registered interval: the prior's motion and the scans' over it (x, y, yaw;
         base_link at its start, m and rad)."""
         p = self.params

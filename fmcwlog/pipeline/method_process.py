@@ -10,11 +10,12 @@ close: the run's wall time is bounded by the larger, and the parent's adds the r
 the outputs to the cheaper method's. The outputs stay byte for byte those of one process,
 because the parent still writes every one of them, in the same order:
 
-- the parent reads the log once (:class:`~fmcwlog.io.inputs.LogInputs`) and hands the child
-  the same inputs, in the same order, a sweep at a time, up to :data:`READ_AHEAD_SWEEPS` ahead
-  of its own methods (so the child need not wait for them); an error reading the log is raised
-  by each process where its methods reach it, the parent's own (:class:`_InputFeed`), and the
-  warnings of the reading are said where one process says them;
+- each process reads the log itself (:class:`~fmcwlog.io.inputs.LogInputs`, the same inputs in
+  the same order): a sweep decoded in the child costs it about what pickling it and sending it
+  through a pipe cost the parent, and the parent is the busier of the two (2-minute corridor, both
+  methods: wall 2.90 → 2.70 s, the same bytes). The reading's warnings are the parent's (the child
+  drops its own); an error reading the log is raised by the parent where its methods reach it,
+  and ends the child's inputs there (:class:`_InputsFailed`);
 - per sweep the child sends its methods' :class:`~fmcwlog.types.SweepResult`\\ s, which join
   the parent's in the order of ``methods`` before the outputs take the sweep; each carries its
   ``processed.mcap`` messages encoded in the child (:class:`EncodedResult`) instead of its points,
@@ -67,18 +68,20 @@ import sys
 import threading
 import traceback
 import warnings
-from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..allocator import keep_freed_memory
 from ..backend import BackendResult, PoseGraphBackend
 from ..errors import FmcwlogError, MethodProcessError
+from ..io.clouds import CloudReading
+from ..io.inputs import LogInputs
+from ..io.logs import open_log
 from ..io.outputs import ProcessOutputs, SweepMessages, sweep_messages
 from ..kernels import compiled
 from ..kernels.occupancy import OccupancyGrid
@@ -92,9 +95,6 @@ if TYPE_CHECKING:
 
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"  # numbers in the module docstring
 _JOIN_S = 5.0  # s to wait for a child that was told to end, or has ended, before it is killed
-# sweeps the parent reads, and hands the child, ahead of its own methods: the child runs ahead by
-# up to this many sweeps (and one publishing period), which evens out their sweeps' costs
-READ_AHEAD_SWEEPS = 20
 
 
 def usable_cpus() -> int:
@@ -120,9 +120,10 @@ def child_methods(methods: tuple[str, ...], jobs: int | None) -> tuple[str, ...]
 
 @dataclass(frozen=True)
 class ChildTask:
-    """What the child runs: ``methods`` over the inputs of ``log`` (named in its errors) read on
-    ``topics`` (by the parent), with ``cal`` and ``params``, each with a pose-graph back end if
-    ``backend``; paths and maps are published no more often than every ``publish_period_ns`` of log."""
+    """What the child runs: ``methods`` over the inputs of ``log`` read on ``topics`` as ``reading``
+    says (:class:`~fmcwlog.io.clouds.CloudReading`), with ``cal`` and ``params``, each with a
+    pose-graph back end if ``backend``; paths and maps are published no more often than every
+    ``publish_period_ns`` of log."""
 
     log: Path
     methods: tuple[str, ...]
@@ -131,6 +132,7 @@ class ChildTask:
     topics: InputTopics
     backend: bool
     publish_period_ns: int
+    reading: CloudReading
     order: tuple[str, ...] = ()  # every method of the run, as the outputs take them (default: ``methods``)
 
     def rank(self, method: str) -> int:
@@ -238,10 +240,9 @@ class MethodProcess:
         ctx = get_context(START_METHOD)
         results_in, results_out = ctx.Pipe(duplex=False)
         schedule_in, schedule_out = ctx.Pipe(duplex=False)
-        inputs_in, inputs_out = ctx.Pipe(duplex=False)
-        own_ends = (results_in, schedule_out, inputs_out) if START_METHOD == "fork" else ()
+        own_ends = (results_in, schedule_out) if START_METHOD == "fork" else ()
         self._proc = ctx.Process(target=  # type: ignore[attr-defined]  # typeshed's BaseContext lacks it
-                                 _child_main, args=(task, results_out, schedule_in, inputs_in, own_ends),
+                                 _child_main, args=(task, results_out, schedule_in, own_ends),
                                  name=f"fmcwlog {'+'.join(task.methods)}", daemon=True)
         # SIGINT blocked while it starts (the child inherits the mask, then ignores SIGINT): Ctrl-C
         # is the parent's to handle, and it ends the child
@@ -252,10 +253,7 @@ class MethodProcess:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         results_out.close()
         schedule_in.close()
-        inputs_in.close()
         self._schedule = schedule_out
-        self._sender = _Sender(inputs_out)
-        self._feed: _InputFeed | None = None
         self._inbox: queue.Queue = queue.Queue()
         # read as the child sends, so that it never waits for the parent to make room in the pipe
         self._reader = threading.Thread(target=_read_all, args=(results_in, self._inbox), daemon=True)
@@ -275,13 +273,7 @@ class MethodProcess:
         if self._proc.exitcode is None:
             self._proc.kill()
             self._proc.join()
-        self._sender.stop()  # the child has ended: a send waiting on it fails
         self._reader.join()
-
-    def feed(self, inputs: Iterable[SweepInput | TicksInput | OdomInput]) -> Iterator[SweepInput | TicksInput | OdomInput]:
-        """``inputs`` (the log's, in order) for this process's methods, each handed to the child too."""
-        self._feed = _InputFeed(inputs, self._sender.put)
-        return iter(self._feed)
 
     def steps(self, local: Iterable[SweepStep], maps: dict, outputs: ProcessOutputs) -> Iterator[SweepStep]:
         """``local``'s steps with the child's results of each sweep joined in the order of
@@ -295,7 +287,10 @@ class MethodProcess:
             except Exception:
                 self._raise_if_first()
                 raise
-            msg = self._receive()
+            try:
+                msg = self._receive()
+            except _InputsFailed:  # the child could not read what this process read
+                raise self._out_of_step("reading the log") from None
             if step is None:
                 if not isinstance(msg, _End):
                     raise self._out_of_step("the end of the log")
@@ -323,9 +318,13 @@ class MethodProcess:
 
     def _raise_if_first(self) -> None:
         """Where this process failed on a sweep: the child's error on the same sweep, if its method
-        comes first (in one process it runs first, so its error is the one raised)."""
+        comes first (in one process it runs first, so its error is the one raised); where the child's
+        inputs ended there too (reading the log failed for both), this process's own error stands."""
         if self.task.rank(self.methods[0]) == 0:
-            self._receive()  # its next message: that sweep's results, or its error (raised)
+            try:
+                self._receive()  # its next message: that sweep's results, or its error (raised)
+            except _InputsFailed:
+                pass
 
     def end(self) -> _End:
         """The child's back ends, grids and diagnostics (waiting for them)."""
@@ -345,9 +344,8 @@ class MethodProcess:
 
     def _receive(self) -> _Sweep | _End:
         msg = self._inbox.get()
-        if isinstance(msg, _Error) and isinstance(msg.error, _InputsFailed) and self._feed is not None \
-                and self._feed.error is not None:  # the child reached where reading the log failed
-            raise self._feed.error
+        if isinstance(msg, _Error) and isinstance(msg.error, _InputsFailed):  # reading the log failed there
+            raise msg.error
         if isinstance(msg, _Error):  # raised as one process would have: an FmcwlogError is one line
             if not isinstance(msg.error, FmcwlogError):  # a bug: where it was, in the child
                 msg.error.add_note(f"raised in {self._who()}:\n{msg.trace}")
@@ -371,98 +369,8 @@ class MethodProcess:
 
 
 class _InputsFailed(Exception):
-    """Raised in the child where its inputs end in the parent's error reading the log."""
-
-
-class _InputFeed:
-    """The log's inputs for the parent's methods and the child's: each is read once, here, up to
-    :data:`READ_AHEAD_SWEEPS` sweeps ahead of the parent's methods, and sent to the child as it is
-    read (``send``: a list of inputs ending with a sweep, or at the end of the log, with how it
-    ended). The parent's methods get each input where they ask for it, after the warnings its
-    reading raised; an error reading the log (:attr:`error`) is raised where they reach it, and the
-    child raises :class:`_InputsFailed` where it does."""
-
-    def __init__(self, inputs: Iterable[SweepInput | TicksInput | OdomInput], send: Any):
-        self._items = iter(inputs)
-        self._send = send
-        self._ahead: deque[tuple[Any, list[warnings.WarningMessage]]] = deque()  # (input or None: the end, warnings)
-        self._sweeps_ahead = 0
-        self._batch: list = []
-        self._done = False
-        self.error: Exception | None = None
-
-    def __iter__(self) -> Iterator[SweepInput | TicksInput | OdomInput]:
-        while True:
-            self._read_ahead()
-            item, said = self._ahead.popleft()
-            for w in said:  # where one process raises them: while reading this input
-                warnings.warn(w.message, w.category, stacklevel=1)
-            if item is None:
-                if self.error is not None:
-                    raise self.error
-                return
-            if isinstance(item, SweepInput):
-                self._sweeps_ahead -= 1
-            yield item
-
-    def _read_ahead(self) -> None:
-        while not self._done and (self._sweeps_ahead < READ_AHEAD_SWEEPS or not self._ahead):
-            item = self._read()
-            self._ahead.append(item)
-            if item[0] is None:
-                self._send((self._batch, "error" if self.error is not None else "end"))
-                return
-            self._batch.append(item[0])
-            if isinstance(item[0], SweepInput):
-                self._sweeps_ahead += 1
-                self._send((self._batch, None))
-                self._batch = []
-
-    def _read(self) -> tuple[Any, list[warnings.WarningMessage]]:
-        """The next input (None at the end of the log or where reading it fails) and the warnings raised."""
-        with warnings.catch_warnings(record=True) as said:
-            warnings.simplefilter("always")
-            try:
-                return next(self._items), said
-            except StopIteration:
-                pass
-            except Exception as exc:  # noqa: BLE001 (raised where the methods reach it)
-                self.error = exc
-        self._done = True
-        return None, said
-
-
-_STOP = object()
-
-
-class _Sender:
-    """Sends to the child from a thread of its own, in order, so that the parent never waits for
-    the child to make room in the pipe; once the child has ended, what is left is dropped."""
-
-    def __init__(self, conn: Connection):
-        self.conn = conn
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def put(self, msg: Any) -> None:
-        self._queue.put(msg)
-
-    def stop(self) -> None:
-        self._queue.put(_STOP)
-        self._thread.join(_JOIN_S)
-        self.conn.close()
-
-    def _run(self) -> None:
-        broken = False
-        while (msg := self._queue.get()) is not _STOP:
-            if broken:
-                continue
-            try:
-                self.conn.send(msg)
-            except Exception:  # noqa: BLE001 (the child has ended, or this cannot be sent: the child,
-                broken = True  # its inputs closed, ends, and its results say how)
-                self.conn.close()
+    """Raised in the child where reading the log fails; the parent, reading the same log, raises its
+    own error there."""
 
 
 def _exit_reason(code: int | None) -> str:
@@ -494,7 +402,7 @@ def _read_all(conn: Connection, inbox: queue.Queue) -> None:
 # --- the child ------------------------------------------------------------------------------
 
 
-def _child_main(task: ChildTask, out: Connection, schedule: Connection, inputs: Connection, own_ends: tuple) -> None:
+def _child_main(task: ChildTask, out: Connection, schedule: Connection, own_ends: tuple) -> None:
     """The child process: runs the task, sends its messages, and ends quietly however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the command line's (fork copies it): a SIGTERM ends us
@@ -503,7 +411,7 @@ def _child_main(task: ChildTask, out: Connection, schedule: Connection, inputs: 
         conn.close()
     die_with_parent()
     try:
-        _run(task, out, schedule, inputs)
+        _run(task, out, schedule)
     except (BrokenPipeError, EOFError, ConnectionResetError):  # the parent is gone, or done with us
         pass
     except BaseException as exc:  # noqa: BLE001 (every error goes to the parent, which raises it)
@@ -524,7 +432,7 @@ def _send_error(out: Connection, exc: BaseException) -> None:
         pass
 
 
-def _run(task: ChildTask, out: Connection, schedule: Connection, inputs: Connection) -> None:
+def _run(task: ChildTask, out: Connection, schedule: Connection) -> None:
     keep_freed_memory()
     runner = LogRunner(task.methods, task.params, task.cal, task.topics, task.log)
     backends = {m: PoseGraphBackend(task.params.backend, np.asarray(task.cal.mount), task.params.map_resolution)
@@ -532,7 +440,7 @@ def _run(task: ChildTask, out: Connection, schedule: Connection, inputs: Connect
     publish = _Schedule(schedule, task.publish_period_ns)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for step in runner.run(_received(inputs)):
+        for step in runner.run(_inputs(task)):
             msg = _Sweep(step.sweep.stamp_ns, step.results, None, [])
             for r in step.results:
                 try:
@@ -561,15 +469,22 @@ def _taken(caught: list[warnings.WarningMessage]) -> list[tuple[str, type[Warnin
     return taken
 
 
-def _received(conn: Connection) -> Iterator[SweepInput | TicksInput | OdomInput]:
-    """The inputs the parent hands over (:class:`_InputFeed`), in order, to the end of the log."""
+def _inputs(task: ChildTask) -> Iterator[SweepInput | TicksInput | OdomInput]:
+    """The log's inputs, read here as the parent reads them; the reading's warnings dropped (the
+    parent's say them), an error reading it :class:`_InputsFailed` (the parent's is raised)."""
+    items: Iterator[SweepInput | TicksInput | OdomInput] | None = None
     while True:
-        items, end = conn.recv()
-        yield from items
-        if end == "error":
-            raise _InputsFailed
-        if end == "end":
-            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                if items is None:  # opened here too: what opening the log says, the parent said
+                    items = iter(LogInputs(open_log(task.log), task.topics, task.cal, task.reading))
+                item = next(items)
+            except StopIteration:
+                return
+            except Exception:  # noqa: BLE001 (the parent's reading raises it)
+                raise _InputsFailed from None
+        yield item
 
 
 class _Schedule:

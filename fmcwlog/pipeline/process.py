@@ -118,7 +118,7 @@ def process(log: str | Path, out_dir: str | Path, opts: ProcessOptions | None = 
             own_grids = {fe.name: fe.grid for fe in runner.fronts}
             grids: dict[str, Any] = {m: own_grids.get(m) for m in opts.methods}  # the child's: its maps, as published
             backends = _backends(opts, cal, elsewhere)
-            steps = runner.run(inputs if elsewhere is None else elsewhere.feed(inputs))
+            steps = runner.run(inputs)
             if elsewhere is not None:
                 steps = elsewhere.steps(steps, grids, outputs)
             try:
@@ -265,7 +265,7 @@ def _methods_elsewhere(log: Path, opts: ProcessOptions, cal: Calibration, topics
         yield None
         return
     task = ChildTask(log, methods, opts.params, cal, topics, opts.backend == "pose-graph",
-                     int(opts.publish_period * 1e9), tuple(opts.methods))  # as ProcessOutputs has it
+                     int(opts.publish_period * 1e9), opts.cloud_reading(), tuple(opts.methods))  # as ProcessOutputs has it
     with MethodProcess(task) as child:
         yield child
 

@@ -39,7 +39,7 @@ class RunRecord:
     truncated_log: the log ends without its summary (a recording cut off).
     gaps: each gap in the sweeps (:mod:`fmcwlog.frontend.gaps`: no sweep, or none with a usable point,
         for more than ``frontend.gaps.min_periods`` sweep periods): ``start_s`` (log time, s, where the
-        first missing sweep was due) and ``length_s`` (s).
+        first missing sweep was due), ``length_s`` (s) and ``bridged_by`` (what bridged it).
     jumps: per method, each jump it found (:mod:`fmcwlog.frontend.relocalise`: a robot carried away, its
         sweeps no longer fitting the map where the motion prior put them): ``start_s`` (log time, s, the
         first sweep that did not fit), ``found_s`` (the sweep that ended it), ``kind`` (``relocalised``
@@ -82,7 +82,7 @@ class RunRecord:
     wall_seconds: float
     calibration_check: CalibrationCheck | None = field(default=None)
     many_skipped_sweeps: dict[str, Any] | None = field(default=None)
-    gaps: list[dict[str, float]] = field(default_factory=list)
+    gaps: list[dict[str, float | str]] = field(default_factory=list)
     jumps: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     lidar_upside_down: bool = False
 

@@ -20,7 +20,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from helpers import assert_one_line_error, record_scenario, run_cli_here
@@ -31,7 +30,6 @@ from fmcwlog.errors import LogError, MapSizeError, MethodProcessError, OutputErr
 from fmcwlog.frontend.methods import BaselineFrontEnd, ImprovedFrontEnd
 from fmcwlog.io.inputs import LogInputs
 from fmcwlog.pipeline import method_process
-from fmcwlog.types import SweepInput, TicksInput
 
 TIMINGS = {"wall_seconds", "seconds", "ms_per_sweep_median"}
 needs_fork = pytest.mark.skipif(method_process.START_METHOD != "fork",
@@ -283,73 +281,12 @@ def test_method_process_error_names_the_way_out():
     assert method_process._exit_reason(3) == "exit status 3"
 
 
-# --- the log read once, by the parent, and handed to the child ------------------------------
-
-
-def _inputs(n_sweeps: int, ticks_between: int = 3) -> list:
-    items: list = []
-    for k in range(n_sweeps):
-        items += [TicksInput(k * 100 + j, j, j) for j in range(ticks_between)]
-        items.append(SweepInput(k * 100 + 50, np.full((2, 2), float(k)), np.zeros(2), None, None))
-    return items + [TicksInput(10**9, 0, 0)]
-
-
-def _feed(items, sent: list):
-    return method_process._InputFeed(items, sent.append)
-
-
-def test_the_feed_hands_every_input_over_in_order_a_sweep_at_a_time():
-    items, sent = _inputs(30), []
-    got = list(_feed(items, sent))
-    assert got == items
-    assert [i for batch, _ in sent for i in batch] == items
-    assert all(isinstance(batch[-1], SweepInput) and end is None for batch, end in sent[:-1])
-    assert sent[-1] == ([items[-1]], "end")
-
-
-def test_the_feed_reads_a_bounded_number_of_sweeps_ahead():
-    items, pulled = _inputs(100), []
-
-    def reading():
-        for item in items:
-            pulled.append(item)
-            yield item
-
-    feed = iter(_feed(reading(), []))
-    for consumed in range(1, 200):
-        next(feed)
-        ahead = sum(isinstance(i, SweepInput) for i in pulled) - sum(isinstance(i, SweepInput) for i in items[:consumed])
-        assert ahead <= method_process.READ_AHEAD_SWEEPS
-
-
-def test_the_feed_says_each_warning_and_its_error_where_one_process_would():
-    """Read ahead, the inputs' warnings and error still come where the methods reach the input that raised them."""
-    items = _inputs(40)
-
-    def reading():
-        for k, item in enumerate(items):
-            if k == 7:
-                warnings.warn("input 7 is odd", UserWarning, stacklevel=1)
-            if k == 30:
-                raise LogError("the log is damaged at input 30")
-            yield item
-
-    sent: list = []
-    order: list[str] = []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        with pytest.raises(LogError, match="input 30"):
-            for k, _ in enumerate(_feed(reading(), sent)):
-                order += [str(w.message) for w in caught] + [f"got {k}"]
-                caught.clear()
-    assert order.index("input 7 is odd") == order.index("got 6") + 1 == order.index("got 7") - 1
-    assert order[-1] == "got 29"
-    assert [i for batch, _ in sent for i in batch] == items[:30] and sent[-1][1] == "error"
+# --- the log read by each process: its warnings and errors the parent's -----------------------
 
 
 def _reading_fails_at(monkeypatch, at: int, warn_at: int | None = None) -> None:
     """Make the log's reading warn at input ``warn_at`` and raise a LogError at input ``at`` (in the
-    process that reads it: the parent, whichever start method)."""
+    parent, and in a forked child, which reads the log too)."""
     original = LogInputs.__iter__
 
     def failing(self):
@@ -376,7 +313,7 @@ def test_the_reading_s_warnings_are_those_of_one_process(crowd_log, tmp_path, mo
 @pytest.mark.parametrize("improved_fails_at", [None, 3, 1000])
 def test_an_error_reading_the_log_mid_way_is_the_one_process_error(crowd_log, tmp_path, monkeypatch,
                                                                     improved_fails_at):
-    """The parent reads the log for both: its error comes where the methods reach it, after the
+    """Each process reads the log: the parent's error comes where the methods reach it, after the
     child's error on an earlier sweep, if any, as in one process."""
     if improved_fails_at is not None and method_process.START_METHOD != "fork":
         pytest.skip("the child's failure is injected by patching code the forked child inherits")

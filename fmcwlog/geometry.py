@@ -146,18 +146,25 @@ def rotate_translate(c, s, tx, ty, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def interpolate_poses(t_query: np.ndarray, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def interpolate_poses(t_query: np.ndarray, t: np.ndarray, poses: np.ndarray,
+                      unwrapped_yaw: np.ndarray | None = None) -> np.ndarray:
     """Linear interpolation of poses (N, 3) stamped ``t`` (sorted) at ``t_query``.
 
     Yaw is unwrapped before interpolating so a pass through ±pi is handled;
-    queries outside ``[t[0], t[-1]]`` are clamped to the ends.
+    queries outside ``[t[0], t[-1]]`` are clamped to the ends. ``unwrapped_yaw``: ``np.unwrap`` of
+    ``poses[:, 2]`` (:func:`unwrapped_yaw`), where the caller keeps it across queries of one track.
     """
-    yaw = _unwrap(poses[:, 2])
+    yaw = _unwrap(poses[:, 2]) if unwrapped_yaw is None else unwrapped_yaw
     out = np.empty((*np.shape(t_query), 3))
     out[..., 0] = np.interp(t_query, t, poses[:, 0])
     out[..., 1] = np.interp(t_query, t, poses[:, 1])
     out[..., 2] = wrap_angle(np.interp(t_query, t, yaw))
     return out
+
+
+def unwrapped_yaw(poses: np.ndarray) -> np.ndarray:
+    """The yaw of poses (N, 3) as :func:`interpolate_poses` interpolates it: ``np.unwrap`` of it."""
+    return _unwrap(poses[:, 2])
 
 
 def _unwrap(yaw: np.ndarray) -> np.ndarray:

@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
-from ..geometry import between, compose, interpolate_poses, inverse
+from ..geometry import between, compose, interpolate_poses, inverse, unwrapped_yaw
 from ..types import WheelCalibration
 from .deskew_wheels import yaw_rate_spread
-from .odometry import body_increments, integrate_arc
+from .odometry import body_increments, integrate_arc, ticks_step
 
 MAX_HOLD_S = 120.0  # s: the longest gap in the sweeps the track is kept for (:attr:`PoseTrack.hold_from`)
 
@@ -39,6 +39,7 @@ class PoseTrack:
         self._n = 0
         self._ticks: tuple[int, int] | None = None
         self.repeated_stamps = 0
+        self._yaw: np.ndarray | None = None  # unwrapped yaw of the stored poses (pose_at), None: to compute
 
     @property
     def latest_time(self) -> float:
@@ -47,8 +48,8 @@ class PoseTrack:
     def __len__(self) -> int:
         return self._n
 
-    def add_pose(self, t: float, pose: np.ndarray) -> bool:
-        """Append a pose; a stamp equal to the last is skipped (counted), one going back is an error."""
+    def add_pose(self, t: float, pose: np.ndarray | tuple[float, float, float]) -> bool:
+        """Append a pose (3 values); a stamp equal to the last is skipped (counted), one going back is an error."""
         n = self._n
         if n and t <= self._t[n - 1]:
             if t == self._t[n - 1]:
@@ -68,6 +69,7 @@ class PoseTrack:
                 self._k = np.concatenate([self._k, np.full((n, 2), np.nan)])
         self._t[n] = t
         self._p[n] = pose
+        self._yaw = None
         self._k[n] = np.nan
         self._n = n + 1
         return True
@@ -91,8 +93,12 @@ class PoseTrack:
             if (left, right) == self._ticks and self._n >= 2 and t - self._t[self._n - 1] < self.hold:
                 # the same counts again within a hold (module docstring)
                 return False
-            ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
-            ok = self.add_pose(t, integrate_arc(ds[0], dth[0], self._p[self._n - 1]))
+            x0, y0, th0 = self._p[self._n - 1].tolist()
+            pose = ticks_step(x0, y0, th0, int(left) - int(self._ticks[0]), int(right) - int(self._ticks[1]), calib)
+            if pose is None:  # counts beyond int64, or a pose not finite: the array functions' own cases
+                ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
+                pose = integrate_arc(ds[0], dth[0], self._p[self._n - 1])
+            ok = self.add_pose(t, pose)
             self._ticks = (left, right)
         if ok:
             self._k[self._n - 1] = (left, right)
@@ -109,7 +115,9 @@ class PoseTrack:
 
     def pose_at(self, t: float | np.ndarray) -> np.ndarray:
         """Interpolated pose(s); clamped to the first/last pose outside the kept span."""
-        return interpolate_poses(np.asarray(t, dtype=float), self._t[: self._n], self._p[: self._n])
+        if self._yaw is None:  # the track's unwrapped yaw, kept until the next pose comes
+            self._yaw = unwrapped_yaw(self._p[: self._n])
+        return interpolate_poses(np.asarray(t, dtype=float), self._t[: self._n], self._p[: self._n], self._yaw)
 
     def knots(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The track over ``[t0, t1]`` (s), as base_link's motion from ``t0``: times (K,) s after ``t0``

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from ..geometry import wrap_angle
+from ..geometry import _wrap, wrap_angle
 from ..types import WheelCalibration
 from .deskew import sinc_of_float
 
@@ -96,6 +96,24 @@ def integrate_arcs(
     x = x0 + np.concatenate(([0.0], np.cumsum(chord * np.cos(mid))))
     y = y0 + np.concatenate(([0.0], np.cumsum(chord * np.sin(mid))))
     return np.stack([x, y, wrap_angle(heading)], -1)
+
+
+def ticks_step(x0: float, y0: float, th0: float, dl: int, dr: int,
+               calib: WheelCalibration) -> tuple[float, float, float] | None:
+    """The pose ``(x, y, yaw)`` (m, m, rad) that ``dl``, ``dr`` counts of the left and right wheel
+    lead to from ``(x0, y0, th0)``, as Python floats: :func:`body_increments` of the one interval then
+    :func:`integrate_arc`, the same float operations in the same order, without their arrays (the
+    motion prior adds one reading at a time, 50 a second). None where a count is beyond int64, which
+    the array path wraps."""
+    if not (-_I64 <= dl < _I64 and -_I64 <= dr < _I64):
+        return None
+    ds, dtheta = _body(_arc(float(dl), calib.wheel_radius_left, calib),
+                       _arc(float(dr), calib.wheel_radius_right, calib), calib)
+    mid = (th0 + 0.0) + 0.5 * dtheta
+    if not math.isfinite(mid):  # integrate_arc's numpy branch
+        return None
+    chord = ds * sinc_of_float(dtheta / (2.0 * np.pi))
+    return x0 + chord * math.cos(mid), y0 + chord * math.sin(mid), _wrap(th0 + dtheta)
 
 
 def integrate_arc(ds: float, dtheta: float, pose: np.ndarray) -> np.ndarray:

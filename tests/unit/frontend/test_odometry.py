@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fmcwlog.frontend.motion_prior import PoseTrack
-from fmcwlog.frontend.odometry import body_increments, integrate_arc, integrate_arcs
+from fmcwlog.frontend.odometry import body_increments, integrate_arc, integrate_arcs, ticks_step
 from fmcwlog.geometry import compose, interpolate_poses, wrap_angle
 from fmcwlog.types import WheelCalibration
 
@@ -178,3 +178,45 @@ def test_interpolate_poses_is_the_np_unwrap_formula():
             want[:, 0], want[:, 1] = np.interp(q, t, poses[:, 0]), np.interp(q, t, poses[:, 1])
             want[:, 2] = wrap_angle(np.interp(q, t, np.unwrap(poses[:, 2])))
             assert interpolate_poses(q, t, poses).tobytes() == want.tobytes()
+
+
+@settings(max_examples=300, deadline=None)
+@given(_ticks, _ticks, _ticks, _ticks, _cal,
+       st.tuples(st.floats(-100.0, 100.0), st.floats(-100.0, 100.0), st.floats(-10.0, 10.0)))
+def test_ticks_step_is_increments_then_arc(l0, l1, r0, r1, cal, pose):
+    """:func:`ticks_step` (floats, the motion prior's path) against :func:`body_increments` then
+    :func:`integrate_arc`, bit for bit."""
+    ds, dth = body_increments(np.array([l0, l1]), np.array([r0, r1]), cal)
+    want = integrate_arc(ds[0], dth[0], np.array(pose))
+    got = ticks_step(*pose, l1 - l0, r1 - r0, cal)
+    assert got is not None and np.array(got).tobytes() == want.tobytes()
+
+
+def test_ticks_step_declines_beyond_int64():
+    cal = WheelCalibration(0.1, 0.1, 0.5, 100)
+    assert ticks_step(0.0, 0.0, 0.0, 2**63, 0, cal) is None
+    assert ticks_step(0.0, 0.0, 0.0, 0, -(2**63) - 1, cal) is None
+
+
+def test_track_reads_are_the_array_formulas():
+    """A track fed reading by reading (the scalar path, its unwrapped yaw kept between reads) gives
+    the poses of the array formulas, read after every reading and several times in between, across
+    the buffer's shifts and ±π."""
+    rng = np.random.default_rng(5)
+    cal = WheelCalibration(0.1, 0.11, 0.5, 1000)
+    n = 900
+    stamps = np.cumsum(rng.uniform(0.015, 0.025, n))
+    left = np.cumsum(rng.integers(0, 60, n))
+    right = np.cumsum(rng.integers(0, 90, n))
+    track = PoseTrack(keep_seconds=2.0)
+    poses = [np.zeros(3)]
+    for i in range(n):
+        track.add_ticks(float(stamps[i]), int(left[i]), int(right[i]), cal)
+        if i:
+            ds, dth = body_increments(left[i - 1:i + 1], right[i - 1:i + 1], cal)
+            poses.append(integrate_arc(ds[0], dth[0], poses[-1]))
+        m = len(track)
+        kept_t, kept_p = stamps[i + 1 - m:i + 1], np.array(poses[i + 1 - m:i + 1])
+        assert track._p[:m].tobytes() == kept_p.tobytes()
+        for q in (stamps[i] - 0.05, np.array([stamps[i] - 0.3, stamps[i] + 0.01]), stamps[i]):
+            assert track.pose_at(q).tobytes() == interpolate_poses(np.asarray(q), kept_t, kept_p).tobytes()

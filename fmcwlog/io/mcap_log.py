@@ -448,18 +448,33 @@ def _fast_wheel_ticks(data: bytes) -> SimpleNamespace:
     return SimpleNamespace(header=header, left=left, right=right)
 
 
+# the fields of the last PointCloud2 read, and their bytes (its count first): a log's clouds share their
+# fields, so a cloud that holds the same bytes there holds the same fields (their layout does not depend
+# on where they start, a 4-byte boundary), read once rather than field by field each sweep
+_last_fields: tuple[bytes, tuple[SimpleNamespace, ...]] = (b"", ())
+
+
 def _fast_pointcloud2(data: bytes) -> SimpleNamespace:
+    global _last_fields
     header, at = _header(data)
     at = _align(at, 4)
     height, width = _U32X2.unpack_from(data, at)
-    (count,) = _U32.unpack_from(data, at + 8)
-    at += 12
-    fields = []
-    for _ in range(count):
-        name, at = _cdr_string(data, _align(at, 4))
-        offset, datatype, n = _FIELD_TAIL.unpack_from(data, _align(at, 4))
-        at = _align(at, 4) + 12
-        fields.append(SimpleNamespace(name=name, offset=offset, datatype=datatype, count=n))
+    at += 8
+    block, known = _last_fields
+    if block and data.startswith(block, at):
+        at += len(block)
+        fields = list(known)
+    else:
+        start = at
+        (count,) = _U32.unpack_from(data, at)
+        at += 4
+        fields = []
+        for _ in range(count):
+            name, at = _cdr_string(data, _align(at, 4))
+            offset, datatype, n = _FIELD_TAIL.unpack_from(data, _align(at, 4))
+            at = _align(at, 4) + 12
+            fields.append(SimpleNamespace(name=name, offset=offset, datatype=datatype, count=n))
+        _last_fields = (data[start:at], tuple(fields))
     is_bigendian = data[at] != 0
     at = _align(at + 1, 4)
     point_step, row_step, size = _CLOUD_TAIL.unpack_from(data, at)
@@ -782,15 +797,24 @@ class LogReader(ContentsReader):
         queues: list[deque[tuple[Schema | None, Channel, Message]]] = [deque() for _ in topics]
         taken = [0] * len(topics)  # each topic's messages read from the single pass, queued or given
         held = 0
+        empty = len(topics)  # queues without a message
         single = self._records(set(topics))
         for record in single:
             i = order[record[1].topic]
-            queues[i].append(record)
+            queue = queues[i]
+            if not queue:
+                empty -= 1
+            queue.append(record)
             taken[i] += 1
             held += len(record[2].data)
-            while all(queues):  # every topic has a head: the earliest (the first topic's on a tie) is next
-                first = min(range(len(queues)), key=lambda j: queues[j][0][2].log_time)
+            while not empty:  # every topic has a head: the earliest (the first topic's on a tie) is next
+                first, first_time = 0, queues[0][0][2].log_time
+                for j in range(1, len(queues)):
+                    if queues[j][0][2].log_time < first_time:
+                        first, first_time = j, queues[j][0][2].log_time
                 out = queues[first].popleft()
+                if not queues[first]:
+                    empty += 1
                 held -= len(out[2].data)
                 yield out
             if held > hold_bytes:

@@ -92,3 +92,19 @@ def test_generated_messages(frame, left, right, width, names):
         schema, channel, rec = by_type[kind]
         _same(reader, schema, channel, type(rec)(channel_id=rec.channel_id, sequence=0, log_time=1, publish_time=1,
                                                  data=raw))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.text(max_size=5), st.lists(st.sampled_from(["x", "y", "t", "xy", ""]), max_size=3),
+                          st.integers(0, 3)), min_size=1, max_size=6))
+def test_clouds_in_turn(clouds):
+    """Clouds of different fields and frames read one after another (each reads the fields the
+    cloud before it left known, or its own): each decodes as mcap_ros2 decodes it."""
+    reader, records = _records(SAMPLES[0])
+    schema, channel, rec = {s.name: (s, c, r) for s, c, r in records}["sensor_msgs/msg/PointCloud2"]
+    for frame, names, width in clouds + clouds[::-1]:
+        fields = tuple((n, 4 * i, 7, 1) for i, n in enumerate(names))
+        raw = pointcloud2_cdr((1, 2), frame, 1, width, fields, False, 4 * len(names), 4 * len(names) * width,
+                              np.arange(width * len(names), dtype="<f4").tobytes(), True)
+        _same(reader, schema, channel, type(rec)(channel_id=rec.channel_id, sequence=0, log_time=1, publish_time=1,
+                                                 data=raw))

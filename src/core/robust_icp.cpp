@@ -9,6 +9,7 @@
 #include <nanobind/stl/vector.h>
 
 #include <array>
+#include <cstring>
 #include <numeric>
 
 #include "common.hpp"
@@ -76,14 +77,78 @@ double median_of(std::vector<double> x) {
 
 // The distances of a sweep's pairs in increasing order, each with its pair's index: what the
 // median and the weights' running minimum read. The order among equal distances is left open:
-// neither answer depends on it (equal distances have equal weights).
+// neither answer depends on it (equal distances have equal weights). The distances' bit patterns
+// (for doubles >= +0 they order as the values) bucketed by their leading differing bits, each bucket
+// then sorted; std::sort where a distance is negative or NaN.
 struct SortedDistances {
+    struct Keyed {
+        uint64_t key;
+        uint32_t index;
+    };
     std::vector<std::pair<double, uint32_t>> by_d;
+    std::vector<Keyed> a, b;  // the sort's two buffers
+    std::vector<size_t> buckets;
+
     void assign(const std::vector<double>& d) {
-        by_d.resize(d.size());
-        for (size_t i = 0; i < d.size(); ++i) by_d[i] = {d[i], uint32_t(i)};
-        std::sort(by_d.begin(), by_d.end(),
-                  [](const std::pair<double, uint32_t>& a, const std::pair<double, uint32_t>& b) { return a.first < b.first; });
+        const size_t n = d.size();
+        by_d.resize(n);
+        a.resize(n);
+        b.resize(n);
+        uint64_t differ = 0, negative = 0;
+        for (size_t i = 0; i < n; ++i) {
+            uint64_t k;
+            std::memcpy(&k, &d[i], sizeof k);
+            a[i] = Keyed{k, uint32_t(i)};
+            negative |= k;
+            differ |= k ^ a[0].key;
+        }
+        bool ordinal = (negative >> 63) == 0;
+        for (size_t i = 0; i < n && ordinal; ++i) ordinal = !std::isnan(d[i]);
+        if (!ordinal) {
+            for (size_t i = 0; i < n; ++i) by_d[i] = {d[i], uint32_t(i)};
+            std::sort(by_d.begin(), by_d.end(), [](const std::pair<double, uint32_t>& x,
+                                                   const std::pair<double, uint32_t>& y) { return x.first < y.first; });
+            return;
+        }
+        // a counting sort by the keys' leading bits from the highest that differs, then each
+        // bucket in order (by insertion where it holds a few keys)
+        if (differ != 0) {
+            int top = 63;
+            while (!((differ >> top) & 1)) --top;
+            int bits = 4;
+            while (bits < 11 && (size_t(1) << bits) < 2 * n) ++bits;
+            const int shift = top + 1 > bits ? top + 1 - bits : 0;
+            // the bits above top are every key's: the bucket is the next `bits` bits down
+            const uint64_t mask = (uint64_t(1) << (top + 1 - shift)) - 1;
+            std::vector<size_t>& count = buckets;
+            count.assign(mask + 2, 0);
+            for (size_t i = 0; i < n; ++i) ++count[((a[i].key >> shift) & mask) + 1];
+            for (size_t c = 1; c < count.size(); ++c) count[c] += count[c - 1];
+            for (size_t i = 0; i < n; ++i) b[count[(a[i].key >> shift) & mask]++] = a[i];
+            a.swap(b);
+            // count[c] is now where bucket c ends: each bucket in order, by insertion where small
+            size_t from = 0;
+            for (size_t c = 0; c <= mask; ++c) {
+                const size_t to = count[c];
+                if (to - from > 16) {
+                    std::sort(a.begin() + std::ptrdiff_t(from), a.begin() + std::ptrdiff_t(to),
+                              [](const Keyed& x, const Keyed& y) { return x.key < y.key; });
+                } else {
+                    for (size_t i = from + 1; i < to; ++i) {
+                        const Keyed e = a[i];
+                        size_t j = i;
+                        for (; j > from && a[j - 1].key > e.key; --j) a[j] = a[j - 1];
+                        a[j] = e;
+                    }
+                }
+                from = to;
+            }
+        }
+        for (size_t i = 0; i < n; ++i) {
+            double v;
+            std::memcpy(&v, &a[i].key, sizeof v);
+            by_d[i] = {v, a[i].index};
+        }
     }
     // robust_icp.median / np.median of finite distances: the middle value, or the mean of the middle two.
     double median() const {

@@ -4,9 +4,10 @@ optimised trajectory and the map rebuilt from it.
 :meth:`PoseGraphBackend.add` takes every :class:`~fmcwlog.frontend.methods.SweepResult` of its
 method. A keyframe that moved ``node_distance`` since the last node becomes a node, joined to
 it by an odometry edge (the front end's relative pose) and by local edges (the node matched
-against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path (``closure_every_closed`` after a query that closed a
-loop) a node looks for loop closures (:mod:`.candidates`), verifies each candidate against a submap of the candidate's neighbours
-placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
+against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path
+(``closure_every_closed`` after a query whose closures agreed with the estimate) a node looks for
+loop closures (:mod:`.candidates`), verifies each candidate against a submap of the candidate's
+neighbours placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
 Cauchy kernel (:mod:`.graph`). Once a closure is in that moved beyond ``optimize_gap`` from the
 estimate in a direction it determines, the graph is re-optimised every
 ``optimize_every`` nodes (or ``optimize_share`` of its nodes, where more: a re-solve costs more the
@@ -251,13 +252,14 @@ class PoseGraphBackend:
         return p.closure_radius + window - p.search.linear_window, search
 
     def _close_loops(self, query: int) -> bool:
-        """Verify ``query``'s candidates and add the closures that pass; whether any did."""
+        """Verify ``query``'s candidates and add the closures that pass; whether any did, each within
+        the gaps of the estimate (:meth:`_disagrees`): a stretch tied where the estimate already had it."""
         path = self._node_path.values
         window = self._search_window(query)
         if window is None:
             return False
         radius, search = window
-        q, closed = None, False
+        q, closed, agreed = None, False, True
         for cand in closure_candidates(query, self._estimates[:, :2], path, self.p, radius):
             self.proposed += 1
             prior = between(self._estimates[cand], self._estimates[query])
@@ -273,10 +275,11 @@ class PoseGraphBackend:
             self.records.append(ClosureRecord(query, cand, self.nodes[query].stamp_ns, self.nodes[cand].stamp_ns,
                                               verdict.relative, verdict.score, verdict.second_score, verdict.inlier_fraction,
                                               verdict.free_directions))
-            self._dirty = self._dirty or self._disagrees(edge, prior)
+            disagrees = self._disagrees(edge, prior)
+            self._dirty = self._dirty or disagrees
             self._last_closure_path = self.nodes[query].path_m
-            closed = True
-        return closed
+            closed, agreed = True, agreed and not disagrees
+        return closed and agreed
 
     def _disagrees(self, edge: Edge, prior: np.ndarray) -> bool:
         """Whether a closure ``edge`` moved beyond ``optimize_gap`` (m) or ``optimize_gap_deg`` from the

@@ -4,10 +4,12 @@ optimised trajectory and the map rebuilt from it.
 :meth:`PoseGraphBackend.add` takes every :class:`~fmcwlog.frontend.methods.SweepResult` of its
 method. A keyframe that moved ``node_distance`` since the last node becomes a node, joined to
 it by an odometry edge (the front end's relative pose) and by local edges (the node matched
-against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path a node looks for loop closures
-(:mod:`.candidates`), verifies each candidate against a submap of the candidate's neighbours
-placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
-Cauchy kernel (:mod:`.graph`). Once a closure is in, the graph is re-optimised every
+against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path
+(``closure_every_closed`` after a query whose closures agreed with the estimate) a node looks for
+loop closures (:mod:`.candidates`), verifies each candidate against a submap of the candidate's
+neighbours placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
+Cauchy kernel (:mod:`.graph`). Once a closure is in that moved beyond ``optimize_gap`` from the
+estimate in a direction it determines, the graph is re-optimised every
 ``optimize_every`` nodes (or ``optimize_share`` of its nodes, where more: a re-solve costs more the
 larger the graph), to ``optimize_tolerance``, so that later candidates are searched around corrected
 estimates. :meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and
@@ -157,6 +159,7 @@ class PoseGraphBackend:
         self._path_m = 0.0
         self._last_pose: np.ndarray | None = None
         self._last_query_path = -np.inf
+        self._query_every = params.closure_every  # path (m) to the next query: less often after a closure
         self._last_wide_path = -np.inf
         self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
         self._nodes_since_opt = 0
@@ -215,9 +218,10 @@ class PoseGraphBackend:
                 self.graph.add_odometry(edge)
                 self.local_edges += 1
         self._nodes_since_opt += 1
-        if self._path_m - self._last_query_path >= self.p.closure_every:
+        if self._path_m - self._last_query_path >= self._query_every:
             self._last_query_path = self._path_m
-            self._close_loops(node.index)
+            closed = self._close_loops(node.index)
+            self._query_every = self.p.closure_every_closed if closed else self.p.closure_every
         if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
         self._spill(node.index - max(self.p.local_links, 1))
@@ -247,13 +251,15 @@ class PoseGraphBackend:
         search = dataclasses.replace(p.search, linear_window=window, angular_window_deg=angle, levels=levels)
         return p.closure_radius + window - p.search.linear_window, search
 
-    def _close_loops(self, query: int) -> None:
+    def _close_loops(self, query: int) -> bool:
+        """Verify ``query``'s candidates and add the closures that pass; whether any did, each within
+        the gaps of the estimate (:meth:`_disagrees`): a stretch tied where the estimate already had it."""
         path = self._node_path.values
         window = self._search_window(query)
         if window is None:
-            return
+            return False
         radius, search = window
-        q = None
+        q, closed, agreed = None, False, True
         for cand in closure_candidates(query, self._estimates[:, :2], path, self.p, radius):
             self.proposed += 1
             prior = between(self._estimates[cand], self._estimates[query])
@@ -264,12 +270,28 @@ class PoseGraphBackend:
                 self.rejections[verdict.test] = self.rejections.get(verdict.test, 0) + 1
                 continue
             assert verdict.relative is not None and verdict.covariance is not None
-            self.graph.add_closure(Edge(cand, query, verdict.relative, verdict.covariance))
+            edge = Edge(cand, query, verdict.relative, verdict.covariance)
+            self.graph.add_closure(edge)
             self.records.append(ClosureRecord(query, cand, self.nodes[query].stamp_ns, self.nodes[cand].stamp_ns,
                                               verdict.relative, verdict.score, verdict.second_score, verdict.inlier_fraction,
                                               verdict.free_directions))
-            self._dirty = True
+            disagrees = self._disagrees(edge, prior)
+            self._dirty = self._dirty or disagrees
             self._last_closure_path = self.nodes[query].path_m
+            closed, agreed = True, agreed and not disagrees
+        return closed and agreed
+
+    def _disagrees(self, edge: Edge, prior: np.ndarray) -> bool:
+        """Whether a closure ``edge`` moved beyond ``optimize_gap`` (m) or ``optimize_gap_deg`` from the
+        ``prior`` (3,, m, m, rad) the current estimate gave, in a direction it determines: the
+        difference whitened by its covariance plus the gaps' squares exceeds 1, so a slide along a
+        corridor's axis, which the closure leaves free, counts for nothing. Only such a closure
+        makes a re-solve due; with both gaps 0, every closure does."""
+        if self.p.optimize_gap == 0.0 and self.p.optimize_gap_deg == 0.0:
+            return True
+        moved = between(prior, edge.relative)
+        gap = np.diag([self.p.optimize_gap, self.p.optimize_gap, np.radians(self.p.optimize_gap_deg)]) ** 2
+        return bool(moved @ np.linalg.solve(edge.covariance + gap, moved) >= 1.0)
 
     def _submap(self, cand: int) -> np.ndarray:
         """The points of the nodes within ``submap_nodes`` of ``cand``, in its frame, placed by the

@@ -319,6 +319,50 @@ def _refine(u: np.ndarray, v_r: np.ndarray, valid: np.ndarray, v: np.ndarray, in
     return EgoMotion(v, sigma**2 * ata_inv, inliers, sigma)
 
 
+MAD_SIGMA = 1.4826  # a normal distribution's standard deviation per median absolute deviation
+
+
+def refit_static(u: np.ndarray, v_r: np.ndarray, fit: EgoMotion, moving: np.ndarray, *,
+                 min_threshold: float = 0.15, scale_gate: float = 3.0, refinements: int = 2) -> EgoMotion:
+    """The fit again, without the points judged moving, its inlier gate from the sweep's own spread.
+
+    ``u`` (N, 2): unit bearings (lidar frame); ``v_r`` (N,): radial Doppler velocity (m/s; NaN
+    left out); ``fit``: :func:`fit_sensor_velocity`'s result; ``moving`` (N,) bool: the points the
+    segmentation judged moving, whatever their Doppler. Returns ``fit`` unchanged where it failed,
+    or where fewer than 3 points remain.
+
+    Two things bias the first fit where the Doppler is coarse. Movers walking near the static
+    world's velocity pass its fixed gate (``inlier_threshold``) and pull it their way, while
+    the segmentation, which sees them move from sweep to sweep (tracks, free space), knows them.
+    And a gate narrower than the sweep's residual spread truncates it: the residuals of a
+    quantised Doppler fall in clumps a step apart, so a narrow window holds more of one clump
+    than of the next and the fit leans toward it. Here each of ``refinements`` rounds keeps the
+    static points within ``max(min_threshold, scale_gate * s)`` of the fit (``s``:
+    ``MAD_SIGMA`` times the median absolute deviation of the static points' residuals about
+    their median, m/s) and solves least squares on them. The covariance is ``σ² (AᵀA)⁻¹`` as in
+    :func:`fit_sensor_velocity`; ``inliers`` are the points of the last solve.
+    """
+    if not (np.all(np.isfinite(fit.v_sensor)) and fit.inliers.any()):
+        return fit
+    static = usable(u, v_r) & ~moving
+    v = fit.v_sensor
+    inliers = fit.inliers & static
+    try:
+        for _ in range(max(1, refinements)):
+            eps = v_r + u @ v
+            res = eps[static]
+            spread = MAD_SIGMA * float(np.median(np.abs(res - np.median(res)))) if res.size else 0.0
+            inliers = static & (np.abs(eps) < max(min_threshold, scale_gate * spread))
+            if inliers.sum() < 3:
+                return fit
+            v, ata_inv = _lstsq_2(u[inliers], v_r[inliers])
+    except np.linalg.LinAlgError:  # inliers along a single bearing
+        return fit
+    eps = v_r[inliers] + u[inliers] @ v
+    sigma = float(np.sqrt(np.sum(eps**2) / max(int(inliers.sum()) - 2, 1)))
+    return EgoMotion(v, sigma**2 * ata_inv, inliers, sigma)
+
+
 def sensor_velocity_from_base_twist(
     v: float, omega: float, lidar_x: float, lidar_y: float, lidar_yaw: float
 ) -> np.ndarray:

@@ -69,7 +69,7 @@ from ..kernels.voxel import voxel_centroids, voxel_downsample
 from ..types import BASELINE, IMPROVED, Calibration, SweepInput, SweepResult
 from .deskew import advance, deskewed_source
 from .deskew_wheels import SweepKnots, deskewed_source_wheels, wheel_profile
-from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, unit_bearings
+from .egomotion import EgoMotion, compensated_velocity, fit_sensor_velocity, refit_static, unit_bearings
 from .gaps import bridge_covariance, gap_prior_information, gap_window, seen_before, to_map, within_bridge
 from .gmmsc import DistanceMixture
 from .icp import ICPResult
@@ -606,6 +606,7 @@ class ImprovedFrontEnd(FrontEnd):
         self.scan_twist = (0.0, 0.0)  # (v, ω) scan matching measured over the last interval: the hold
         self._drop_wheels = False  # for this sweep: the scans sided with Doppler against the wheels
         self._raw_fit: EgoMotion | None = None  # this sweep's Doppler fit free of the wheels' gate
+        self._fit_doppler = np.zeros(0)  # this sweep's Doppler as fit (m/s; NaN inside the body)
         self._registered_last = False
         self.tracker = MoverTracker(params.tracking, params.map_resolution)  # movers followed over this log's sweeps
         self._doppler_floor = np.eye(2) * params.doppler_sigma_min**2  # added to the fit's covariance (m²/s²)
@@ -655,6 +656,8 @@ class ImprovedFrontEnd(FrontEnd):
         # 0.5 % bias moves a point < 1 mm over a sweep), else the last scan-matched one
         twist = prior_twist if prior_twist is not None and _finite_pair(prior_twist) else self.scan_twist
         moving = self.segment(sweep, eps, twist)
+        if self.params.doppler_refit:  # the fit again without the movers, its gate from the sweep's spread
+            ego = refit_static(bearings, self._fit_doppler, ego, moving, scale_gate=self.params.doppler_refit_gate)
         return Doppler(ego.v_sensor, ego.covariance, moving)
 
     def doppler_fit(self, sweep: SweepInput, prior_twist: tuple[float, float] | None,
@@ -678,6 +681,7 @@ class ImprovedFrontEnd(FrontEnd):
         near = self._near_of(sweep.xy) if fast else None
         inside = (sweep.xy[:, 0] ** 2 + sweep.xy[:, 1] ** 2) < p.min_range**2 if near is None else near
         v_r = np.where(inside, np.nan, sweep.velocity) if inside.any() else sweep.velocity
+        self._fit_doppler = v_r
         ego = fit_sensor_velocity(sweep.xy, v_r, random_state=p.seed, prior=expected,
                                   prior_gate=p.doppler_prior_gate, bearings=bearings)
         self._raw_fit = ego.unconstrained or ego

@@ -73,6 +73,16 @@ def test_refit_without_movers_and_with_the_sweeps_spread_removes_the_bias():
     assert np.sqrt(np.mean(np.square(errs_refit))) < np.sqrt(np.mean(np.square(errs_fixed_gate)))
 
 
+def test_a_doppler_fine_enough_for_the_first_gate_keeps_the_first_fit():
+    # the paper's Table 1 channel (noise 0.02 m/s, 0.1 m/s steps): 3 robust sigmas stay under 0.15 m/s
+    rng = np.random.default_rng(5)
+    ang = rng.uniform(-np.pi, np.pi, 800)
+    u = np.stack([np.cos(ang), np.sin(ang)], -1)
+    v_r = np.round((-(u @ np.array([1.0, 0.3])) + rng.normal(0.0, 0.02, 800)) / 0.1) * 0.1
+    first = fit_sensor_velocity_numpy(u * 5.0, v_r, bearings=u)
+    assert refit_static(u, v_r, first, np.zeros(800, bool)) is first
+
+
 def test_refit_keeps_a_failed_fit_and_a_sweep_without_static_points():
     rng = np.random.default_rng(0)
     u, v_r, moving = _sweep(rng, np.array([0.5, 0.0]))

@@ -1,7 +1,6 @@
 """The compiled robust ICP against its numpy reference where many pairs lie at exactly the same
 distance (points on a lattice, the source moved by a fraction of its spacing, each point's nearest target
-unique), and the compiled
-de-skewing against numpy's over turn rates whose half-turns straddle the kernel's series bound.
+unique).
 
 The kernel orders the distances by their bit patterns (the median and the weights' running minimum
 read that order): ties and distances spanning many binades must give the reference's iterations, pairs
@@ -17,7 +16,6 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from fmcwlog.frontend import robust_icp
-from fmcwlog.frontend.deskew import deskew, deskew_numpy
 from fmcwlog.frontend.gmmsc import GMMSCParams
 from fmcwlog.frontend.icp import ICPParams
 from fmcwlog.kernels import compiled
@@ -62,18 +60,3 @@ def test_tied_distances_give_the_reference(use, seed, spacing, fx, fy, n_source,
     assert fast.converged == ref.converged
     np.testing.assert_allclose(fast.pose, ref.pose, rtol=0, atol=1e-9)
 
-
-@needs_core
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(seed=st.integers(0, 2**32 - 1), omega=st.sampled_from([0.0, 1e-6, 0.5, 2.4, 2.6, 5.0, -2.5, 40.0]),
-       v=st.floats(-3.0, 3.0), span=st.sampled_from([0.1, 0.2]))
-def test_deskew_around_the_series_bound(use, seed, omega, v, span):
-    rng = np.random.default_rng(seed)
-    xy = rng.uniform(-20.0, 20.0, (300, 2))
-    t = np.sort(rng.uniform(0.0, span, 300))
-    mount = np.array([0.1, -0.05, 0.3])
-    use("compiled")
-    assert compiled.core() is not None
-    fast = deskew(xy, t, v, omega, mount, span / 2)
-    ref = deskew_numpy(xy, t, v, omega, mount, span / 2)
-    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-9)

@@ -166,6 +166,10 @@ class PoseGraphBackend:
         self._last_wide_path = -np.inf
         self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
         self._last_disagree_path = -np.inf  # path at the last node whose closure disagreed (m)
+        self._tied = False  # the last query added a closure that pulled the tail onto an earlier pass
+        self._tied_search = params.search if params.tied_window == 0.0 else dataclasses.replace(
+            params.search, linear_window=min(params.tied_window, params.search.linear_window),
+            angular_window_deg=min(params.tied_window_deg, params.search.angular_window_deg))
         self._nodes_since_opt = 0
         self._dirty = False
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
@@ -225,6 +229,7 @@ class PoseGraphBackend:
         if self._path_m - self._last_query_path >= self._query_every:
             self._last_query_path = self._path_m
             closed = self._close_loops(node.index)
+            self._tied = self._last_closure_path == self._path_m and self.p.closure_pull > 0.0
             self._query_every = self.p.closure_every_closed if closed else self.p.closure_every
         if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
@@ -246,7 +251,8 @@ class PoseGraphBackend:
         since = self.nodes[query].path_m - self._last_closure_path
         window = min(max(p.search.linear_window, p.drift_per_m * since), p.max_window)
         if window <= p.search.linear_window:
-            return p.closure_radius, p.search
+            # right after a closure pulled the tail onto an earlier pass: the narrower window
+            return p.closure_radius, self._tied_search if self._tied else p.search
         if self.nodes[query].path_m - self._last_wide_path < p.wide_every:
             return None
         self._last_wide_path = self.nodes[query].path_m

@@ -4,6 +4,7 @@ closure queries along a stretch already tied to an earlier pass."""
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -45,7 +46,7 @@ def test_zero_gaps_make_every_closure_call_for_a_re_solve():
 def test_after_a_query_that_closed_a_loop_the_next_comes_closure_every_closed_later(closed_every, monkeypatch):
     """A straight drive, one node every 0.5 m; every query "closes" a loop: queries come every
     ``closure_every_closed`` m of path (rounded up to whole nodes), not every ``closure_every``."""
-    from types import SimpleNamespace
+
 
     backend = _backend(closure_every=1.0, closure_every_closed=closed_every, local_links=0)
     queried: list[float] = []
@@ -91,7 +92,7 @@ def test_no_pull_leaves_the_estimate():
 @pytest.mark.parametrize(("since_disagree", "thinned"), [(3.0, False), (12.0, True)])
 def test_queries_thin_only_where_no_closure_disagreed_over_closure_settle(since_disagree, thinned, monkeypatch):
     """A query whose closures agree thins the next query only ``closure_settle`` m after the last disagreement."""
-    from types import SimpleNamespace
+
 
     from fmcwlog.backend import pipeline
 
@@ -111,3 +112,18 @@ def test_queries_thin_only_where_no_closure_disagreed_over_closure_settle(since_
     monkeypatch.setattr(backend, "_submap", lambda cand: np.zeros((0, 2)))
     backend.nodes[1].points = np.zeros((0, 2), np.float32)
     assert backend._close_loops(1) is thinned
+
+
+def test_a_query_right_after_a_pulled_closure_searches_the_tied_window():
+    backend = _backend(tied_window=0.5, tied_window_deg=5.0)
+    backend.nodes = [SimpleNamespace(path_m=30.0)]
+    backend._last_closure_path = 30.0
+    assert backend._search_window(0)[1] == backend.p.search
+    backend._tied = True
+    radius, search = backend._search_window(0)
+    assert radius == backend.p.closure_radius
+    assert (search.linear_window, search.angular_window_deg) == (0.5, 5.0)
+    assert search.resolution == backend.p.search.resolution
+    backend = _backend(tied_window=0.0)
+    backend.nodes, backend._last_closure_path, backend._tied = [SimpleNamespace(path_m=30.0)], 30.0, True
+    assert backend._search_window(0)[1] == backend.p.search

@@ -134,7 +134,8 @@ class PoseGraph:
         return i
 
     def set_estimate(self, i: int, estimate: np.ndarray) -> None:
-        """Replace node ``i``'s current estimate (3,) with ``estimate``: the next solve starts from it."""
+        """Replace node ``i``'s current estimate (3,) with ``estimate``: the next batch solve starts from
+        it (ISAM2 starts from it only for a node it has not been handed yet)."""
         if self._pending is not None:
             self._pending_nodes[i][:] = estimate
             return

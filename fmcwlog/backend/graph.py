@@ -83,6 +83,7 @@ class PoseGraph:
         self._solver, self._relinearize_threshold = solver, relinearize_threshold
         # what add_node / add_odometry / add_closure were given before the graph is built
         self._pending: list[tuple[str, np.ndarray | Edge]] | None = []
+        self._pending_nodes: list[np.ndarray] = []  # the pending nodes' estimates, by index
 
     def _build(self) -> None:
         """Import gtsam, make the graph and add what :attr:`_pending` lists, in its order."""
@@ -101,6 +102,7 @@ class PoseGraph:
             params.relinearizeSkip = 1
             self._isam = gt.ISAM2(params)
         pending, self._pending, self.n, self.closures = self._pending, None, 0, []
+        self._pending_nodes = []
         for kind, item in pending:
             if kind == "node":
                 self.add_node(item)  # type: ignore[arg-type]
@@ -119,6 +121,7 @@ class PoseGraph:
         i = self.n
         if self._pending is not None:
             self._pending.append(("node", np.array(estimate, float)))
+            self._pending_nodes.append(self._pending[-1][1])  # type: ignore[arg-type]
             self.n += 1
             return i
         gtsam = _gtsam()
@@ -129,6 +132,16 @@ class PoseGraph:
             self._add(gtsam.PriorFactorPose2(0, _pose2(estimate), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
         self.n += 1
         return i
+
+    def set_estimate(self, i: int, estimate: np.ndarray) -> None:
+        """Replace node ``i``'s current estimate (3,) with ``estimate``: the next batch solve starts from
+        it (ISAM2 starts from it only for a node it has not been handed yet)."""
+        if self._pending is not None:
+            self._pending_nodes[i][:] = estimate
+            return
+        self.values.update(i, _pose2(estimate))
+        if self._isam is not None and self._new_values.exists(i):
+            self._new_values.update(i, _pose2(estimate))
 
     def add_odometry(self, e: Edge) -> None:
         """An odometry edge ``e`` between two existing nodes, with Gaussian noise of its covariance."""

@@ -5,14 +5,17 @@ optimised trajectory and the map rebuilt from it.
 method. A keyframe that moved ``node_distance`` since the last node becomes a node, joined to
 it by an odometry edge (the front end's relative pose) and by local edges (the node matched
 against the few nodes before it, :mod:`.local_edges`); every ``closure_every`` metres of path
-(``closure_every_closed`` after a query whose closures agreed with the estimate) a node looks for
+(``closure_every_closed`` after a query whose closures agreed with the estimate, where none
+disagreed over the last ``closure_settle`` m) a node looks for
 loop closures (:mod:`.candidates`), verifies each candidate against a submap of the candidate's
 neighbours placed by the current estimate (:mod:`.verification`) and adds the ones that pass under the
 Cauchy kernel (:mod:`.graph`). Once a closure is in that moved beyond ``optimize_gap`` from the
 estimate in a direction it determines, the graph is re-optimised every
 ``optimize_every`` nodes (or ``optimize_share`` of its nodes, where more: a re-solve costs more the
 larger the graph), to ``optimize_tolerance``, so that later candidates are searched around corrected
-estimates. :meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and
+estimates. Between re-solves each accepted closure pulls the newest node, and the nodes after it, toward
+where it puts it (``closure_pull``), so drift does not build up into closures that disagree.
+:meth:`PoseGraphBackend.finish` optimises once more, to gtsam's default tolerance, and
 returns every sweep's pose corrected through its node (the last node at or before it: ``x_node ⊕ (f_node⁻¹ ⊕ f_sweep)`` with ``f``
 the front end's poses), the closures, and an occupancy grid rebuilt from the nodes' points at
 their optimised poses.
@@ -162,6 +165,11 @@ class PoseGraphBackend:
         self._query_every = params.closure_every  # path (m) to the next query: less often after a closure
         self._last_wide_path = -np.inf
         self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
+        self._last_disagree_path = -np.inf  # path at the last node whose closure disagreed (m)
+        self._tied = False  # the last query added a closure that pulled the tail onto an earlier pass
+        self._tied_search = params.search if params.tied_window == 0.0 else dataclasses.replace(
+            params.search, linear_window=min(params.tied_window, params.search.linear_window),
+            angular_window_deg=min(params.tied_window_deg, params.search.angular_window_deg))
         self._nodes_since_opt = 0
         self._dirty = False
         self._estimates = np.zeros((0, 3))  # the graph's estimate of every node, kept current
@@ -221,6 +229,7 @@ class PoseGraphBackend:
         if self._path_m - self._last_query_path >= self._query_every:
             self._last_query_path = self._path_m
             closed = self._close_loops(node.index)
+            self._tied = self._last_closure_path == self._path_m and self.p.closure_pull > 0.0
             self._query_every = self.p.closure_every_closed if closed else self.p.closure_every
         if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
@@ -242,7 +251,8 @@ class PoseGraphBackend:
         since = self.nodes[query].path_m - self._last_closure_path
         window = min(max(p.search.linear_window, p.drift_per_m * since), p.max_window)
         if window <= p.search.linear_window:
-            return p.closure_radius, p.search
+            # right after a closure pulled the tail onto an earlier pass: the narrower window
+            return p.closure_radius, self._tied_search if self._tied else p.search
         if self.nodes[query].path_m - self._last_wide_path < p.wide_every:
             return None
         self._last_wide_path = self.nodes[query].path_m
@@ -277,9 +287,13 @@ class PoseGraphBackend:
                                               verdict.free_directions))
             disagrees = self._disagrees(edge, prior)
             self._dirty = self._dirty or disagrees
+            if disagrees:
+                self._last_disagree_path = self.nodes[query].path_m
+            self._pull_tail(edge, prior)
             self._last_closure_path = self.nodes[query].path_m
             closed, agreed = True, agreed and not disagrees
-        return closed and agreed
+        settled = self.nodes[query].path_m - self._last_disagree_path >= self.p.closure_settle
+        return closed and agreed and settled
 
     def _disagrees(self, edge: Edge, prior: np.ndarray) -> bool:
         """Whether a closure ``edge`` moved beyond ``optimize_gap`` (m) or ``optimize_gap_deg`` from the
@@ -292,6 +306,21 @@ class PoseGraphBackend:
         moved = between(prior, edge.relative)
         gap = np.diag([self.p.optimize_gap, self.p.optimize_gap, np.radians(self.p.optimize_gap_deg)]) ** 2
         return bool(moved @ np.linalg.solve(edge.covariance + gap, moved) >= 1.0)
+
+    def _pull_tail(self, edge: Edge, prior: np.ndarray) -> None:
+        """Move the query node ``edge.b`` (the newest: later nodes follow it by odometry)
+        ``closure_pull`` of the way from ``prior`` (its pose in ``edge.a``'s frame by the estimate) to
+        the closure's ``edge.relative``: the difference (m, m, rad, in the query's frame) through the
+        gain ``S (S + C)⁻¹``, ``S`` the gaps' squares (:meth:`_disagrees`), ``C`` the closure's
+        covariance, so a direction the closure leaves free (a corridor's axis) keeps the estimate's."""
+        if self.p.closure_pull == 0.0:
+            return
+        moved = between(prior, edge.relative)
+        gap = np.diag([self.p.optimize_gap, self.p.optimize_gap, np.radians(self.p.optimize_gap_deg)]) ** 2
+        gap = np.maximum(gap, np.diag([1e-6, 1e-6, 1e-8]))  # zero gaps: still a gain, not a singular sum
+        step = self.p.closure_pull * (gap @ np.linalg.solve(edge.covariance + gap, moved))
+        self._estimates[edge.b] = compose(self._estimates[edge.b], step)
+        self.graph.set_estimate(edge.b, self._estimates[edge.b])
 
     def _submap(self, cand: int) -> np.ndarray:
         """The points of the nodes within ``submap_nodes`` of ``cand``, in its frame, placed by the

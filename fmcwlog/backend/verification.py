@@ -50,7 +50,7 @@ import numpy as np
 
 from ..geometry import transform_points, wrap_angle
 from ..kernels import compiled
-from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for
+from ..kernels.correlative import CorrelativeParams, correlative_match, grid_for, subsample
 from .keyframes import match_covariance
 from .params import BackendParams
 from .registration import Submap, build_submap, register_point_to_line
@@ -125,7 +125,7 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
     search = search or p.search
     if len(query_xy) < p.min_pairs or len(submap_xy) < p.min_pairs:
         return Verdict(False, "points", f"{len(query_xy)} query and {len(submap_xy)} submap points")
-    found = correlative_match(grid_for(submap_xy, search), query_xy, prior, search)
+    found = correlative_match(grid_for(reachable(submap_xy, query_xy, prior, search), search), query_xy, prior, search)
     base = Verdict(False, "", "", score=found.score, second_score=found.second_score)
     if found.score < p.min_score:
         return _reject(base, "score", f"search score {found.score:.2f} < {p.min_score}")
@@ -155,6 +155,30 @@ def verify(query_xy: np.ndarray, submap_xy: np.ndarray, prior: np.ndarray, p: Ba
                                        p.closure_sigma_yaw_floor)
     base.free_directions = int(free.shape[1])
     return base
+
+
+def reachable(submap_xy: np.ndarray, query_xy: np.ndarray, prior: np.ndarray, search: CorrelativeParams) -> np.ndarray:
+    """The submap's points (M', 2) that can bear on ``search``'s scores of ``query_xy`` around ``prior``:
+    those within the box the searched query points sweep over the window (``prior``'s placement,
+    grown by the linear window, the arc of the yaw samples at the farthest point's range and two cells),
+    grown by the reach of the likelihood's float32 (``sqrt(240)·σ``, past which it is 0). A grid
+    over these alone scores every pose the same (the likelihood grid's distance transform finds
+    the same nearest point wherever it matters) at about two thirds of the cells; the ICP still
+    matches the whole submap."""
+    if not len(query_xy):
+        return submap_xy
+    src = subsample(query_xy, search.max_points)  # the points the search scores, placed as it does
+    placed = transform_points(prior, src)
+    ranges = np.hypot(src[:, 0], src[:, 1])
+    # the yaw samples reach past the window by at most one step, max(resolution / r90, 2·window /
+    # (max_rotations - 1)), r90 the ranges' 90th percentile (no less than the value just below it)
+    r90 = max(float(np.partition(ranges, int(0.9 * (len(ranges) - 1)))[int(0.9 * (len(ranges) - 1))]), search.resolution)
+    window = np.radians(search.angular_window_deg)
+    turn = window + max(search.resolution / r90, 2 * window / (search.max_rotations - 1))
+    pad = search.linear_window + float(ranges.max()) * turn + np.sqrt(240.0) * search.sigma + 2 * search.resolution
+    lo, hi = placed.min(axis=0) - pad, placed.max(axis=0) + pad
+    keep = ((submap_xy >= lo) & (submap_xy <= hi)).all(axis=1)
+    return submap_xy if keep.all() else submap_xy[keep]
 
 
 def inlier_fraction(query_xy: np.ndarray, sub: Submap, pose: np.ndarray, bound: float) -> float:

@@ -4,6 +4,7 @@ closure queries along a stretch already tied to an earlier pass."""
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -45,7 +46,7 @@ def test_zero_gaps_make_every_closure_call_for_a_re_solve():
 def test_after_a_query_that_closed_a_loop_the_next_comes_closure_every_closed_later(closed_every, monkeypatch):
     """A straight drive, one node every 0.5 m; every query "closes" a loop: queries come every
     ``closure_every_closed`` m of path (rounded up to whole nodes), not every ``closure_every``."""
-    from types import SimpleNamespace
+
 
     backend = _backend(closure_every=1.0, closure_every_closed=closed_every, local_links=0)
     queried: list[float] = []
@@ -62,3 +63,67 @@ def test_after_a_query_that_closed_a_loop_the_next_comes_closure_every_closed_la
     gaps = np.diff(queried)
     assert len(gaps) > 5
     assert np.all(gaps >= closed_every - 1e-9) and np.all(gaps < closed_every + 0.5)
+
+
+def test_an_accepted_closure_pulls_the_newest_node_in_the_directions_it_determines():
+    """A closure across a corridor along x (x free): the query node moves to where the closure puts
+    it across (y, yaw) and keeps the estimate's x; the graph's estimate moves with it."""
+    backend = _backend(closure_pull=1.0, optimize_gap=0.1, optimize_gap_deg=1.0)
+    for pose in ([0.0, 0.0, 0.0], [5.0, 0.0, 0.0]):
+        backend.graph.add_node(np.array(pose))
+        backend._estimates = np.vstack([backend._estimates, pose])
+    prior = np.array([5.0, 0.0, 0.0])
+    measured = np.array([5.6, 0.05, 0.01])  # 0.6 m along the free axis, 5 cm and 0.01 rad across
+    backend._pull_tail(Edge(0, 1, measured, FREE_X), prior)
+    moved = backend._estimates[1]
+    assert moved[0] == pytest.approx(5.0, abs=1e-3)
+    assert moved[1] == pytest.approx(0.05, abs=2e-3) and moved[2] == pytest.approx(0.01, abs=1e-3)
+    np.testing.assert_allclose(backend.graph.estimate(1), moved)
+
+
+def test_no_pull_leaves_the_estimate():
+    backend = _backend(closure_pull=0.0)
+    backend.graph.add_node(np.zeros(3))
+    backend._estimates = np.zeros((1, 3))
+    backend._pull_tail(Edge(0, 0, np.array([0.0, 0.3, 0.1]), TIGHT), np.zeros(3))
+    np.testing.assert_array_equal(backend._estimates, np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize(("since_disagree", "thinned"), [(3.0, False), (12.0, True)])
+def test_queries_thin_only_where_no_closure_disagreed_over_closure_settle(since_disagree, thinned, monkeypatch):
+    """A query whose closures agree thins the next query only ``closure_settle`` m after the last disagreement."""
+
+
+    from fmcwlog.backend import pipeline
+
+    backend = _backend(closure_settle=10.0, closure_min_path=0.0)
+    backend.graph.add_node(np.zeros(3))
+    backend.graph.add_node(np.zeros(3))
+    backend.nodes = [SimpleNamespace(path_m=0.0, stamp_ns=0), SimpleNamespace(path_m=20.0, stamp_ns=1)]
+    backend._estimates = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    backend._node_path.append(0.0)
+    backend._node_path.append(20.0)
+    backend._last_disagree_path = 20.0 - since_disagree
+    backend._last_closure_path = 20.0
+    verdict = SimpleNamespace(accepted=True, relative=np.zeros(3), covariance=TIGHT, score=1.0, second_score=0.0,
+                              inlier_fraction=1.0, free_directions=0)
+    monkeypatch.setattr(pipeline, "verify", lambda *a, **k: verdict)
+    monkeypatch.setattr(pipeline, "voxel_downsample", lambda xy, v: xy)
+    monkeypatch.setattr(backend, "_submap", lambda cand: np.zeros((0, 2)))
+    backend.nodes[1].points = np.zeros((0, 2), np.float32)
+    assert backend._close_loops(1) is thinned
+
+
+def test_a_query_right_after_a_pulled_closure_searches_the_tied_window():
+    backend = _backend(tied_window=0.5, tied_window_deg=5.0)
+    backend.nodes = [SimpleNamespace(path_m=30.0)]
+    backend._last_closure_path = 30.0
+    assert backend._search_window(0)[1] == backend.p.search
+    backend._tied = True
+    radius, search = backend._search_window(0)
+    assert radius == backend.p.closure_radius
+    assert (search.linear_window, search.angular_window_deg) == (0.5, 5.0)
+    assert search.resolution == backend.p.search.resolution
+    backend = _backend(tied_window=0.0)
+    backend.nodes, backend._last_closure_path, backend._tied = [SimpleNamespace(path_m=30.0)], 30.0, True
+    assert backend._search_window(0)[1] == backend.p.search

@@ -35,6 +35,12 @@ whole ``process`` run's CPU for 2-3 % of the accuracy (on the 120 s ``corridor``
 process --set backend.local_tolerance=0.001``: back-end ATE 0.679 against 0.666 cm). The front
 end's own scan-to-map pose is no substitute: it is the odometry edge already, the biased
 measurement these edges are added to correct.
+
+With the compiled core a node's matches are one call (``src/core/local_edges.cpp``: the thinning,
+each earlier node's submap, the ICPs, the gates and the covariances), which keeps each node's
+points while a later node may still match them; the numpy path here stays the reference. On the
+20-minute ten-lap corridor the local edges alone take 0.65 against 0.91 ms a node (improved) and
+0.90 against 1.10 ms (baseline) with the matches one call each.
 """
 
 from __future__ import annotations

@@ -35,6 +35,12 @@ whole ``process`` run's CPU for 2-3 % of the accuracy (on the 120 s ``corridor``
 process --set backend.local_tolerance=0.001``: back-end ATE 0.679 against 0.666 cm). The front
 end's own scan-to-map pose is no substitute: it is the odometry edge already, the biased
 measurement these edges are added to correct.
+
+With the compiled core a node's matches are one call (``src/core/local_edges.cpp``: the thinning,
+each earlier node's submap, the ICPs, the gates and the covariances), which keeps each node's
+points while a later node may still match them; the numpy path here stays the reference. On the
+20-minute ten-lap corridor the local edges alone take 0.65 against 0.91 ms a node (improved) and
+0.90 against 1.10 ms (baseline) with the matches one call each.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import between, wrap_angle
+from ..kernels import compiled
 from ..kernels.voxel import voxel_downsample
 from .graph import Edge
 from .keyframes import Node, match_covariance
@@ -62,6 +69,10 @@ class LocalMatcher:
     _submaps: dict[int, Submap] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
     icp: LineICPParams = field(init=False)
+    _core: object = field(default=None, init=False, repr=False)  # the compiled core's LocalEdges, once used
+    _held: set[int] = field(default_factory=set, init=False, repr=False)  # the nodes it holds the points of
+    iterations: list[int] = field(default_factory=list, init=False, repr=False)  # the core's last call: ICP
+    # iterations of each match, node order (0: none ran)
 
     def __post_init__(self) -> None:
         self.icp = dataclasses.replace(self.p.icp, max_iterations=self.p.local_max_iterations,
@@ -71,6 +82,9 @@ class LocalMatcher:
         """Edges from ``local_links`` nodes before the last one of ``nodes`` to it (module docstring),
         none from a node before ``first`` (the first node of a new piece, after a jump)."""
         query = nodes[-1]
+        module = compiled.core()
+        if module is not None:
+            return self._compiled_edges(module, nodes, max(query.index - self.p.local_links, first, 0))
         q = voxel_downsample(query.points.astype(float), self.p.local_query_voxel)
         out = []
         for j in range(max(query.index - self.p.local_links, first, 0), query.index):
@@ -80,6 +94,30 @@ class LocalMatcher:
         for old in [k for k in self._submaps if k < query.index - self.p.local_links]:
             del self._submaps[old]
         return out
+
+    def _compiled_edges(self, module, nodes: list[Node], lo: int) -> list[Edge]:
+        """:meth:`edges` in one call of the compiled core (``src/core/local_edges.cpp``) from node ``lo``:
+        the same submaps, pairs, iterations and gates; poses and covariances agree to rounding. The
+        core keeps each node's points from the call that added it until no later node matches it."""
+        if self._core is None:
+            p, icp = self.p, self.icp
+            self._core = module.LocalEdges(
+                p.local_links, p.local_query_voxel, p.local_submap_voxel, icp.normal_neighbours, icp.min_planarity,
+                icp.max_distance, icp.max_iterations, icp.kernel_scale, icp.tolerance, p.min_pairs, p.local_gate,
+                p.local_gate_deg, p.effective_pairs, p.residual_sigma, p.local_sigma_xy_floor, p.local_sigma_yaw_floor)
+        core, held, i = self._core, self._held, nodes[-1].index
+        for j in range(lo, i):
+            if j not in held:  # the first node, or one made before the core was used
+                core.add(j, np.ascontiguousarray(nodes[j].points, float))
+                held.add(j)
+        found, rejected, self.iterations = core.edges(i, np.ascontiguousarray(nodes[-1].points, float),
+                                     np.array([nodes[j].frontend_pose for j in range(lo, i + 1)], float))
+        held.add(i)
+        for old in [k for k in held if k < i - self.p.local_links]:
+            held.discard(old)
+        for reason in rejected:
+            self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        return [Edge(j, i, np.array(pose), np.array(cov).reshape(3, 3)) for j, pose, cov in found]
 
     def _submap(self, nodes: list[Node], j: int) -> Submap:
         if j not in self._submaps:

@@ -20,5 +20,6 @@ void bind_likelihood_grid(nanobind::module_& m);
 void bind_submap(nanobind::module_& m);
 void bind_keyframe_map(nanobind::module_& m);
 void bind_transform(nanobind::module_& m);
+void bind_local_edges(nanobind::module_& m);
 
 }  // namespace fmcwlog

@@ -13,13 +13,12 @@
 
 #include "common.hpp"
 #include "kernels.hpp"
+#include "line_icp.hpp"
 
 namespace fmcwlog {
 namespace {
 
 using Flags = nb::ndarray<const bool, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Vec3 = std::array<double, 3>;
-using Mat3 = std::array<double, 9>;
 
 struct System {
     std::vector<double> r, j0, j1, j2, w;
@@ -135,6 +134,8 @@ void normal_equations(const System& sys, Mat3& h, Vec3& g) {
     }
 }
 
+}  // namespace
+
 // LAPACK's dgesv on 3 x 3: LU with partial pivoting (the first largest |pivot|); false where a pivot is 0.
 bool solve3(Mat3 a, Vec3 b, Vec3& x) {
     for (int col = 0; col < 3; ++col) {
@@ -159,6 +160,52 @@ bool solve3(Mat3 a, Vec3 b, Vec3& x) {
     }
     return true;
 }
+
+// The iterations of line_icp (registration.register_point_to_line), on raw arrays: normals (M, 2) and
+// has_normal (M,) the grid's points' rows; s (n, 2) the source; the prior held where both pointers are
+// given; near (M, k) / reach (M, k + 1) the submap's neighbour table or null.
+LineIcpRun run_line_icp(const TargetGrid& grid, const double* normals, const bool* has_normal, const double* s,
+                        size_t n, Vec3 pose, int max_iterations, double kernel_scale, double tolerance,
+                        const Vec3* prior_pose, const Mat3* prior_info, const int32_t* near, int64_t k,
+                        const double* reach) {
+    bool converged = false;
+    int it = 0;
+    System sys;
+    Pairing pairing(grid, near, k, reach, n);
+    Mat3 h;
+    Vec3 g;
+    for (it = 1; it <= max_iterations; ++it) {
+        build_system(grid, pairing, s, n, normals, has_normal, pose, kernel_scale, sys);
+        if (sys.r.size() < 3) break;
+        normal_equations(sys, h, g);
+        if (prior_pose && prior_info) {
+            Vec3 dp{pose[0] - (*prior_pose)[0], pose[1] - (*prior_pose)[1], pose[2] - (*prior_pose)[2]};
+            dp[2] = wrap_angle(dp[2]);
+            for (int a = 0; a < 3; ++a) {
+                double add = 0.0;
+                for (int b = 0; b < 3; ++b) add += (*prior_info)[size_t(3 * a + b)] * dp[size_t(b)];
+                g[size_t(a)] += add;
+            }
+            for (size_t q = 0; q < 9; ++q) h[q] += (*prior_info)[q];
+        }
+        Mat3 damped = h;
+        for (int a = 0; a < 3; ++a) damped[size_t(4 * a)] += 1e-9;  // registration._DAMPING
+        Vec3 step;
+        if (!solve3(damped, g, step)) break;
+        const Vec3 delta{-step[0], -step[1], -step[2]};
+        pose = {pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])};
+        if (std::hypot(delta[0], delta[1]) < tolerance && std::abs(delta[2]) < tolerance) {
+            converged = true;
+            break;
+        }
+    }
+    if (it > max_iterations) it = max_iterations;
+    build_system(grid, pairing, s, n, normals, has_normal, pose, kernel_scale, sys);
+    normal_equations(sys, h, g);
+    return {pose, h, std::move(sys.r), it, converged};
+}
+
+namespace {
 
 using Residuals = nb::ndarray<nb::numpy, double, nb::ndim<1>>;
 using Result = std::tuple<Vec3, Mat3, Residuals, int64_t, int, bool>;
@@ -186,49 +233,17 @@ Result line_icp(const TargetGrid& grid, Points normals, Flags has_normal, Points
         for (size_t i = 0; i < near->size(); ++i)
             if (v[i] < -1 || int64_t(v[i]) >= int64_t(normals.shape(0))) throw nb::value_error("near: an index past M");
     }
-    const double* s = source.data();
-    const size_t n = source.shape(0);
-    Vec3 pose{x, y, theta};
-    bool converged = false;
-    int it = 0;
-    System sys;
-    Pairing pairing(grid, near ? near->data() : nullptr, near ? int64_t(near->shape(1)) : 0,
-                    reach ? reach->data() : nullptr, n);
-    Mat3 h;
-    Vec3 g;
+    const bool held = prior_pose && prior_info;
+    LineIcpRun run;
     {
         nb::gil_scoped_release release;
-        for (it = 1; it <= max_iterations; ++it) {
-            build_system(grid, pairing, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
-            if (sys.r.size() < 3) break;
-            normal_equations(sys, h, g);
-            if (prior_pose && prior_info) {
-                Vec3 dp{pose[0] - (*prior_pose)[0], pose[1] - (*prior_pose)[1], pose[2] - (*prior_pose)[2]};
-                dp[2] = wrap_angle(dp[2]);
-                for (int a = 0; a < 3; ++a) {
-                    double add = 0.0;
-                    for (int b = 0; b < 3; ++b) add += (*prior_info)[size_t(3 * a + b)] * dp[size_t(b)];
-                    g[size_t(a)] += add;
-                }
-                for (size_t k = 0; k < 9; ++k) h[k] += (*prior_info)[k];
-            }
-            Mat3 damped = h;
-            for (int a = 0; a < 3; ++a) damped[size_t(4 * a)] += 1e-9;  // registration._DAMPING
-            Vec3 step;
-            if (!solve3(damped, g, step)) break;
-            const Vec3 delta{-step[0], -step[1], -step[2]};
-            pose = {pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])};
-            if (std::hypot(delta[0], delta[1]) < tolerance && std::abs(delta[2]) < tolerance) {
-                converged = true;
-                break;
-            }
-        }
-        if (it > max_iterations) it = max_iterations;
-        build_system(grid, pairing, s, n, normals.data(), has_normal.data(), pose, kernel_scale, sys);
-        normal_equations(sys, h, g);
+        run = run_line_icp(grid, normals.data(), has_normal.data(), source.data(), source.shape(0), Vec3{x, y, theta},
+                           max_iterations, kernel_scale, tolerance, held ? &*prior_pose : nullptr,
+                           held ? &*prior_info : nullptr, near ? near->data() : nullptr,
+                           near ? int64_t(near->shape(1)) : 0, reach ? reach->data() : nullptr);
     }
-    const int64_t pairs = int64_t(sys.r.size());
-    return {pose, h, to_numpy(std::move(sys.r)), pairs, it, converged};
+    const int64_t pairs = int64_t(run.r.size());
+    return {run.pose, run.h, to_numpy(std::move(run.r)), pairs, run.iterations, run.converged};
 }
 
 }  // namespace

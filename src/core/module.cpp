@@ -35,4 +35,5 @@ NB_MODULE(_core, m) {
     bind_submap(m);
     bind_keyframe_map(m);
     bind_transform(m);
+    bind_local_edges(m);
 }

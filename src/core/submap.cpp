@@ -14,6 +14,7 @@
 
 #include "common.hpp"
 #include "kernels.hpp"
+#include "line_icp.hpp"
 
 namespace fmcwlog {
 namespace {
@@ -186,29 +187,12 @@ Eigen2 eigen_2x2(double a, double b, double c) {
     return {rt1, rt2, cs1, sn1};
 }
 
-// build_submap's normals: ``points`` (M, 2); ``normals`` (M, 2) and ``has_normal`` (M,) are filled.
-// Where given, ``near`` (M, neighbours) gets each point's neighbours (the k nearest, itself among
-// them, nearest first; -1 past k = min(neighbours, M)) and ``reach`` (M, neighbours + 1) distances
-// (m): every point but the first j of its row lies at or beyond reach[j] (the j-th neighbour's
-// distance; past k, the k-th's, or inf where the k are all M points). The line ICP's pairing
-// (line_icp.cpp) answers from them where it can.
-void submap_normals(Points points, int64_t neighbours, double min_planarity, Normals normals, Flags has_normal,
-                    std::optional<Near> near, std::optional<Reach> reach) {
-    const int64_t m = int64_t(points.shape(0));
-    if (int64_t(normals.shape(0)) != m || int64_t(has_normal.shape(0)) != m) throw nb::value_error("outputs of M rows");
-    if (near.has_value() != reach.has_value()) throw nb::value_error("near and reach together");
-    if (near && (int64_t(near->shape(0)) != m || int64_t(near->shape(1)) != neighbours || int64_t(reach->shape(0)) != m ||
-                 int64_t(reach->shape(1)) != neighbours + 1))
-        throw nb::value_error("near (M, neighbours) and reach (M, neighbours + 1)");
+}  // namespace
+
+void submap_normals_into(const double* xy, int64_t m, int64_t neighbours, double min_planarity, double* out,
+                         bool* flag, int32_t* near_out, double* reach_out) {
     if (m == 0) return;
-    if (neighbours < 1) throw nb::value_error("neighbours >= 1");
     const int64_t k = std::min(neighbours, m);
-    int32_t* near_out = near ? near->data() : nullptr;
-    double* reach_out = reach ? reach->data() : nullptr;
-    const double* xy = points.data();
-    double* out = normals.data();
-    bool* flag = has_normal.data();
-    nb::gil_scoped_release release;
     const Buckets buckets(xy, m);
     std::vector<double> d2;
     std::vector<int64_t> idx;
@@ -246,6 +230,31 @@ void submap_normals(Points points, int64_t neighbours, double min_planarity, Nor
             reach_out[q * (neighbours + 1) + neighbours] = last;
         }
     }
+}
+
+namespace {
+
+// build_submap's normals: ``points`` (M, 2); ``normals`` (M, 2) and ``has_normal`` (M,) are filled.
+// Where given, ``near`` (M, neighbours) gets each point's neighbours (the k nearest, itself among
+// them, nearest first; -1 past k = min(neighbours, M)) and ``reach`` (M, neighbours + 1) distances
+// (m): every point but the first j of its row lies at or beyond reach[j] (the j-th neighbour's
+// distance; past k, the k-th's, or inf where the k are all M points). The line ICP's pairing
+// (line_icp.cpp) answers from them where it can.
+void submap_normals(Points points, int64_t neighbours, double min_planarity, Normals normals, Flags has_normal,
+                    std::optional<Near> near, std::optional<Reach> reach) {
+    const int64_t m = int64_t(points.shape(0));
+    if (int64_t(normals.shape(0)) != m || int64_t(has_normal.shape(0)) != m) throw nb::value_error("outputs of M rows");
+    if (near.has_value() != reach.has_value()) throw nb::value_error("near and reach together");
+    if (near && (int64_t(near->shape(0)) != m || int64_t(near->shape(1)) != neighbours || int64_t(reach->shape(0)) != m ||
+                 int64_t(reach->shape(1)) != neighbours + 1))
+        throw nb::value_error("near (M, neighbours) and reach (M, neighbours + 1)");
+    if (m == 0) return;
+    if (neighbours < 1) throw nb::value_error("neighbours >= 1");
+    int32_t* near_out = near ? near->data() : nullptr;
+    double* reach_out = reach ? reach->data() : nullptr;
+    nb::gil_scoped_release release;
+    submap_normals_into(points.data(), m, neighbours, min_planarity, normals.data(), has_normal.data(), near_out,
+                        reach_out);
 }
 
 }  // namespace

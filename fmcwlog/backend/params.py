@@ -109,18 +109,19 @@ class BackendParams(Checked):
         determines, weighed against ``optimize_gap``), and the nodes after it follow by odometry:
         the trajectory's tail stays attached to the earlier pass, as Cartographer's and KISS-SLAM's
         do, so odometry drift does not pile up into disagreeing closures and re-solves between them.
-        0: the estimate moves only at a re-solve. Half the way, not all of it: one closure's
-        error then moves the tail half as far (the 2-minute corridor's ATE 0.61 cm against 0.64
-        cm pulled all the way; the 20-minute ten-lap corridor's re-solves 25 -> 1 either way).
+        0 (the default): the estimate moves only at a re-solve. Half the way took the 20-minute
+        ten-lap corridor's re-solves from 25 to 1 (back end 11.8 -> 6.4 s CPU, ATE unchanged), but
+        on MIT Killian Court (``bench/killian_log.py``: 2.1 h, large loops closed after 150 m of
+        odometry drift) the improved method's relations went from 0.033 to 0.171 m: the tail, pulled
+        onto one closure at a time, left the last solve a start it could not recover from.
     optimize_tolerance: such a re-optimisation stops once a Levenberg-Marquardt iteration lowers the
         graph's error by less than this fraction of it (0-1); the last one, in
         :meth:`~.pipeline.PoseGraphBackend.finish`, runs to gtsam's default (1e-5).
     optimize_share: re-optimise after this share of the graph's nodes instead, where that is more
         than ``optimize_every`` (0-1): a re-solve costs more the larger the graph, so a share keeps
-        their total about linear in the log's length. A tenth: a method whose closures agree with the
-        pulled estimate (``closure_pull``) re-solves only at the end anyway; a drifting one's 50
-        re-solves of the 20-minute ten-lap corridor took 2.5 s CPU at a twentieth, 1.5 s at a tenth
-        (its ATE 0.201 -> 0.202 m; Intel relations 0.01803 -> 0.01827 m).
+        their total about linear in the log's length. A twentieth: at a tenth a drifting method's 50
+        re-solves of the 20-minute ten-lap corridor took 1.5 s CPU instead of 2.5 s, but MIT Killian
+        Court's improved relations went from 0.033 to 0.10 m.
     solver: ``batch`` re-solves the whole graph with Levenberg-Marquardt each time; ``isam2`` hands
         gtsam's ISAM2 what was added since the last time and solves the whole graph once in
         :meth:`~.pipeline.PoseGraphBackend.finish`: less CPU, but its Bayes tree is held and grows
@@ -178,9 +179,9 @@ class BackendParams(Checked):
     closure_settle: float = param(10.0, "m", ge=0.0, le=10_000.0)
     tied_window: float = param(0.5, "m", ge=0.0, le=20.0)
     tied_window_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
-    closure_pull: float = param(0.5, "", ge=0.0, le=1.0)
+    closure_pull: float = param(0.0, "", ge=0.0, le=1.0)
     optimize_tolerance: float = param(1e-3, "", gt=0.0, le=1.0)
-    optimize_share: float = param(0.1, "", ge=0.0, le=1.0)
+    optimize_share: float = param(0.05, "", ge=0.0, le=1.0)
     solver: str = param("batch", choices=("batch", "isam2"))
     isam2_steps: int = param(3, "", ge=1, le=100)
     isam2_relinearize: float = param(0.001, "m, rad", gt=0.0, le=10.0)

@@ -20,6 +20,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
+from fmcwlog.evaluation.ground_truth import read_ground_truth
+from fmcwlog.io.logs import open_log
 from fmcwlog.kernels import compiled
 
 # The compiled kernels (fmcwlog._core) where they load; the comparisons with numpy skip where they do
@@ -386,3 +388,20 @@ def wall_scene(seed: int, n_walls: int, n_points: int, n_source: int, offset, n_
     x, y, th = offset
     c, s = np.cos(-th), np.sin(-th)
     return np.ascontiguousarray((seen - (x, y)) @ np.array([[c, s], [-s, c]])), target
+
+
+def truth_twist(log: Path, t0: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """(N, 2) true ``(v, ω)`` of base_link from ``t0`` (ns) over ``span`` (s): the ground truth's motion
+    over that interval, its forward component and its yaw change, each over ``span``."""
+    stamps, poses = read_ground_truth(open_log(log))
+    stamps = stamps.astype(float)
+    yaw = np.unwrap(poses[:, 2])
+
+    def at(t: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]),
+                         np.interp(t, stamps, yaw)], -1)
+
+    a, b = at(t0), at(t0 + span * 1e9)
+    d = b[:, :2] - a[:, :2]
+    forward = np.cos(a[:, 2]) * d[:, 0] + np.sin(a[:, 2]) * d[:, 1]
+    return np.stack([forward / span, (b[:, 2] - a[:, 2]) / span], -1)

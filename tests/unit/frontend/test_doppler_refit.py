@@ -14,32 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import truth_twist
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.evaluation.ground_truth import read_ground_truth
 from fmcwlog.frontend import methods
 from fmcwlog.frontend.egomotion import fit_sensor_velocity_numpy, refit_static, unit_bearings_numpy
-from fmcwlog.io.logs import open_log
 from fmcwlog.pipeline.params import ProcessParams
 from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import SimConfig, apply_overrides
 from fmcwlog.sim.recorder import record
-
-
-def _truth_twist(log: Path, t0: np.ndarray, span: np.ndarray) -> np.ndarray:
-    """(N, 2) true ``(v, ω)`` of base_link from ``t0`` (ns) over ``span`` (s)."""
-    stamps, poses = read_ground_truth(open_log(log))
-    stamps = stamps.astype(float)
-    yaw = np.unwrap(poses[:, 2])
-
-    def at(t: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]),
-                         np.interp(t, stamps, yaw)], -1)
-
-    a, b = at(t0), at(t0 + span * 1e9)
-    d = b[:, :2] - a[:, :2]
-    forward = np.cos(a[:, 2]) * d[:, 0] + np.sin(a[:, 2]) * d[:, 1]
-    return np.stack([forward / span, (b[:, 2] - a[:, 2]) / span], -1)
 
 
 def _sweep(rng: np.random.Generator, v_true: np.ndarray, n_static: int = 800, n_movers: int = 60):
@@ -108,7 +91,7 @@ def _doppler_errors(log: Path, out: Path, refit: bool, monkeypatch) -> np.ndarra
     params = dataclasses.replace(ProcessParams(), doppler_refit=refit)
     process(log, out, ProcessOptions(methods=("improved",), backend="none", params=params))
     k = np.array(rows, float)
-    return k[:, 2:4] - _truth_twist(log, k[:, 0], k[:, 1])
+    return k[:, 2:4] - truth_twist(log, k[:, 0], k[:, 1])
 
 
 @pytest.fixture(scope="module")

@@ -15,33 +15,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import truth_twist
 
 from fmcwlog.api import ProcessOptions, process
-from fmcwlog.evaluation.ground_truth import read_ground_truth
 from fmcwlog.frontend import methods
 from fmcwlog.frontend.twist_fusion import ObservedNoise, WheelNoise, base_variances
-from fmcwlog.io.logs import open_log
 from fmcwlog.pipeline.params import ProcessParams
 from fmcwlog.sim import scenarios
 from fmcwlog.sim.config import SimConfig, apply_overrides
 from fmcwlog.sim.recorder import record
-
-
-def _truth_twist(log: Path, t0: np.ndarray, span: np.ndarray) -> np.ndarray:
-    """(N, 2) true ``(v, ω)`` of base_link from ``t0`` (ns) over ``span`` (s)."""
-    stamps, poses = read_ground_truth(open_log(log))
-    stamps = stamps.astype(float)
-    yaw = np.unwrap(poses[:, 2])
-
-    def at(t: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]),
-                         np.interp(t, stamps, yaw)], -1)
-
-    a, b = at(t0), at(t0 + span * 1e9)
-    d = b[:, :2] - a[:, :2]
-    forward = np.cos(a[:, 2]) * d[:, 0] + np.sin(a[:, 2]) * d[:, 1]
-    return np.stack([forward / span, (b[:, 2] - a[:, 2]) / span], -1)
-
 
 START = 30  # sweeps left out at the start: the evidence is in after about 2.3 s (a vote's window, 10 sweeps compared)
 
@@ -65,7 +47,7 @@ def _twist_errors(log: Path, out: Path, adapt_rate: float, monkeypatch,
                                  doppler_refit=refit)
     process(log, out, ProcessOptions(methods=("improved",), backend="none", params=params))
     k = np.array(rows, float)[START:]
-    truth = _truth_twist(log, k[:, 0], k[:, 1])
+    truth = truth_twist(log, k[:, 0], k[:, 1])
     rms = [np.sqrt(np.mean((k[:, cols] - truth) ** 2, axis=0)) for cols in (slice(2, 4), slice(4, 6))]
     return rms[0], rms[1]
 

@@ -83,3 +83,18 @@ def long_corridor_log(tmp_path_factory) -> Path:
 def dense_crowd_log(tmp_path_factory) -> Path:
     """25 s of the dense crowd: about half of the returns on walkers and carts, many crossing the beams."""
     return record_scenario(tmp_path_factory, "dense-crowd", 25.0)
+
+
+@pytest.fixture(scope="session")
+def coarse_doppler_log(tmp_path_factory) -> Path:
+    """20 s of the ``crowd`` scenario with a coarse Doppler (seed 0): noise 0.1 m/s before 0.25 m/s
+    steps (bench/sensors/worse-doppler.toml), against the default 0.02 and 0.1."""
+    from fmcwlog.sim import scenarios
+    from fmcwlog.sim.config import SimConfig, apply_overrides
+    from fmcwlog.sim.recorder import record
+
+    log = tmp_path_factory.mktemp("coarse") / "crowd.mcap"
+    cfg = apply_overrides(SimConfig(), {"sensor": {"doppler_sigma": 0.1, "doppler_resolution": 0.25},
+                                        "run": {"duration": 20.0, "seed": 0}}).validate()
+    record(scenarios.SCENARIOS["crowd"](), cfg, log)
+    return log

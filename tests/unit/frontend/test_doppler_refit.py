@@ -20,9 +20,6 @@ from fmcwlog.api import ProcessOptions, process
 from fmcwlog.frontend import methods
 from fmcwlog.frontend.egomotion import fit_sensor_velocity_numpy, refit_static, unit_bearings_numpy
 from fmcwlog.pipeline.params import ProcessParams
-from fmcwlog.sim import scenarios
-from fmcwlog.sim.config import SimConfig, apply_overrides
-from fmcwlog.sim.recorder import record
 
 
 def _sweep(rng: np.random.Generator, v_true: np.ndarray, n_static: int = 800, n_movers: int = 60):
@@ -92,16 +89,6 @@ def _doppler_errors(log: Path, out: Path, refit: bool, monkeypatch) -> np.ndarra
     process(log, out, ProcessOptions(methods=("improved",), backend="none", params=params))
     k = np.array(rows, float)
     return k[:, 2:4] - truth_twist(log, k[:, 0], k[:, 1])
-
-
-@pytest.fixture(scope="module")
-def coarse_doppler_log(tmp_path_factory) -> Path:
-    """20 s of the ``crowd`` scenario with the coarse Doppler (seed 0)."""
-    log = tmp_path_factory.mktemp("coarse") / "crowd.mcap"
-    cfg = apply_overrides(SimConfig(), {"sensor": {"doppler_sigma": 0.1, "doppler_resolution": 0.25},
-                                        "run": {"duration": 20.0, "seed": 0}}).validate()
-    record(scenarios.SCENARIOS["crowd"](), cfg, log)
-    return log
 
 
 def test_the_refit_takes_the_bias_out_of_a_coarse_doppler(coarse_doppler_log, tmp_path, monkeypatch):

@@ -21,9 +21,6 @@ from fmcwlog.api import ProcessOptions, process
 from fmcwlog.frontend import methods
 from fmcwlog.frontend.twist_fusion import ObservedNoise, WheelNoise, base_variances
 from fmcwlog.pipeline.params import ProcessParams
-from fmcwlog.sim import scenarios
-from fmcwlog.sim.config import SimConfig, apply_overrides
-from fmcwlog.sim.recorder import record
 
 START = 30  # sweeps left out at the start: the evidence is in after about 2.3 s (a vote's window, 10 sweeps compared)
 
@@ -50,16 +47,6 @@ def _twist_errors(log: Path, out: Path, adapt_rate: float, monkeypatch,
     truth = truth_twist(log, k[:, 0], k[:, 1])
     rms = [np.sqrt(np.mean((k[:, cols] - truth) ** 2, axis=0)) for cols in (slice(2, 4), slice(4, 6))]
     return rms[0], rms[1]
-
-
-@pytest.fixture(scope="module")
-def coarse_doppler_log(tmp_path_factory) -> Path:
-    """20 s of the ``crowd`` scenario with the coarse Doppler (seed 0)."""
-    log = tmp_path_factory.mktemp("coarse") / "crowd.mcap"
-    cfg = apply_overrides(SimConfig(), {"sensor": {"doppler_sigma": 0.1, "doppler_resolution": 0.25},
-                                        "run": {"duration": 20.0, "seed": 0}}).validate()
-    record(scenarios.SCENARIOS["crowd"](), cfg, log)
-    return log
 
 
 def test_observed_weights_keep_a_coarse_doppler_near_the_wheels(coarse_doppler_log, tmp_path, monkeypatch):

@@ -36,7 +36,7 @@ import numpy as np
 from ..geometry import wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import Correspondences, NearestPairs
-from ..kernels.normals import target_normals
+from ..kernels.normals import compiled_lines, target_normals
 from .gmmsc import DistanceMixture, gmmsc_weights
 from .icp import ICPParams, ICPResult, gauss_newton_step, gauss_newton_step_lines, step_is_small
 
@@ -199,10 +199,11 @@ def _register_compiled(
     prior = (np.asarray(prior_pose, dtype=float).tolist(), np.asarray(prior_information, dtype=float).ravel().tolist()
              ) if has_prior else ([0.0] * 3, [0.0] * 9)
     count = inlier_distance is not None and 0.0 < inlier_distance <= gate
-    normals, on_line = _target_lines(target_tree, target_xy, params) or (None, None)
+    lines = (compiled_lines(core, target_tree, target_xy, params.line_neighbours, 1.0 / params.line_eigen_ratio)
+             if params.point_to_line else None)
     (pose, iterations, n_kept, converged, rmse, h, n_fits, replaced, (has, means, sigmas, mix, overlap, median_m),
      inliers) = core.robust_icp(grid, source, x, y, th, _core_params(core, params), given, has_prior, *prior,
-                                inlier_distance if count else -1.0, normals, on_line)
+                                inlier_distance if count else -1.0, lines)
     if replaced:
         mixture = DistanceMixture(np.array(means), np.array(sigmas), np.array(mix), overlap, median_m) if has else None
     search = compiled.CompiledNearest(core, source, target_tree, grid, gate)

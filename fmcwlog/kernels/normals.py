@@ -14,11 +14,15 @@ eigenvector of ``λ_small``; the point is on a line ("planar") where
 back end's submaps use too) where :func:`fmcwlog.kernels.compiled.core` selects it, else
 :func:`line_normals_numpy`, the reference: the same neighbours in the same order and the same
 arithmetic (LAPACK's ``dlaev2`` for the 2 × 2 eigenproblem, written out), so the two agree bit for bit
-on finite points.
+on finite points. The compiled robust ICP takes them from :func:`compiled_lines` instead, which computes
+a point's normal only once the ICP pairs with it (a few hundred of a map's thousands of points: all
+of them cost 1.2 ms a map state on the corridor log, half the front end's step where keyframes come
+every other sweep); the numbers are the same.
 """
 
 from __future__ import annotations
 
+from types import ModuleType
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -59,6 +63,21 @@ def target_normals(tree: object, points: np.ndarray, neighbours: int, min_planar
                                                    tree.tree if compiled.core() is None else None)
         return cast("tuple[np.ndarray, np.ndarray]", found)
     return line_normals(points, neighbours, min_planarity)
+
+
+def compiled_lines(module: ModuleType, tree: object, points: np.ndarray, neighbours: int, min_planarity: float
+                   ) -> object:
+    """The compiled module's ``LineNormals`` of ``points`` (each point's normal computed when the robust
+    ICP first pairs with it, then kept), kept by ``tree`` where it is their
+    :class:`~fmcwlog.kernels.compiled.MapIndex` (one per map state), else made now."""
+    key = ("compiled_lines", int(neighbours), float(min_planarity))
+    if isinstance(tree, compiled.MapIndex) and tree.points is points:
+        found = tree.cache.get(key)
+        if found is None:
+            found = tree.cache[key] = module.LineNormals(np.ascontiguousarray(points, dtype=float), int(neighbours),
+                                                         float(min_planarity))
+        return found
+    return module.LineNormals(np.ascontiguousarray(points, dtype=float), int(neighbours), float(min_planarity))
 
 
 def _neighbours(points: np.ndarray, k: int, tree: cKDTree | None) -> np.ndarray:

@@ -6,7 +6,6 @@
 // numpy function it mirrors and keeps its order of operations; sums run in index order (numpy's
 // pairwise sums and BLAS dot products may round differently: answers agree to ~1e-12, not bit for bit).
 #include <nanobind/stl/array.h>
-#include <nanobind/stl/optional.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
@@ -16,6 +15,7 @@
 
 #include "common.hpp"
 #include "kernels.hpp"
+#include "normals.hpp"
 
 namespace fmcwlog {
 namespace {
@@ -468,19 +468,13 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double 
     }
 }
 
-// The target points' unit normals (M x 2) and line flags (M), where the residuals are point-to-line
-// on lines (fmcwlog/kernels/normals.py); null pointers: point-to-point everywhere.
-struct Lines {
-    const double* normals = nullptr;
-    const bool* on_line = nullptr;
-};
 
 // icp.gauss_newton_step on the kept pairs (keep empty: all) with weights w: delta and H = JT W J
-// (+ the prior's information); where lines.normals is given, gauss_newton_step_lines: a pair whose
+// (+ the prior's information); where lines is given, gauss_newton_step_lines: a pair whose
 // target is on a line gives the one residual n . e (row (n_x, n_y, n . a)), its sums kept apart and
 // added to the point-to-point ones at the end, as the reference adds them.
 void gauss_newton_step(const Pairs& pr, const std::vector<size_t>& keep, const std::vector<double>& w,
-                       const double pose[3], const double* prior_pose, const Mat3* prior_info, const Lines& lines,
+                       const double pose[3], const double* prior_pose, const Mat3* prior_info, LineNormals* lines,
                        Vec3& delta, Mat3& h) {
     double sw = 0, swax = 0, sway = 0, saa = 0, g0 = 0, g1 = 0, g2 = 0;
     Mat3 hl{};  // the line residuals' J^T W J and J^T W r
@@ -491,8 +485,9 @@ void gauss_newton_step(const Pairs& pr, const std::vector<size_t>& keep, const s
         const double ax = -rpy, ay = rpx;
         const double ex = pr.mx[i] - pr.tx[i], ey = pr.my[i] - pr.ty[i];
         const double wk = w[k];
-        if (lines.normals != nullptr && lines.on_line[pr.at[i]]) {
-            const double nx = lines.normals[2 * pr.at[i]], ny = lines.normals[2 * pr.at[i] + 1];
+        const double* nrm = nullptr;
+        if (lines != nullptr && lines->on_line(pr.at[i], nrm)) {
+            const double nx = nrm[0], ny = nrm[1];
             const double j[3] = {nx, ny, nx * ax + ny * ay};
             const double r = nx * ex + ny * ey;
             for (size_t a = 0; a < 3; ++a) {
@@ -512,7 +507,7 @@ void gauss_newton_step(const Pairs& pr, const std::vector<size_t>& keep, const s
     }
     h = Mat3{sw, 0.0, swax, 0.0, sw, sway, swax, sway, saa};
     Vec3 g{g0, g1, g2};
-    if (lines.normals != nullptr) {
+    if (lines != nullptr) {
         for (size_t e = 0; e < 9; ++e) h[e] = h[e] + hl[e];
         for (size_t r = 0; r < 3; ++r) g[r] = g[r] + gl[r];
     }
@@ -541,7 +536,7 @@ double extrapolation_factor(const Vec3& delta, const Vec3& prev, const RobustPar
 }
 
 using Pose = std::tuple<double, double, double>;
-using Flags = nb::ndarray<const bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+using Flags = nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 // (has a mixture, means, sigmas, mix, merge_overlap, fit_median)
 using MixtureOut = std::tuple<bool, std::vector<double>, std::vector<double>, std::vector<double>, double, double>;
 
@@ -550,22 +545,16 @@ using MixtureOut = std::tuple<bool, std::vector<double>, std::vector<double>, st
 // grid's radius): also count the source points within it of the target at the final pose
 // (recovery.inlier_fraction's count; not counted where it is not > 0). Returns (pose, iterations, pairs
 // kept, converged, rmse, H row-major, EM fits, whether the mixture was replaced, the mixture, the
-// inlier count or -1). normals (M, 2) and on_line (M,), both or neither, of the grid's points:
-// point-to-line residuals on lines.
+// inlier count or -1). lines: the line normals of the grid's points (the same points, in the same
+// order), for point-to-line residuals on lines; None: point-to-point.
 std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_t> robust_icp(
     const TargetGrid& grid, Points source, double x, double y, double theta, const RobustParams& p,
     const MixtureOut& mixture_in, bool has_prior, Vec3 prior_pose, Mat3 prior_info, double inlier_distance,
-    std::optional<Points> normals, std::optional<Flags> on_line) {
+    LineNormals* lines) {
     const double* s = source.data();
     const size_t n = source.shape(0);
-    Lines lines;
-    if (normals.has_value() != on_line.has_value()) throw nb::value_error("robust_icp: normals and on_line together");
-    if (normals) {
-        if (normals->shape(0) != grid.size() || on_line->shape(0) != grid.size())
-            throw nb::value_error("robust_icp: normals (M, 2) and on_line (M,) of the grid's M points");
-        lines.normals = normals->data();
-        lines.on_line = on_line->data();
-    }
+    if (lines != nullptr && size_t(lines->size()) != grid.size())
+        throw nb::value_error("robust_icp: lines of another point set than the grid's");
     double pose[3] = {x, y, theta};
     Mixture mix;
     bool has_mix = std::get<0>(mixture_in), replaced = false;
@@ -705,8 +694,31 @@ void bind_robust_icp(nb::module_& m) {
         .def_rw("max_fit_samples", &RobustParams::max_fit_samples);
     m.def("robust_icp", &robust_icp, nb::arg("grid"), nb::arg("source"), nb::arg("x"), nb::arg("y"),
           nb::arg("theta"), nb::arg("params"), nb::arg("mixture"), nb::arg("has_prior"), nb::arg("prior_pose"),
-          nb::arg("prior_information"), nb::arg("inlier_distance") = -1.0, nb::arg("normals").none() = nb::none(),
-          nb::arg("on_line").none() = nb::none());
+          nb::arg("prior_information"), nb::arg("inlier_distance") = -1.0, nb::arg("lines").none() = nb::none());
+    // LineNormals(points (M, 2), neighbours, min_planarity): fmcwlog/kernels/normals.py line_normals,
+    // each point's at its first use; fill(normals (M, 2), on_line (M,)) asks for every point's,
+    // computed() counts those computed so far.
+    nb::class_<LineNormals>(m, "LineNormals")
+        .def("__init__",
+             [](LineNormals* t, Points points, int64_t neighbours, double min_planarity) {
+                 if (neighbours < 1) throw nb::value_error("neighbours >= 1");
+                 new (t) LineNormals(points.data(), int64_t(points.shape(0)), neighbours, min_planarity);
+             },
+             nb::arg("points"), nb::arg("neighbours"), nb::arg("min_planarity"))
+        .def("fill",
+             [](LineNormals& t, OutPoints normals, Flags on_line) {
+                 if (int64_t(normals.shape(0)) != t.size() || int64_t(on_line.shape(0)) != t.size())
+                     throw nb::value_error("outputs of M rows");
+                 for (int64_t j = 0; j < t.size(); ++j) {
+                     const double* nrm = nullptr;
+                     on_line.data()[j] = t.on_line(j, nrm);
+                     normals.data()[2 * j] = nrm[0];
+                     normals.data()[2 * j + 1] = nrm[1];
+                 }
+             },
+             nb::arg("normals"), nb::arg("on_line"))
+        .def("computed", &LineNormals::computed)
+        .def("__len__", &LineNormals::size);
 }
 
 }  // namespace fmcwlog

@@ -86,6 +86,35 @@ def test_compiled_normals_equal_numpy(seed, n, k, ratio, lattice):
     ref_n, ref_f = line_normals_numpy(pts, k, 1 / ratio, cKDTree(pts) if seed % 2 else None)
     np.testing.assert_array_equal(fast_f, ref_f)
     np.testing.assert_array_equal(fast_n, ref_n)
+    # the robust ICP's lazy normals: the same numbers, each point's at its first use
+    lazy = module.LineNormals(np.ascontiguousarray(pts), k, 1 / ratio)
+    assert lazy.computed() == 0
+    lazy_n, lazy_f = np.empty((len(pts), 2)), np.empty(len(pts), bool)
+    lazy.fill(lazy_n, lazy_f)
+    assert lazy.computed() == len(pts)
+    np.testing.assert_array_equal(lazy_f, ref_f)
+    np.testing.assert_array_equal(lazy_n, ref_n)
+
+
+@needs_core
+def test_compiled_icp_computes_only_the_normals_it_pairs_with(use):
+    """A scan of part of a keyframe map: the kernel computes the normals of the map points it paired
+    with, once per map state, and no others; numpy (all normals) gives the same registration."""
+    use("compiled")
+    m = KeyframeMap()
+    target, scan = _corridor()
+    m.add(target, 0.0)
+    part = scan[scan[:, 0] > 2.0]
+    a = register(part, m.tree, m.points, np.zeros(3), ICP)
+    lines = m.tree.cache[("compiled_lines", 7, 1 / 9)]
+    done = lines.computed()
+    assert 0 < done < len(m.points) / 2
+    b = register(part, m.tree, m.points, np.zeros(3), ICP)
+    assert lines.computed() == done and b.iterations == a.iterations
+    np.testing.assert_array_equal(a.pose, b.pose)
+    ref = register_numpy(part, cKDTree(m.points), m.points, np.zeros(3), ICP)
+    assert ref.iterations == a.iterations
+    np.testing.assert_allclose(ref.pose, a.pose, rtol=0, atol=1e-9)
 
 
 def test_normals_kept_per_map_state(use):

@@ -1,4 +1,5 @@
-"""Robust point-to-point ICP in SE(2) (paper §4.3, eq. 22-26): GMMSC weights × Huber kernel.
+"""Robust ICP in SE(2) (paper §4.3, eq. 22-26): GMMSC weights × Huber kernel, point-to-line residuals
+on the map's lines.
 
 Frames and units as in :mod:`fmcwlog.frontend.icp`.
 
@@ -17,6 +18,12 @@ Departures from Wang et al. (the physics notes, docs/physics.md, give the correc
   good odometry prior, which is the start, and harmful when moving objects pull the centroid.
 - The coarse match is the nearest neighbours in the local map under the prior, not FPFH/SHOT
   features (§4.2): for a planar scan with an odometry prior that is the usual coarse match.
+- Where the paired map point lies on a line (:mod:`fmcwlog.kernels.normals`: a PCA of its
+  ``line_neighbours`` nearest map points), the pair gives one residual along the line's normal,
+  ``n · (R p + t - q)`` (:func:`~.icp.gauss_newton_step_lines`), not eq. 22's two; the weights are
+  still those of the point-to-point distance. Against a map of one point per voxel the point-to-point
+  residual pulls the pose along walls toward the voxels' samples (docs/methods.md);
+  ``ICPParams.residual = "point_to_point"`` restores eq. 22.
 
 Two additions, both measured on the tests' room scans: GMMSC starts only once
 Huber-only steps are small (fitting the mixture to misaligned distances

@@ -1,4 +1,4 @@
-"""Estimation robustness (issue 12): every mount, dense crowds, a wrong calibration, in one table.
+"""Estimation robustness: every mount, dense crowds, a wrong calibration, in one table.
 
 For each case it records a log, runs ``fmcwlog process`` (both methods) and the KISS-ICP peer
 (``bench/kiss_icp_peer.py``, if the ``bench`` extra is installed) on it, and scores them with

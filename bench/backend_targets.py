@@ -1,4 +1,4 @@
-"""The back end's targets (issue 13), measured: each figure beside its target, met or not.
+"""The back end's targets, measured: each figure beside its target, met or not.
 
     python bench/backend_targets.py                 # Intel subset, ring and corridor (two laps each)
     python bench/backend_targets.py --only intel    # one of: intel, ring, corridor, long-corridor

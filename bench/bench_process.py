@@ -8,7 +8,7 @@ trajectories.parquet, the wall time and the peak RSS.
     python bench/bench_process.py                      # 2-minute corridor, both methods
     python bench/bench_process.py --minutes 1 5 20     # scaling: cost per sweep should stay flat
 
-Target (issue 3): improved under 5 ms per sweep median on a 2-core machine.
+Target: improved under 5 ms per sweep median on a 2-core machine.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Benchmark: how long `fmcwlog record` takes for a long log, and its peak memory.
 
-Target (issue 2): 10 minutes of `corridor` in under 30 s on a 2-core machine; issue 14: 100x real
+Targets: 10 minutes of `corridor` in under 30 s on a 2-core machine, and 100x real
 time. Runs the real CLI in a child process so peak RSS is that of the recording alone; reports its
 CPU seconds (user + system) beside the wall time, since on a shared machine wall time measures the
 neighbours too.

@@ -1,4 +1,4 @@
-"""Speed benchmark (issue 14): fmcwlog's methods against KISS-ICP, one thread each, in the same run.
+"""Speed benchmark: fmcwlog's methods against KISS-ICP, one thread each, in the same run.
 
 For each scenario it records a log (timing ``record``), then, each in a child process of its own
 with BLAS/OpenMP pinned to one thread:

@@ -1,7 +1,7 @@
 """CMU Wean Hall: are the walls drawn once? A measure of doubled walls that needs no ground truth.
 
 The five Wean Hall logs (``../shared/datasets/cmu_wean_hall``) have no ground truth and no
-relations, so issue 13 asks for "maps with single walls". A wall drawn twice is a wall seen again
+relations, so the measure asked of them is "maps with single walls". A wall drawn twice is a wall seen again
 from a pose that has drifted: its new points lie beside the old ones, parallel, some centimetres to
 a metre away. So for every scan, each of its points (the raw CMU ranges, placed with the
 trajectory's pose at the scan and the laser's own offset, not with anything fmcwlog computed from

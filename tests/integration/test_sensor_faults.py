@@ -1,4 +1,4 @@
-"""Faults of the sensor itself (issue 11): each is injected by rewriting a recorded log
+"""Faults of the sensor itself: each is injected by rewriting a recorded log
 (tests/helpers.py ``copy_log`` with an ``edit``), and each is caught with numbers, the faulty
 source is dropped from the improved method, and the method stays accurate.
 

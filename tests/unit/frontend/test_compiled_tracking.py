@@ -45,8 +45,10 @@ def _both(segment, tracker, *args, **kw):
     """``segment`` (MoverTracker.segment) from the tracker's state with the numpy and the compiled
     kernels: (mask, state) of each; the tracker is left in the numpy run's state."""
     before, runs = _state(tracker), {}
+    rays = (tracker.rays.history, tracker.rays.yaw_errors)  # the sweeps' rays before this one (lists not mutated)
     for kind in ("compiled", "numpy"):
         _set_state(tracker, before)
+        tracker.rays.history, tracker.rays.yaw_errors = rays
         _select(kind)
         runs[kind] = (segment(tracker, *args, **kw), _state(tracker))
     return runs["numpy"], runs["compiled"]
@@ -70,10 +72,10 @@ def recorded():
     """The two 30 s logs processed by the improved method, every sweep's tracking done with both
     kernels from the same state (the run goes on from the numpy one): "sweeps", the (numpy, compiled)
     results of each, and "segmentations", what the tracker gave DBSCAN on every third sweep
-    (xy, epsilon, params, seeds, seed_points)."""
+    (xy, epsilon, params, seeds, seed_points); "rays", how many sweeps' rays the tracker held after each."""
     from fmcwlog.api import ProcessOptions, process
 
-    sweeps, segmentations = [], []
+    sweeps, segmentations, rays = [], [], []
     original_segment, original_clusters = tracking.MoverTracker.segment, tracking.segment_clusters
 
     def clusters(xy, epsilon, params, seeds=None, seed_points=None):
@@ -83,6 +85,7 @@ def recorded():
     def segment(tracker, *args, **kw):
         ref, fast = _both(original_segment, tracker, *args, **kw)
         sweeps.append((ref, fast))
+        rays.append(len(tracker.rays.history))
         return ref[0]
 
     kind = os.environ.get(compiled.ENV)
@@ -99,7 +102,7 @@ def recorded():
         else:
             os.environ[compiled.ENV] = kind
         compiled._chosen = None
-    return {"sweeps": sweeps, "segmentations": segmentations[::3]}
+    return {"sweeps": sweeps, "segmentations": segmentations[::3], "rays": rays}
 
 
 @needs_core
@@ -110,6 +113,9 @@ def test_recorded_tracking_agrees(recorded):
         assert_same_tracks(fast, ref)
     assert sum(len(ref[1][0]) for ref, _ in sweeps) > 3000  # tracks were followed (crowd_30s holds movers)
     assert sum(int(ref[0].sum()) for ref, _ in sweeps) > 50_000
+    # each sweep's rays are kept once (both runs start from the same ones), up to displacement_sweeps
+    kept = recorded["rays"]
+    assert kept[:12] == [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 10, 10]
 
 
 @needs_core

@@ -432,10 +432,9 @@ class MoverTracker:
             map_xy = deskew_placed(xy, t, twist[0], twist[1], mount, lidar)
             seen_free = np.zeros(len(xy), bool)
         if p.displacement_sweeps > 0:  # where earlier sweeps saw through: something moved in since
-            lags = range(p.displacement_step, p.displacement_sweeps + 1, p.displacement_step)
-            displaced = self.rays.displaced(map_xy, lags, p.displacement_margin, yaw_error, p.displacement_tolerance)
-            self.rays.add(map_xy, deskew_placed(np.zeros_like(xy), t, twist[0], twist[1], mount, lidar), yaw_error)
-            seen_free = seen_free | displaced
+            ends = deskew_placed(np.zeros((2, 2)), t[[0, -1]], twist[0], twist[1], mount, lidar) if len(t) else None
+            seen_free = seen_free | self.rays.sweep(map_xy, t, ends, p.displacement_step, p.displacement_margin,
+                                                    yaw_error, p.displacement_tolerance)
         core = compiled.core()
         if core is not None:
             found = self._segment_compiled(core, xy, map_xy, t, epsilon, seen_free, lidar, stamp, when, seg_params)
@@ -553,28 +552,94 @@ def placed_free_space_numpy(recent: RecentOccupancy, xy: np.ndarray, t: np.ndarr
     return map_xy, recent.seen_free_numpy(map_xy, placed, threshold)
 
 
+# arctan on [0, 1], Abramowitz & Stegun 4.4.47 (|error| < 1.2e-5 rad): the bearing bins' angle, the
+# same float operations in numpy and the compiled kernel (no libm arctan2: their bins are the same)
+_ATAN = (0.9998660, -0.3302995, 0.1801410, -0.0851330, 0.0208351)
+
+
+def bearing_bins(dx: np.ndarray, dy: np.ndarray, bins: int) -> np.ndarray:
+    """The bin (N,, int64 in [0, ``bins``)) of the directions (``dx``, ``dy``) (N,) among ``bins``
+    equal bins of the full circle from -π, by a polynomial arctangent within 1.2e-5 rad of the true
+    angle. Every step is one IEEE operation the compiled kernel does in the same order."""
+    ax, ay = np.abs(dx), np.abs(dy)
+    z = np.minimum(ax, ay) / np.maximum(np.maximum(ax, ay), 1e-300)
+    s = z * z
+    a1, a3, a5, a7, a9 = _ATAN
+    a = ((((a9 * s + a7) * s + a5) * s + a3) * s + a1) * z
+    a = np.where(ay > ax, math.pi / 2 - a, a)
+    a = np.where(dx < 0, math.pi - a, a)
+    a = np.where(dy < 0, -a, a)
+    return np.floor((a + math.pi) * (bins / (2 * math.pi))).astype(np.int64) % bins
+
+
+def lidar_origins(t: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The lidar's position (N, 2) at the times ``t`` (N,, s) of a sweep, on the chord between
+    ``ends`` (2, 2): where it was at ``t[0]`` and ``t[-1]`` (``ends[0]`` for all where those are the
+    same time). Within a sweep (0.1 s) the arc departs from its chord by ``v T² ω / 8``: 5 mm at
+    2 m/s and 2 rad/s, against the 0.5 m a displaced point must lie short."""
+    w = (t - t[0]) / (t[-1] - t[0]) if len(t) and t[-1] != t[0] else np.zeros(len(t))
+    return np.column_stack([ends[0, 0] + (ends[1, 0] - ends[0, 0]) * w, ends[0, 1] + (ends[1, 1] - ends[0, 1]) * w])
+
+
 class RecentRays:
     """The rays of the last sweeps: where a point of this sweep lies well short of where an earlier
     sweep's ray at its bearing ended, that place was free then and something has moved into it
-    (:meth:`displaced`). Frames and units: ``map``, m, rad.
+    (:meth:`sweep`). Frames and units: ``map``, m, rad.
 
-    A sweep is kept as ``bins`` bearing bins of the full circle: per bin, the nearest range of the
-    sweep's points whose bearing from the lidar *at their own capture time* falls in it, taken over
-    ``window`` bins either side (inf: no return there, never free), and the lidar's position then
-    (at 2 m/s the lidar moves 0.15 m within a sweep: from one origin for all, walls 1.5 m to the
-    side would look seen through). ``yaw_errors``: each sweep's placement yaw uncertainty (rad)."""
+    A sweep is kept as ``bins`` bearing bins of the full circle (:func:`bearing_bins`): per bin, the
+    nearest range of the sweep's points whose bearing from the lidar *at their own capture time*
+    falls in it, taken over ``window`` bins either side (inf: no return there, never free), and the
+    lidar's position then (at 2 m/s the lidar moves 0.15 m within a sweep: from one origin for all,
+    walls 1.5 m to the side would look seen through), with the sweep's placement yaw uncertainty
+    (rad). The last ``sweeps`` are kept in a ring: ``near`` (S, B), ``origin`` (S, B, 2),
+    ``yaw_errors`` (S,); the next sweep goes to slot ``head``; ``count`` are held."""
 
     def __init__(self, sweeps: int, window: int, bin_rad: float = math.radians(0.25)):
         """``sweeps`` (≥ 0) kept; ``window`` (≥ 0) bins either side; ``bin_rad`` (rad, > 0) a bin's width."""
         self.sweeps, self.window = sweeps, window
         self.bins = int(math.ceil(2 * math.pi / bin_rad))
-        self.history: list[tuple[np.ndarray, np.ndarray]] = []  # (origin (B, 2), nearest range (B,)), oldest first
-        self.yaw_errors: list[float] = []
+        self.near = np.full((sweeps, self.bins), np.inf)
+        self.origin = np.zeros((sweeps, self.bins, 2))
+        self.yaw_errors = np.zeros(sweeps)
+        self.head = self.count = 0
 
-    def _bin(self, d: np.ndarray) -> np.ndarray:
-        """The bin (N,) of directions ``d`` (N, 2)."""
-        a = (np.arctan2(d[:, 1], d[:, 0]) + math.pi) * (self.bins / (2 * math.pi))
-        return np.floor(a).astype(np.int64) % self.bins
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+        """A copy of the ring (for :meth:`restore`)."""
+        return self.near.copy(), self.origin.copy(), self.yaw_errors.copy(), self.head, self.count
+
+    def restore(self, state: tuple[np.ndarray, np.ndarray, np.ndarray, int, int]) -> None:
+        """The ring as :meth:`state` copied it."""
+        near, origin, yaw_errors, self.head, self.count = state
+        self.near, self.origin, self.yaw_errors = near.copy(), origin.copy(), yaw_errors.copy()
+
+    def sweep(self, map_xy: np.ndarray, t: np.ndarray, ends: np.ndarray | None, step: int, margin: float,
+              yaw_error: float, tolerance: float) -> np.ndarray:
+        """:meth:`displaced` of the sweep's points ``map_xy`` (N, 2) against the sweeps ``step``,
+        2 ``step``, ... back, then the sweep kept (:meth:`add`): the displaced mask (N,). The lidar's
+        position when each point was taken (s, ``t`` (N,)) is :func:`lidar_origins` between ``ends``
+        (2, 2): where it was at ``t[0]`` and ``t[-1]`` (None: no points); ``yaw_error`` (rad), the
+        sweep's placement yaw uncertainty.
+
+        The compiled kernel where :func:`fmcwlog.kernels.compiled.core` selects it and the inputs are
+        finite (one call, the same mask and ring), else :meth:`sweep_numpy`."""
+        core = compiled.core()
+        if (core is not None and self.sweeps > 0 and ends is not None and sweep_columns(map_xy, t)
+                and type(ends) is np.ndarray and ends.dtype == np.float64 and ends.shape == (2, 2)
+                and _floats(margin, yaw_error, tolerance)):
+            out = np.empty(len(t), bool)
+            (ax, ay), (bx, by) = ends.tolist()
+            if core.rays_sweep(map_xy, t, ax, ay, bx, by, self.near, self.origin, self.yaw_errors, self.head,
+                               self.count, int(step), margin, yaw_error, tolerance, self.window, out):
+                self.head, self.count = (self.head + 1) % self.sweeps, min(self.count + 1, self.sweeps)
+                return out
+        return self.sweep_numpy(map_xy, t, ends, step, margin, yaw_error, tolerance)
+
+    def sweep_numpy(self, map_xy: np.ndarray, t: np.ndarray, ends: np.ndarray | None, step: int, margin: float,
+                    yaw_error: float, tolerance: float) -> np.ndarray:
+        """:meth:`sweep` as its steps: the reference the compiled kernel is tested against."""
+        out = self.displaced(map_xy, range(step, self.sweeps + 1, step), margin, yaw_error, tolerance)
+        self.add(map_xy, lidar_origins(t, ends) if ends is not None else np.zeros((0, 2)), yaw_error)
+        return out
 
     def add(self, map_xy: np.ndarray, origins: np.ndarray, yaw_error: float) -> None:
         """One sweep's points (N, 2, ``map``), the lidar's position (N, 2) when each was taken, and how
@@ -582,17 +647,19 @@ class RecentRays:
         if self.sweeps == 0:
             return
         d = map_xy - origins
-        b = self._bin(d)
+        b = bearing_bins(d[:, 0], d[:, 1], self.bins)
         nearest = np.full(self.bins, np.inf)
-        np.minimum.at(nearest, b, np.hypot(d[:, 0], d[:, 1]))
+        np.minimum.at(nearest, b, np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]))
         near = nearest.copy()
         for k in range(1, self.window + 1):
             near = np.minimum(near, np.minimum(np.roll(nearest, k), np.roll(nearest, -k)))
+        last = np.full(self.bins, -1)
+        np.maximum.at(last, b, np.arange(len(b)))  # the last point's of each bin: the lidar moves < 1 mm within a bin
         origin = np.empty((self.bins, 2))
         origin[:] = origins[len(origins) // 2] if len(origins) else 0.0
-        origin[b] = origins  # the last point's of each bin: the lidar moves < 1 mm within a bin
-        self.history = (self.history + [(origin, near)])[-self.sweeps:]
-        self.yaw_errors = (self.yaw_errors + [float(yaw_error)])[-self.sweeps:]
+        origin[last >= 0] = origins[last[last >= 0]]
+        self.near[self.head], self.origin[self.head], self.yaw_errors[self.head] = near, origin, yaw_error
+        self.head, self.count = (self.head + 1) % self.sweeps, min(self.count + 1, self.sweeps)
 
     def displaced(self, map_xy: np.ndarray, lags: range, margin: float, yaw_error: float,
                   tolerance: float) -> np.ndarray:
@@ -602,13 +669,15 @@ class RecentRays:
         ``tolerance`` (m)."""
         out = np.zeros(len(map_xy), bool)
         for lag in lags:
-            if lag > len(self.history):
+            if lag > self.count:
                 break
-            origin, near = self.history[-lag]
-            err = max([yaw_error, *self.yaw_errors[-lag:]])
-            first = self._bin(map_xy - origin[0])  # a first bearing, then from the ray's own origin
-            d = map_xy - origin[first]
-            r = np.hypot(d[:, 0], d[:, 1])
-            seen = near[self._bin(d)]
+            slots = (self.head - np.arange(1, lag + 1)) % self.sweeps
+            slot = slots[-1]
+            origin, near = self.origin[slot], self.near[slot]
+            err = max(yaw_error, float(self.yaw_errors[slots].max()))
+            d = map_xy - origin[0]  # a first bearing, then from the ray's own origin
+            d = map_xy - origin[bearing_bins(d[:, 0], d[:, 1], self.bins)]
+            r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+            seen = near[bearing_bins(d[:, 0], d[:, 1], self.bins)]
             out |= np.isfinite(seen) & (seen > r + margin) & (r * err <= tolerance)
         return out

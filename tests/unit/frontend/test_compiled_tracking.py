@@ -43,28 +43,36 @@ def _select(kind):
 
 def _both(segment, tracker, *args, **kw):
     """``segment`` (MoverTracker.segment) from the tracker's state with the numpy and the compiled
-    kernels: (mask, state) of each; the tracker is left in the numpy run's state."""
+    kernels: (mask, state) of each, the state with the recent rays' ring after; the tracker is left in
+    the numpy run's state."""
     before, runs = _state(tracker), {}
-    rays = (tracker.rays.history, tracker.rays.yaw_errors)  # the sweeps' rays before this one (lists not mutated)
+    rays = tracker.rays.state()  # the sweeps' rays before this one
     for kind in ("compiled", "numpy"):
         _set_state(tracker, before)
-        tracker.rays.history, tracker.rays.yaw_errors = rays
+        tracker.rays.restore(rays)
         _select(kind)
-        runs[kind] = (segment(tracker, *args, **kw), _state(tracker))
+        mask = segment(tracker, *args, **kw)
+        near, origin, yaw_errors, head, count = tracker.rays.state()
+        runs[kind] = (mask, _state(tracker) + (near, origin, yaw_errors, np.array([head, count])))
     return runs["numpy"], runs["compiled"]
 
 
 def assert_same_tracks(fast, ref):
-    """Masks, track counts, hits and times exactly; states and covariances to 1e-9."""
+    """Masks, track counts, hits and times exactly; states and covariances to 1e-9 (and, where given,
+    the recent rays' ring to 1e-9, its slots exactly)."""
     (mask, state), (want_mask, want) = fast, ref
     assert mask.dtype == want_mask.dtype
     np.testing.assert_array_equal(mask, want_mask)
     assert state[0].shape == want[0].shape
     np.testing.assert_allclose(state[0], want[0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(state[1], want[1], rtol=0, atol=1e-9)
-    for got, expected in zip(state[2:], want[2:]):
+    for got, expected in zip(state[2:5], want[2:5]):
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got, expected)
+    if len(want) > 5:  # the recent rays' ring (from each kernel's de-skew: the same to rounding) and its slots
+        for got, expected in zip(state[5:8], want[5:8]):
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(state[8], want[8])
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +93,7 @@ def recorded():
     def segment(tracker, *args, **kw):
         ref, fast = _both(original_segment, tracker, *args, **kw)
         sweeps.append((ref, fast))
-        rays.append(len(tracker.rays.history))
+        rays.append(tracker.rays.count)
         return ref[0]
 
     kind = os.environ.get(compiled.ENV)

@@ -47,6 +47,19 @@ class ICPParams(Checked):
         step extrapolation of the robust variant (``_extrapolation_factor``);
         halves the iterations in our tests at unchanged accuracy.
     workers: threads for the KD-tree query (1: the per-sweep budget is tiny).
+    residual: the robust variant's residual (robust only: the baseline is point-to-point).
+        ``point_to_line``: a pair whose map point lies on a line (its neighbourhood's covariance has
+        ``line_eigen_ratio`` or more between its eigenvalues) gives one residual along that line's
+        normal, ``n · (R p + t - q)``; the other pairs give the point-to-point residual
+        ``R p + t - q``. ``point_to_point``: every pair gives the point-to-point residual (the
+        paper's eq. 22). The weights are the same for both (from the point-to-point distance).
+        Against a map thinned to one point per voxel, point-to-point pulls each scan point toward
+        the voxel's sample, which sits anywhere along a wall: a bias along walls that accumulates
+        (docs/methods.md has the measurements).
+    line_neighbours: a map point's normal is fitted to its this many nearest map points (itself
+        among them; ≥ 3).
+    line_eigen_ratio: a map point is on a line where its neighbours' covariance has a larger
+        eigenvalue at least this many times the smaller (≥ 1).
     """
 
     max_iterations: int = param(30, "", ge=1, le=1000)
@@ -69,6 +82,16 @@ class ICPParams(Checked):
     extrapolation_min_cos: float = param(0.9, "", ge=-1.0, le=1.0)
     extrapolation_lever: float = param(3.0, "m", ge=0.0, le=100.0)  # turns rad into m to compare steps
     workers: int = param(1, "threads", ge=1, le=1024)  # scipy's -1 (all cores) is not offered: sweeps are tiny
+    residual: str = param("point_to_line", "", choices=("point_to_line", "point_to_point"))
+    # 7 points at the map's 5 cm voxels span ~30 cm of wall: long enough to average the range noise,
+    # short enough to stay on one side of a corner
+    line_neighbours: int = param(7, "points", ge=3, le=100)
+    line_eigen_ratio: float = param(9.0, "", ge=1.0, le=1e9)
+
+    @property
+    def point_to_line(self) -> bool:
+        """Whether the robust variant uses point-to-line residuals on lines (``residual``)."""
+        return self.residual == "point_to_line"
 
 
 @dataclass
@@ -120,6 +143,13 @@ def gauss_newton_step(
     ``Λ`` must be in the units of the weighted squared residuals (an inverse
     prior covariance times the residual variance).
     """
+    h, g = _point_sums(moved, target, pose, weights)
+    return _solve(h, g, pose, prior_pose, prior_information)
+
+
+def _point_sums(moved: np.ndarray, target: np.ndarray, pose: np.ndarray, weights: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``JᵀWJ`` and ``JᵀWe`` of the point-to-point residuals (:func:`gauss_newton_step`)."""
     rp = moved - pose[:2]  # R p
     ax, ay = -rp[:, 1], rp[:, 0]  # ∂(Rp)/∂θ
     e = moved - target
@@ -134,6 +164,12 @@ def gauss_newton_step(
         ]
     )
     g = np.array([w @ e[:, 0], w @ e[:, 1], w @ (ax * e[:, 0] + ay * e[:, 1])])
+    return h, g
+
+
+def _solve(h: np.ndarray, g: np.ndarray, pose: np.ndarray, prior_pose: np.ndarray | None,
+           prior_information: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The step ``-(H + Λ)⁻¹ (g + Λ (x - x_p))`` and ``H + Λ`` (no prior: ``-H⁻¹ g`` and ``H``)."""
     if prior_pose is not None and prior_information is not None:
         dp = np.asarray(pose, float) - np.asarray(prior_pose, float)
         dp[2] = wrap_angle(dp[2])
@@ -145,6 +181,36 @@ def gauss_newton_step(
     except np.linalg.LinAlgError:
         delta = -np.linalg.lstsq(h, g, rcond=None)[0]
     return delta, h
+
+
+def gauss_newton_step_lines(
+    moved: np.ndarray,
+    target: np.ndarray,
+    normals: np.ndarray,
+    on_line: np.ndarray,
+    pose: np.ndarray,
+    weights: np.ndarray,
+    prior_pose: np.ndarray | None = None,
+    prior_information: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`gauss_newton_step` where the pairs ``on_line`` (K,) give one residual along their
+    target's unit normal (``normals`` (K, 2), target frame) instead of two: ``r = n · (moved -
+    target)``, ``∂r/∂(x, y, θ) = (n_x, n_y, n · (-(Rp)_y, (Rp)_x))``, each weighted by its
+    ``weights``. The other pairs are point-to-point, as there. Returns ``Δ`` and ``H = JᵀWJ``
+    (+ ``Λ``), as :func:`gauss_newton_step`."""
+    if not on_line.any():
+        return gauss_newton_step(moved, target, pose, weights, prior_pose, prior_information)
+    off = ~on_line
+    h, g = _point_sums(moved[off], target[off], pose, weights[off])
+    rp = moved[on_line] - pose[:2]
+    e = moved[on_line] - target[on_line]
+    n = normals[on_line]
+    j = np.empty((len(n), 3))
+    j[:, :2] = n
+    j[:, 2] = n[:, 0] * -rp[:, 1] + n[:, 1] * rp[:, 0]
+    r = n[:, 0] * e[:, 0] + n[:, 1] * e[:, 1]
+    wj = j * weights[on_line][:, None]
+    return _solve(h + wj.T @ j, g + wj.T @ r, pose, prior_pose, prior_information)
 
 
 def step_is_small(step: np.ndarray, p: ICPParams) -> bool:

@@ -1,4 +1,5 @@
-"""Robust point-to-point ICP in SE(2) (paper §4.3, eq. 22-26): GMMSC weights × Huber kernel.
+"""Robust ICP in SE(2) (paper §4.3, eq. 22-26): GMMSC weights × Huber kernel, point-to-line residuals
+on the map's lines.
 
 Frames and units as in :mod:`fmcwlog.frontend.icp`.
 
@@ -17,6 +18,12 @@ Departures from Wang et al. (the physics notes, docs/physics.md, give the correc
   good odometry prior, which is the start, and harmful when moving objects pull the centroid.
 - The coarse match is the nearest neighbours in the local map under the prior, not FPFH/SHOT
   features (§4.2): for a planar scan with an odometry prior that is the usual coarse match.
+- Where the paired map point lies on a line (:mod:`fmcwlog.kernels.normals`: a PCA of its
+  ``line_neighbours`` nearest map points), the pair gives one residual along the line's normal,
+  ``n · (R p + t - q)`` (:func:`~.icp.gauss_newton_step_lines`), not eq. 22's two; the weights are
+  still those of the point-to-point distance. Against a map of one point per voxel the point-to-point
+  residual pulls the pose along walls toward the voxels' samples (docs/methods.md);
+  ``ICPParams.residual = "point_to_point"`` restores eq. 22.
 
 Two additions, both measured on the tests' room scans: GMMSC starts only once
 Huber-only steps are small (fitting the mixture to misaligned distances
@@ -36,8 +43,9 @@ import numpy as np
 from ..geometry import wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import Correspondences, NearestPairs
+from ..kernels.normals import compiled_lines, target_normals
 from .gmmsc import DistanceMixture, gmmsc_weights
-from .icp import ICPParams, ICPResult, gauss_newton_step, step_is_small
+from .icp import ICPParams, ICPResult, gauss_newton_step, gauss_newton_step_lines, step_is_small
 
 if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
     from scipy.spatial import cKDTree
@@ -63,15 +71,24 @@ def median(x: np.ndarray) -> float:
 
 
 def _kept(c: Correspondences, keep: np.ndarray | None, gmm_weights: np.ndarray | None, p: ICPParams
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Distances, moved source, target points and weights ``W = GMM × Huber`` of the pairs
-    ``keep`` (None: all of them, GMMSC not yet on: no copies, and a GMM weight of 1 is no product)."""
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Distances, moved source, target points, weights ``W = GMM × Huber`` and target indices of the
+    pairs ``keep`` (None: all of them, GMMSC not yet on: no copies, and a GMM weight of 1 is no product)."""
     if keep is None or gmm_weights is None:
         d = c.distances
-        return d, c.moved, c.target, huber_weights(d, p.huber_delta) if p.use_huber else np.ones(d.size)
+        return (d, c.moved, c.target, huber_weights(d, p.huber_delta) if p.use_huber else np.ones(d.size),
+                c.target_idx)
     d = c.distances[keep]
     w = gmm_weights[keep] * huber_weights(d, p.huber_delta) if p.use_huber else gmm_weights[keep]
-    return d, c.moved[keep], c.target[keep], w
+    return d, c.moved[keep], c.target[keep], w, c.target_idx[keep]
+
+
+def _target_lines(tree: object, target_xy: np.ndarray, p: ICPParams) -> tuple[np.ndarray, np.ndarray] | None:
+    """The target points' unit normals (M, 2) and line flags (M,) where ``p`` asks for point-to-line
+    residuals (None otherwise); kept by ``tree`` per map state where it is a ``MapIndex``."""
+    if not p.point_to_line:
+        return None
+    return target_normals(tree, target_xy, p.line_neighbours, 1.0 / p.line_eigen_ratio)
 
 
 def _extrapolation_factor(delta: np.ndarray, prev: np.ndarray, p: ICPParams) -> float:
@@ -189,9 +206,11 @@ def _register_compiled(
     prior = (np.asarray(prior_pose, dtype=float).tolist(), np.asarray(prior_information, dtype=float).ravel().tolist()
              ) if has_prior else ([0.0] * 3, [0.0] * 9)
     count = inlier_distance is not None and 0.0 < inlier_distance <= gate
+    lines = (compiled_lines(core, target_tree, target_xy, params.line_neighbours, 1.0 / params.line_eigen_ratio)
+             if params.point_to_line else None)
     (pose, iterations, n_kept, converged, rmse, h, n_fits, replaced, (has, means, sigmas, mix, overlap, median_m),
      inliers) = core.robust_icp(grid, source, x, y, th, _core_params(core, params), given, has_prior, *prior,
-                                inlier_distance if count else -1.0)
+                                inlier_distance if count else -1.0, lines)
     if replaced:
         mixture = DistanceMixture(np.array(means), np.array(sigmas), np.array(mix), overlap, median_m) if has else None
     search = compiled.CompiledNearest(core, source, target_tree, grid, gate)
@@ -220,6 +239,7 @@ def register_numpy(
     last_distances = None  # of the last pairs used: the RMS is taken once, after the loop
     prev_delta: np.ndarray | None = None
     search = NearestPairs(source_xy, target_tree, target_xy, params.max_correspondence_distance, params.workers)
+    lines = _target_lines(target_tree, target_xy, params)
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007 (the count is returned)
         c = search.pairs(pose)
@@ -240,8 +260,12 @@ def register_numpy(
         n_pairs = c.distances.size if keep is None else int(keep.sum())
         if n_pairs < params.min_correspondences:
             break
-        d, moved, target, w = _kept(c, keep, gmm_w, params)
-        delta, h = gauss_newton_step(moved, target, pose, w, prior_pose, prior_information)
+        d, moved, target, w, near = _kept(c, keep, gmm_w, params)
+        if lines is None:
+            delta, h = gauss_newton_step(moved, target, pose, w, prior_pose, prior_information)
+        else:
+            delta, h = gauss_newton_step_lines(moved, target, lines[0].take(near, axis=0), lines[1].take(near), pose,
+                                               w, prior_pose, prior_information)
         step = delta
         if params.extrapolate and prev_delta is not None:
             step = delta * _extrapolation_factor(delta, prev_delta, params)

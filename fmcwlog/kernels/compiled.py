@@ -140,7 +140,8 @@ class CompiledNearest:
 class MapIndex:
     """A target point set (M, 2) with its search structures, each built on first use and then kept:
     the ``cKDTree`` (what the numpy kernels query; built with ``tree_options``) and the compiled
-    module's ``TargetGrid`` per radius (m). It stands where a ``cKDTree`` is expected: ``query`` and
+    module's ``TargetGrid`` per radius (m); :attr:`cache` keeps what else is made of the points (the
+    line normals, :func:`fmcwlog.kernels.normals.target_normals`). It stands where a ``cKDTree`` is expected: ``query`` and
     the tree's attributes (``n``, ``data``, ...) are the tree's. The points must not change
     afterwards: a changed set is a new index."""
 
@@ -149,6 +150,8 @@ class MapIndex:
         self._options = tree_options
         self._tree: cKDTree | None = None
         self._grids: dict[float, object] = {}
+        # other structures of these points, each made once by the module that needs it (by its key)
+        self.cache: dict[object, object] = {}
 
     @property
     def tree(self) -> cKDTree:

@@ -36,13 +36,15 @@ class Correspondences:
 
     source_idx (K,): indices into ``source_xy``; moved (K, 2): those points in
     the target frame under the current pose; target (K, 2): their nearest target
-    points; distances (K,): ``‖moved - target‖`` (m).
+    points; distances (K,): ``‖moved - target‖`` (m); target_idx (K,): the target points'
+    indices into ``target_xy``.
     """
 
     source_idx: np.ndarray
     moved: np.ndarray
     target: np.ndarray
     distances: np.ndarray
+    target_idx: np.ndarray
 
 
 def find_correspondences(
@@ -64,7 +66,8 @@ def find_correspondences(
     )
     ok = np.isfinite(dist)
     src = np.flatnonzero(ok)
-    return Correspondences(src, moved[ok], target_xy[idx[ok]], dist[ok])
+    near = idx[ok]
+    return Correspondences(src, moved[ok], target_xy[near], dist[ok], near)
 
 
 QUERY_MARGIN = 0.1  # m beyond the gate the tree is asked about: a point moves this far before its "none" expires
@@ -168,5 +171,6 @@ class NearestPairs:
         """The pairs within the gate under ``pose``, as :func:`find_correspondences` gives them."""
         moved, flat, dist = self._search(pose)
         src = np.flatnonzero(dist < self.gate)
-        return Correspondences(src, moved.take(src, axis=0), self._flat_xy.take(flat.take(src), axis=0),
-                               dist.take(src))
+        at = flat.take(src)
+        return Correspondences(src, moved.take(src, axis=0), self._flat_xy.take(at, axis=0), dist.take(src),
+                               self._candidates.take(at))

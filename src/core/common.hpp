@@ -106,6 +106,7 @@ class TargetGrid {
     }
 
     double radius() const { return radius_; }
+    size_t size() const { return xy_.size() / 2; }  // the points M
     double x(int64_t i) const { return xy_[2 * size_t(i)]; }
     double y(int64_t i) const { return xy_[2 * size_t(i) + 1]; }
 

@@ -1,7 +1,8 @@
 // The improved method's robust ICP (fmcwlog/frontend/robust_icp.py register), whole: the pairs on
 // the target's grid (fmcwlog/kernels/nearest.py), GMMSC weights with their EM fit
 // (fmcwlog/frontend/gmmsc.py), Huber weights, the Gauss-Newton step with an optional Gaussian prior
-// (fmcwlog/frontend/icp.py gauss_newton_step) and the step extrapolation. Each piece names the
+// (fmcwlog/frontend/icp.py gauss_newton_step, or gauss_newton_step_lines where the target points'
+// line normals are given) and the step extrapolation. Each piece names the
 // numpy function it mirrors and keeps its order of operations; sums run in index order (numpy's
 // pairwise sums and BLAS dot products may round differently: answers agree to ~1e-12, not bit for bit).
 #include <nanobind/stl/array.h>
@@ -14,6 +15,7 @@
 
 #include "common.hpp"
 #include "kernels.hpp"
+#include "normals.hpp"
 
 namespace fmcwlog {
 namespace {
@@ -435,7 +437,9 @@ bool solve3(Mat3 a, Vec3 b, Vec3& x) {
 // The pairs within the gate under a pose, with each moved source point (NearestPairs.pairs).
 struct Pairs {
     std::vector<double> mx, my, tx, ty, dist;
+    std::vector<int64_t> at;  // the target points' indices
     void clear() {
+        at.clear();
         mx.clear();
         my.clear();
         tx.clear();
@@ -460,21 +464,39 @@ void find_pairs(const TargetGrid& grid, const double* s, size_t n, const double 
         out.tx.push_back(at[0]);
         out.ty.push_back(at[1]);
         out.dist.push_back(d);
+        out.at.push_back(j);
     }
 }
 
+
 // icp.gauss_newton_step on the kept pairs (keep empty: all) with weights w: delta and H = JT W J
-// (+ the prior's information).
+// (+ the prior's information); where lines is given, gauss_newton_step_lines: a pair whose
+// target is on a line gives the one residual n . e (row (n_x, n_y, n . a)), its sums kept apart and
+// added to the point-to-point ones at the end, as the reference adds them.
 void gauss_newton_step(const Pairs& pr, const std::vector<size_t>& keep, const std::vector<double>& w,
-                       const double pose[3], const double* prior_pose, const Mat3* prior_info, Vec3& delta,
-                       Mat3& h) {
+                       const double pose[3], const double* prior_pose, const Mat3* prior_info, LineNormals* lines,
+                       Vec3& delta, Mat3& h) {
     double sw = 0, swax = 0, sway = 0, saa = 0, g0 = 0, g1 = 0, g2 = 0;
+    Mat3 hl{};  // the line residuals' J^T W J and J^T W r
+    Vec3 gl{};
     for (size_t k = 0; k < w.size(); ++k) {
         const size_t i = keep.empty() ? k : keep[k];
         const double rpx = pr.mx[i] - pose[0], rpy = pr.my[i] - pose[1];
         const double ax = -rpy, ay = rpx;
         const double ex = pr.mx[i] - pr.tx[i], ey = pr.my[i] - pr.ty[i];
         const double wk = w[k];
+        const double* nrm = nullptr;
+        if (lines != nullptr && lines->on_line(pr.at[i], nrm)) {
+            const double nx = nrm[0], ny = nrm[1];
+            const double j[3] = {nx, ny, nx * ax + ny * ay};
+            const double r = nx * ex + ny * ey;
+            for (size_t a = 0; a < 3; ++a) {
+                const double wa = j[a] * wk;
+                for (size_t b = 0; b < 3; ++b) hl[3 * a + b] += wa * j[b];
+                gl[a] += wa * r;
+            }
+            continue;
+        }
         sw += wk;
         swax += wk * ax;
         sway += wk * ay;
@@ -485,6 +507,10 @@ void gauss_newton_step(const Pairs& pr, const std::vector<size_t>& keep, const s
     }
     h = Mat3{sw, 0.0, swax, 0.0, sw, sway, swax, sway, saa};
     Vec3 g{g0, g1, g2};
+    if (lines != nullptr) {
+        for (size_t e = 0; e < 9; ++e) h[e] = h[e] + hl[e];
+        for (size_t r = 0; r < 3; ++r) g[r] = g[r] + gl[r];
+    }
     if (prior_pose != nullptr && prior_info != nullptr) {
         const double dp[3] = {pose[0] - prior_pose[0], pose[1] - prior_pose[1],
                               wrap_angle(pose[2] - prior_pose[2])};
@@ -510,6 +536,7 @@ double extrapolation_factor(const Vec3& delta, const Vec3& prev, const RobustPar
 }
 
 using Pose = std::tuple<double, double, double>;
+using Flags = nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 // (has a mixture, means, sigmas, mix, merge_overlap, fit_median)
 using MixtureOut = std::tuple<bool, std::vector<double>, std::vector<double>, std::vector<double>, double, double>;
 
@@ -518,12 +545,16 @@ using MixtureOut = std::tuple<bool, std::vector<double>, std::vector<double>, st
 // grid's radius): also count the source points within it of the target at the final pose
 // (recovery.inlier_fraction's count; not counted where it is not > 0). Returns (pose, iterations, pairs
 // kept, converged, rmse, H row-major, EM fits, whether the mixture was replaced, the mixture, the
-// inlier count or -1).
+// inlier count or -1). lines: the line normals of the grid's points (the same points, in the same
+// order), for point-to-line residuals on lines; None: point-to-point.
 std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_t> robust_icp(
     const TargetGrid& grid, Points source, double x, double y, double theta, const RobustParams& p,
-    const MixtureOut& mixture_in, bool has_prior, Vec3 prior_pose, Mat3 prior_info, double inlier_distance) {
+    const MixtureOut& mixture_in, bool has_prior, Vec3 prior_pose, Mat3 prior_info, double inlier_distance,
+    LineNormals* lines) {
     const double* s = source.data();
     const size_t n = source.shape(0);
+    if (lines != nullptr && size_t(lines->size()) != grid.size())
+        throw nb::value_error("robust_icp: lines of another point set than the grid's");
     double pose[3] = {x, y, theta};
     Mixture mix;
     bool has_mix = std::get<0>(mixture_in), replaced = false;
@@ -596,7 +627,7 @@ std::tuple<Pose, int, int64_t, bool, double, Mat3, int, bool, MixtureOut, int64_
             if (!weighted) keep.clear();
             Vec3 delta;
             gauss_newton_step(pairs, keep, w, pose, has_prior ? prior_pose.data() : nullptr,
-                              has_prior ? &prior_info : nullptr, delta, h);
+                              has_prior ? &prior_info : nullptr, lines, delta, h);
             Vec3 step = delta;
             if (p.extrapolate && have_prev) {
                 const double f = extrapolation_factor(delta, prev, p);
@@ -663,7 +694,31 @@ void bind_robust_icp(nb::module_& m) {
         .def_rw("max_fit_samples", &RobustParams::max_fit_samples);
     m.def("robust_icp", &robust_icp, nb::arg("grid"), nb::arg("source"), nb::arg("x"), nb::arg("y"),
           nb::arg("theta"), nb::arg("params"), nb::arg("mixture"), nb::arg("has_prior"), nb::arg("prior_pose"),
-          nb::arg("prior_information"), nb::arg("inlier_distance") = -1.0);
+          nb::arg("prior_information"), nb::arg("inlier_distance") = -1.0, nb::arg("lines").none() = nb::none());
+    // LineNormals(points (M, 2), neighbours, min_planarity): fmcwlog/kernels/normals.py line_normals,
+    // each point's at its first use; fill(normals (M, 2), on_line (M,)) asks for every point's,
+    // computed() counts those computed so far.
+    nb::class_<LineNormals>(m, "LineNormals")
+        .def("__init__",
+             [](LineNormals* t, Points points, int64_t neighbours, double min_planarity) {
+                 if (neighbours < 1) throw nb::value_error("neighbours >= 1");
+                 new (t) LineNormals(points.data(), int64_t(points.shape(0)), neighbours, min_planarity);
+             },
+             nb::arg("points"), nb::arg("neighbours"), nb::arg("min_planarity"))
+        .def("fill",
+             [](LineNormals& t, OutPoints normals, Flags on_line) {
+                 if (int64_t(normals.shape(0)) != t.size() || int64_t(on_line.shape(0)) != t.size())
+                     throw nb::value_error("outputs of M rows");
+                 for (int64_t j = 0; j < t.size(); ++j) {
+                     const double* nrm = nullptr;
+                     on_line.data()[j] = t.on_line(j, nrm);
+                     normals.data()[2 * j] = nrm[0];
+                     normals.data()[2 * j + 1] = nrm[1];
+                 }
+             },
+             nb::arg("normals"), nb::arg("on_line"))
+        .def("computed", &LineNormals::computed)
+        .def("__len__", &LineNormals::size);
 }
 
 }  // namespace fmcwlog

@@ -100,6 +100,21 @@ def test_doppler_prior_holds_the_position_along_a_bare_corridor(ate, long_corrid
     assert off > 1.0 > 20 * full, (full, off)  # measured 1.6 cm -> 17 m: it slides
 
 
+@pytest.fixture(scope="module")
+def brisk_static_log(tmp_path_factory) -> Path:
+    """30 s of the static scene at 1.13 m/s: the map's keyframes 20 cm apart are a few sweeps old."""
+    from helpers import record_scenario
+
+    return record_scenario(tmp_path_factory, "static", 30.0, 0, robot={"speed": 1.13})
+
+
+def test_point_to_line_takes_out_the_pull_of_the_maps_samples(ate, brisk_static_log):
+    # point-to-point pulls each scan point toward its voxel's one sample, anywhere along the wall
+    # (tests/unit/frontend/test_point_to_line.py shows the pull on known geometry)
+    full, off = ate(brisk_static_log), ate(brisk_static_log, icp__residual="point_to_point")
+    assert off > 1.4 * full and full < 0.024, (full, off)  # measured 1.18 -> 2.38 cm
+
+
 def test_gmmsc_rejects_clutter_the_kernel_cannot():
     """Component level: a ray-cast room with 20 % clutter beside its walls (tests/test_robust_icp.py)."""
     from test_robust_icp import TARGET, TREE, _err, _outliers, _raycast, _truth

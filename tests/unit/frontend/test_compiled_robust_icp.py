@@ -4,7 +4,8 @@ search index that both ICP variants share.
 Iteration counts, pairs kept, EM fits and convergence are compared exactly, poses, the hessian and
 the mixture to 1e-9: on the registrations the improved method makes on a recorded log, and on
 generated scenes over the parameters that steer the iterations (gate, Huber, GMMSC and its EM fit,
-extrapolation, the pose prior, a mixture handed in). Where the module is not built the comparisons
+extrapolation, the pose prior, a mixture handed in, the residual: point-to-line on the map's lines or
+point-to-point). Where the module is not built the comparisons
 skip, unless ``FMCWLOG_KERNELS=compiled`` asks for it.
 """
 
@@ -133,10 +134,13 @@ def test_recorded_registrations_agree(recorded, use):
        k=st.integers(1, 4), w_th=st.sampled_from([0.05, 0.3, 0.5, 0.9]), merge=st.sampled_from([0.2, 1.0]),
        refit=st.sampled_from([0.25, 0.8, 1.0]), fit_samples=st.sampled_from([7, 50, 500]),
        em_iter=st.sampled_from([1, 10, 100]), prior=st.booleans(), given_mixture=st.booleans(),
-       inlier_distance=st.sampled_from([None, 0.02, 0.1, 0.5]))
+       inlier_distance=st.sampled_from([None, 0.02, 0.1, 0.5]),
+       residual=st.sampled_from(["point_to_line", "point_to_point"]), line_ratio=st.sampled_from([1.0, 9.0]),
+       line_neighbours=st.sampled_from([3, 7, 12]))
 def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source, clutter, dx, dy, dth, gate,
                                        iterations, use_huber, use_gmmsc, extrapolate, k, w_th, merge, refit,
-                                       fit_samples, em_iter, prior, given_mixture, inlier_distance):
+                                       fit_samples, em_iter, prior, given_mixture, inlier_distance, residual,
+                                       line_ratio, line_neighbours):
     # w_th > 0: with 0 a mixture can keep pairs of weight down to subnormal numbers, whose step is
     # rounding noise in either implementation.
     source, target = wall_scene(seed, n_segments, n_points, n_source, (dx, dy, dth),
@@ -145,7 +149,8 @@ def test_generated_registrations_agree(use, seed, n_segments, n_points, n_source
                   max_iter=em_iter)
     params = replace(ICPParams(), max_correspondence_distance=gate, max_iterations=iterations, use_huber=use_huber,
                      use_gmmsc=use_gmmsc, extrapolate=extrapolate, gmmsc=gmm, gmm_refit_ratio=refit,
-                     gmm_start_translation=0.01, gmm_start_rotation=0.01)
+                     gmm_start_translation=0.01, gmm_start_rotation=0.01, residual=residual,
+                     line_eigen_ratio=line_ratio, line_neighbours=line_neighbours)
     start = np.zeros(3)
     mixture = DistanceMixture(np.array([0.01, 0.2]), np.array([0.01, 0.1]), np.array([0.7, 0.3]), 0.2,
                               0.02) if given_mixture else None

@@ -604,13 +604,8 @@ class RecentRays:
         self.head = self.count = 0
 
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
-        """A copy of the ring (for :meth:`restore`)."""
+        """A copy of the ring: ``(near, origin, yaw_errors, head, count)``."""
         return self.near.copy(), self.origin.copy(), self.yaw_errors.copy(), self.head, self.count
-
-    def restore(self, state: tuple[np.ndarray, np.ndarray, np.ndarray, int, int]) -> None:
-        """The ring as :meth:`state` copied it."""
-        near, origin, yaw_errors, self.head, self.count = state
-        self.near, self.origin, self.yaw_errors = near.copy(), origin.copy(), yaw_errors.copy()
 
     def sweep(self, map_xy: np.ndarray, t: np.ndarray, ends: np.ndarray | None, step: int, margin: float,
               yaw_error: float, tolerance: float) -> np.ndarray:

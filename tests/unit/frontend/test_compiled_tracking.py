@@ -49,7 +49,8 @@ def _both(segment, tracker, *args, **kw):
     rays = tracker.rays.state()  # the sweeps' rays before this one
     for kind in ("compiled", "numpy"):
         _set_state(tracker, before)
-        tracker.rays.restore(rays)
+        near, origin, yaw_errors, tracker.rays.head, tracker.rays.count = rays
+        tracker.rays.near, tracker.rays.origin, tracker.rays.yaw_errors = near.copy(), origin.copy(), yaw_errors.copy()
         _select(kind)
         mask = segment(tracker, *args, **kw)
         near, origin, yaw_errors, head, count = tracker.rays.state()

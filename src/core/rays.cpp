@@ -3,8 +3,8 @@
 // kept in the ring, in one call.
 //
 // The ring stays in Python (RecentRays' arrays) and is written here in place. The bearing bins are
-// tracking.bearing_bins' polynomial arctangent and the ranges sqrt(dx^2 + dy^2), the reference's
-// float operations in its order (no FMA contraction): the mask and the ring are numpy's to the bit.
+// tracking.bearing_bins' polynomial arctangent in float32 and the ranges sqrt(dx^2 + dy^2) in float64, the
+// reference's IEEE operations in its order (no FMA contraction): the mask and the ring are numpy's to the bit.
 #if defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -22,27 +22,32 @@ using Ring = nb::ndarray<double, nb::shape<-1, -1>, nb::c_contig, nb::device::cp
 using RingOrigins = nb::ndarray<double, nb::shape<-1, -1, 2>, nb::c_contig, nb::device::cpu>;
 using OutMask = nb::ndarray<bool, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
-// tracking._ATAN: arctan on [0, 1], Abramowitz & Stegun 4.4.47
+// tracking._ATAN: arctan on [0, 1], Abramowitz & Stegun 4.4.47, and the other constants of
+// tracking.bearing_bins, as numpy rounds Python's floats to float32
 constexpr double kA1 = 0.9998660, kA3 = -0.3302995, kA5 = 0.1801410, kA7 = -0.0851330, kA9 = 0.0208351;
+constexpr float kA1f = float(kA1), kA3f = float(kA3), kA5f = float(kA5), kA7f = float(kA7), kA9f = float(kA9);
+constexpr float kPif = float(kPi), kHalfPif = float(kPi / 2), kTinyf = float(1e-30);
 
-// tracking.bearing_bins of one direction; scale = bins / (2 pi) as numpy computes it; floor(v) for
-// v in [0, bins] (a + pi >= 0) is its truncation
-inline int32_t bearing_bin(double x, double y, int32_t bins, double scale) {
-    const double ax = std::abs(x), ay = std::abs(y);
-    const double lo = ay < ax ? ay : ax, hi = ay > ax ? ay : ax;
-    const double z = lo / (hi > 1e-300 ? hi : 1e-300);
-    const double s = z * z;
-    double a = ((((kA9 * s + kA7) * s + kA5) * s + kA3) * s + kA1) * z;
-    if (ay > ax) a = kPi / 2 - a;
-    if (x < 0) a = kPi - a;
+// tracking.bearing_bins of one direction (float32 throughout); scale = float32(bins / (2 pi)); floor(v)
+// for v in [0, bins] (a + pi >= 0) is its truncation
+inline int32_t bearing_bin(double dx, double dy, int32_t bins, float scale) {
+    const float x = float(dx), y = float(dy);
+    const float ax = std::abs(x), ay = std::abs(y);
+    const float lo = ay < ax ? ay : ax, hi = ay > ax ? ay : ax;
+    const float z = lo / (hi > kTinyf ? hi : kTinyf);
+    const float s = z * z;
+    float a = ((((kA9f * s + kA7f) * s + kA5f) * s + kA3f) * s + kA1f) * z;
+    if (ay > ax) a = kHalfPif - a;
+    if (x < 0) a = kPif - a;
     if (y < 0) a = -a;
-    const int32_t f = int32_t((a + kPi) * scale);
+    const int32_t f = int32_t((a + kPif) * scale);
     return f >= bins ? f - bins : f;
 }
 
-// bearing_bin of (dx[i], dy[i]), i < n, into k[i], and where r is given the range sqrt(dx^2 + dy^2) into r[i]
+// bearing_bin of (dx[i], dy[i]), i < n, into k[i], and where r is given the range sqrt(dx^2 + dy^2)
+// (float64) into r[i]
 void bearing_bins_plain(const double* dx, const double* dy, int32_t* k, double* r, size_t n, int32_t bins,
-                        double scale) {
+                        float scale) {
     for (size_t i = 0; i < n; ++i) {
         k[i] = bearing_bin(dx[i], dy[i], bins, scale);
         if (r) r[i] = std::sqrt(dx[i] * dx[i] + dy[i] * dy[i]);
@@ -50,71 +55,83 @@ void bearing_bins_plain(const double* dx, const double* dy, int32_t* k, double* 
 }
 
 #if defined(__x86_64__)
-// the same, four points at a time: each lane the same operations (min/max_pd pick as the ternaries do)
+// the same, eight points at a time: each lane the same operations (min/max_ps pick as the ternaries do)
 __attribute__((target("avx2"))) void bearing_bins_avx2(const double* dx, const double* dy, int32_t* k, double* r,
-                                                       size_t n, int32_t bins, double scale) {
-    const __m256d sign = _mm256_set1_pd(-0.0), zero = _mm256_setzero_pd(), tiny = _mm256_set1_pd(1e-300);
-    const __m256d pi = _mm256_set1_pd(kPi), half_pi = _mm256_set1_pd(kPi / 2), sc = _mm256_set1_pd(scale);
-    const __m256d a1 = _mm256_set1_pd(kA1), a3 = _mm256_set1_pd(kA3), a5 = _mm256_set1_pd(kA5),
-                  a7 = _mm256_set1_pd(kA7), a9 = _mm256_set1_pd(kA9);
-    const __m128i nb = _mm_set1_epi32(bins), below = _mm_set1_epi32(bins - 1);
+                                                       size_t n, int32_t bins, float scale) {
+    const __m256 sign = _mm256_set1_ps(-0.0f), zero = _mm256_setzero_ps(), tiny = _mm256_set1_ps(kTinyf);
+    const __m256 pi = _mm256_set1_ps(kPif), half_pi = _mm256_set1_ps(kHalfPif), sc = _mm256_set1_ps(scale);
+    const __m256 a1 = _mm256_set1_ps(kA1f), a3 = _mm256_set1_ps(kA3f), a5 = _mm256_set1_ps(kA5f),
+                 a7 = _mm256_set1_ps(kA7f), a9 = _mm256_set1_ps(kA9f);
+    const __m256i nb = _mm256_set1_epi32(bins), below = _mm256_set1_epi32(bins - 1);
     size_t i = 0;
-    for (; i + 4 <= n; i += 4) {
-        const __m256d x = _mm256_loadu_pd(dx + i), y = _mm256_loadu_pd(dy + i);
-        const __m256d ax = _mm256_andnot_pd(sign, x), ay = _mm256_andnot_pd(sign, y);
-        const __m256d lo = _mm256_min_pd(ay, ax), hi = _mm256_max_pd(ay, ax);  // ay < ax ? ay : ax; ay > ax ? ay : ax
-        const __m256d z = _mm256_div_pd(lo, _mm256_max_pd(hi, tiny));
-        const __m256d s = _mm256_mul_pd(z, z);
-        __m256d a = _mm256_add_pd(_mm256_mul_pd(a9, s), a7);
-        a = _mm256_add_pd(_mm256_mul_pd(a, s), a5);
-        a = _mm256_add_pd(_mm256_mul_pd(a, s), a3);
-        a = _mm256_add_pd(_mm256_mul_pd(a, s), a1);
-        a = _mm256_mul_pd(a, z);
-        a = _mm256_blendv_pd(a, _mm256_sub_pd(half_pi, a), _mm256_cmp_pd(ay, ax, _CMP_GT_OQ));
-        a = _mm256_blendv_pd(a, _mm256_sub_pd(pi, a), _mm256_cmp_pd(x, zero, _CMP_LT_OQ));
-        a = _mm256_blendv_pd(a, _mm256_xor_pd(a, sign), _mm256_cmp_pd(y, zero, _CMP_LT_OQ));
-        const __m128i f = _mm256_cvttpd_epi32(_mm256_mul_pd(_mm256_add_pd(a, pi), sc));
-        const __m128i wrapped = _mm_sub_epi32(f, _mm_and_si128(_mm_cmpgt_epi32(f, below), nb));  // f >= bins: f - bins
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(k + i), wrapped);
-        if (r) _mm256_storeu_pd(r + i, _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(x, x), _mm256_mul_pd(y, y))));
+    for (; i + 8 <= n; i += 8) {
+        const __m256d x0 = _mm256_loadu_pd(dx + i), x1 = _mm256_loadu_pd(dx + i + 4);
+        const __m256d y0 = _mm256_loadu_pd(dy + i), y1 = _mm256_loadu_pd(dy + i + 4);
+        const __m256 x = _mm256_set_m128(_mm256_cvtpd_ps(x1), _mm256_cvtpd_ps(x0));
+        const __m256 y = _mm256_set_m128(_mm256_cvtpd_ps(y1), _mm256_cvtpd_ps(y0));
+        const __m256 ax = _mm256_andnot_ps(sign, x), ay = _mm256_andnot_ps(sign, y);
+        const __m256 lo = _mm256_min_ps(ay, ax), hi = _mm256_max_ps(ay, ax);  // ay < ax ? ay : ax; ay > ax ? ay : ax
+        const __m256 z = _mm256_div_ps(lo, _mm256_max_ps(hi, tiny));
+        const __m256 s = _mm256_mul_ps(z, z);
+        __m256 a = _mm256_add_ps(_mm256_mul_ps(a9, s), a7);
+        a = _mm256_add_ps(_mm256_mul_ps(a, s), a5);
+        a = _mm256_add_ps(_mm256_mul_ps(a, s), a3);
+        a = _mm256_add_ps(_mm256_mul_ps(a, s), a1);
+        a = _mm256_mul_ps(a, z);
+        a = _mm256_blendv_ps(a, _mm256_sub_ps(half_pi, a), _mm256_cmp_ps(ay, ax, _CMP_GT_OQ));
+        a = _mm256_blendv_ps(a, _mm256_sub_ps(pi, a), _mm256_cmp_ps(x, zero, _CMP_LT_OQ));
+        a = _mm256_blendv_ps(a, _mm256_xor_ps(a, sign), _mm256_cmp_ps(y, zero, _CMP_LT_OQ));
+        const __m256i f = _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_add_ps(a, pi), sc));
+        const __m256i wrapped = _mm256_sub_epi32(f, _mm256_and_si256(_mm256_cmpgt_epi32(f, below), nb));  // f >= bins: f - bins
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(k + i), wrapped);
+        if (r) {
+            _mm256_storeu_pd(r + i, _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(x0, x0), _mm256_mul_pd(y0, y0))));
+            _mm256_storeu_pd(r + i + 4, _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(x1, x1), _mm256_mul_pd(y1, y1))));
+        }
     }
     bearing_bins_plain(dx + i, dy + i, k + i, r ? r + i : nullptr, n - i, bins, scale);
 }
 
-// eight points at a time
+// sixteen points at a time
 __attribute__((target("avx512f,avx512dq,avx512vl"))) void bearing_bins_avx512(const double* dx, const double* dy,
                                                                              int32_t* k, double* r, size_t n,
-                                                                             int32_t bins, double scale) {
-    const __m512d sign = _mm512_set1_pd(-0.0), zero = _mm512_setzero_pd(), tiny = _mm512_set1_pd(1e-300);
-    const __m512d pi = _mm512_set1_pd(kPi), half_pi = _mm512_set1_pd(kPi / 2), sc = _mm512_set1_pd(scale);
-    const __m512d a1 = _mm512_set1_pd(kA1), a3 = _mm512_set1_pd(kA3), a5 = _mm512_set1_pd(kA5),
-                  a7 = _mm512_set1_pd(kA7), a9 = _mm512_set1_pd(kA9);
-    const __m256i nb = _mm256_set1_epi32(bins), below = _mm256_set1_epi32(bins - 1);
+                                                                             int32_t bins, float scale) {
+    const __m512 sign = _mm512_set1_ps(-0.0f), zero = _mm512_setzero_ps(), tiny = _mm512_set1_ps(kTinyf);
+    const __m512 pi = _mm512_set1_ps(kPif), half_pi = _mm512_set1_ps(kHalfPif), sc = _mm512_set1_ps(scale);
+    const __m512 a1 = _mm512_set1_ps(kA1f), a3 = _mm512_set1_ps(kA3f), a5 = _mm512_set1_ps(kA5f),
+                 a7 = _mm512_set1_ps(kA7f), a9 = _mm512_set1_ps(kA9f);
+    const __m512i nb = _mm512_set1_epi32(bins);
     size_t i = 0;
-    for (; i + 8 <= n; i += 8) {
-        const __m512d x = _mm512_loadu_pd(dx + i), y = _mm512_loadu_pd(dy + i);
-        const __m512d ax = _mm512_andnot_pd(sign, x), ay = _mm512_andnot_pd(sign, y);
-        const __m512d lo = _mm512_min_pd(ay, ax), hi = _mm512_max_pd(ay, ax);
-        const __m512d z = _mm512_div_pd(lo, _mm512_max_pd(hi, tiny));
-        const __m512d s = _mm512_mul_pd(z, z);
-        __m512d a = _mm512_add_pd(_mm512_mul_pd(a9, s), a7);
-        a = _mm512_add_pd(_mm512_mul_pd(a, s), a5);
-        a = _mm512_add_pd(_mm512_mul_pd(a, s), a3);
-        a = _mm512_add_pd(_mm512_mul_pd(a, s), a1);
-        a = _mm512_mul_pd(a, z);
-        a = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(ay, ax, _CMP_GT_OQ), a, _mm512_sub_pd(half_pi, a));
-        a = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(x, zero, _CMP_LT_OQ), a, _mm512_sub_pd(pi, a));
-        a = _mm512_mask_blend_pd(_mm512_cmp_pd_mask(y, zero, _CMP_LT_OQ), a, _mm512_xor_pd(a, sign));
-        const __m256i f = _mm512_cvttpd_epi32(_mm512_mul_pd(_mm512_add_pd(a, pi), sc));
-        const __m256i wrapped = _mm256_sub_epi32(f, _mm256_and_si256(_mm256_cmpgt_epi32(f, below), nb));
-        _mm256_storeu_si256(reinterpret_cast<__m256i*>(k + i), wrapped);
-        if (r) _mm512_storeu_pd(r + i, _mm512_sqrt_pd(_mm512_add_pd(_mm512_mul_pd(x, x), _mm512_mul_pd(y, y))));
+    for (; i + 16 <= n; i += 16) {
+        const __m512d x0 = _mm512_loadu_pd(dx + i), x1 = _mm512_loadu_pd(dx + i + 8);
+        const __m512d y0 = _mm512_loadu_pd(dy + i), y1 = _mm512_loadu_pd(dy + i + 8);
+        const __m512 x = _mm512_insertf32x8(_mm512_castps256_ps512(_mm512_cvtpd_ps(x0)), _mm512_cvtpd_ps(x1), 1);
+        const __m512 y = _mm512_insertf32x8(_mm512_castps256_ps512(_mm512_cvtpd_ps(y0)), _mm512_cvtpd_ps(y1), 1);
+        const __m512 ax = _mm512_andnot_ps(sign, x), ay = _mm512_andnot_ps(sign, y);
+        const __m512 lo = _mm512_min_ps(ay, ax), hi = _mm512_max_ps(ay, ax);
+        const __m512 z = _mm512_div_ps(lo, _mm512_max_ps(hi, tiny));
+        const __m512 s = _mm512_mul_ps(z, z);
+        __m512 a = _mm512_add_ps(_mm512_mul_ps(a9, s), a7);
+        a = _mm512_add_ps(_mm512_mul_ps(a, s), a5);
+        a = _mm512_add_ps(_mm512_mul_ps(a, s), a3);
+        a = _mm512_add_ps(_mm512_mul_ps(a, s), a1);
+        a = _mm512_mul_ps(a, z);
+        a = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(ay, ax, _CMP_GT_OQ), a, _mm512_sub_ps(half_pi, a));
+        a = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(x, zero, _CMP_LT_OQ), a, _mm512_sub_ps(pi, a));
+        a = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(y, zero, _CMP_LT_OQ), a, _mm512_xor_ps(a, sign));
+        const __m512i f = _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_add_ps(a, pi), sc));
+        const __m512i wrapped = _mm512_mask_sub_epi32(f, _mm512_cmpge_epi32_mask(f, nb), f, nb);  // f >= bins: f - bins
+        _mm512_storeu_si512(k + i, wrapped);
+        if (r) {
+            _mm512_storeu_pd(r + i, _mm512_sqrt_pd(_mm512_add_pd(_mm512_mul_pd(x0, x0), _mm512_mul_pd(y0, y0))));
+            _mm512_storeu_pd(r + i + 8, _mm512_sqrt_pd(_mm512_add_pd(_mm512_mul_pd(x1, x1), _mm512_mul_pd(y1, y1))));
+        }
     }
     bearing_bins_plain(dx + i, dy + i, k + i, r ? r + i : nullptr, n - i, bins, scale);
 }
 #endif
 
-void bearing_bins(const double* dx, const double* dy, int32_t* k, double* r, size_t n, int32_t bins, double scale) {
+void bearing_bins(const double* dx, const double* dy, int32_t* k, double* r, size_t n, int32_t bins, float scale) {
 #if defined(__x86_64__)
     static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
                                __builtin_cpu_supports("avx512vl");
@@ -125,21 +142,37 @@ void bearing_bins(const double* dx, const double* dy, int32_t* k, double* r, siz
     bearing_bins_plain(dx, dy, k, r, n, bins, scale);
 }
 
-// whether v[0..n) are all finite (by their exponent bits: a loop the compiler widens)
-bool all_finite(const double* v, size_t n) {
-    uint64_t bad = 0;
-    for (size_t i = 0; i < n; ++i) {
-        uint64_t bits;
-        std::memcpy(&bits, v + i, sizeof bits);
-        bad |= uint64_t((bits & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL);
-    }
-    return bad == 0;
+// whether |v[i]| < 1e30 for every i < n: finite, and the differences the bins take fit a float32
+bool all_within_plain(const double* v, size_t n) {
+    bool ok = true;
+    for (size_t i = 0; i < n; ++i) ok &= std::abs(v[i]) < 1e30;
+    return ok;
+}
+
+#if defined(__x86_64__)
+__attribute__((target("avx2"))) bool all_within_avx2(const double* v, size_t n) {
+    const __m256d sign = _mm256_set1_pd(-0.0), limit = _mm256_set1_pd(1e30);
+    __m256d ok = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    size_t i = 0;
+    for (; i + 4 <= n; i += 4)  // NaN compares false
+        ok = _mm256_and_pd(ok, _mm256_cmp_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(v + i)), limit, _CMP_LT_OQ));
+    return _mm256_movemask_pd(ok) == 0xf && all_within_plain(v + i, n - i);
+}
+#endif
+
+bool all_within(const double* v, size_t n) {
+#if defined(__x86_64__)
+    static const bool avx2 = __builtin_cpu_supports("avx2");
+    if (avx2) return all_within_avx2(v, n);
+#endif
+    return all_within_plain(v, n);
 }
 
 // numpy's np.minimum of two non-NaN values
 inline double lesser(double a, double b) { return b < a ? b : a; }
 
-// RecentRays.sweep: false (the ring untouched) where a point, an origin or a yaw error is not finite
+// RecentRays.sweep: false (the ring untouched) where a yaw error is not finite or a point, a time or an
+// origin not under 1e30 in size
 bool rays_sweep(Points map_xy, Times t, double ax, double ay, double bx, double by, Ring near, RingOrigins origin, OutVector yaw_errors, int64_t head,
                 int64_t count, int64_t step, double margin, double yaw_error, double tolerance, int64_t window,
                 OutMask out) {
@@ -152,25 +185,32 @@ bool rays_sweep(Points map_xy, Times t, double ax, double ay, double bx, double 
         throw nb::value_error("rays_sweep: ring out of range");
     const double* p = map_xy.data();
     const double* tt = t.data();
-    if (!all_finite(p, 2 * n) || !all_finite(tt, n)) return false;
-    if (!std::isfinite(yaw_error) || !std::isfinite(ax) || !std::isfinite(ay) || !std::isfinite(bx) ||
-        !std::isfinite(by))
+    if (!all_within(p, 2 * n) || !all_within(tt, n)) return false;
+    if (!std::isfinite(yaw_error) || !all_within(&ax, 1) || !all_within(&ay, 1) || !all_within(&bx, 1) ||
+        !all_within(&by, 1))
         return false;
     // the lidar's position when each point was taken (tracking.lidar_origins: on the chord between
     // where it was at t[0] and t[-1])
     std::vector<double> o(2 * n);
     if (n) {
-        const double t0 = tt[0], span = tt[n - 1] - tt[0];
-        for (size_t i = 0; i < n; ++i) {
-            const double w = span != 0.0 ? (tt[i] - t0) / span : 0.0;
-            o[2 * i] = ax + (bx - ax) * w;
-            o[2 * i + 1] = ay + (by - ay) * w;
-            if (!std::isfinite(o[2 * i]) || !std::isfinite(o[2 * i + 1])) return false;
+        const double t0 = tt[0], span = tt[n - 1] - tt[0], ex = bx - ax, ey = by - ay;
+        if (span != 0.0) {
+            for (size_t i = 0; i < n; ++i) {
+                const double w = (tt[i] - t0) / span;
+                o[2 * i] = ax + ex * w;
+                o[2 * i + 1] = ay + ey * w;
+            }
+        } else {
+            for (size_t i = 0; i < n; ++i) {
+                o[2 * i] = ax + ex * 0.0;
+                o[2 * i + 1] = ay + ey * 0.0;
+            }
         }
+        if (!all_within(o.data(), 2 * n)) return false;
     }
     for (int64_t k = 0; k < sweeps; ++k)
         if (!std::isfinite(yaw_errors.data()[k])) return false;
-    const double scale = double(bins) / (2 * kPi);
+    const float scale = float(double(bins) / (2 * kPi));
     double* nr = near.data();
     double* org = origin.data();
     double* ye = yaw_errors.data();
@@ -219,13 +259,14 @@ bool rays_sweep(Points map_xy, Times t, double ax, double ay, double bx, double 
     double* nh = nr + head * bins;
     double* oh = org + 2 * head * bins;
     const double mx = n ? o[2 * (n / 2)] : 0.0, my = n ? o[2 * (n / 2) + 1] : 0.0;
+    // the circle unrolled by window bins either side: ext[b + window + j] = nearest[(b + j) mod bins]
+    std::vector<double> ext(size_t(bins + 2 * window));
+    for (int64_t j = 0, b = ((-window) % bins + bins) % bins; j < bins + 2 * window; ++j, b = b + 1 == bins ? 0 : b + 1)
+        ext[size_t(j)] = nearest[size_t(b)];
     for (int64_t b = 0; b < bins; ++b) {
         double m = nearest[size_t(b)];
-        for (int64_t j = 1; j <= window; ++j) {
-            const int64_t before = b - j % bins, after = b + j % bins;
-            m = lesser(m, lesser(nearest[size_t(before < 0 ? before + bins : before)],
-                                 nearest[size_t(after >= bins ? after - bins : after)]));
-        }
+        for (int64_t j = 1; j <= window; ++j)  // np.minimum(near, np.minimum(np.roll(nearest, j), np.roll(nearest, -j)))
+            m = lesser(m, lesser(ext[size_t(b + window - j)], ext[size_t(b + window + j)]));
         nh[b] = m;
         const int64_t j = last[size_t(b)];
         oh[2 * b] = j >= 0 ? o[2 * j] : mx;

@@ -131,13 +131,26 @@ __attribute__((target("avx512f,avx512dq,avx512vl"))) void bearing_bins_avx512(co
 }
 #endif
 
+// the widest loops the kernel may take (tests: _rays_simd): 2 AVX-512, 1 AVX2, each where the CPU has it, 0 scalar
+int g_rays_simd = 2;
+
+#if defined(__x86_64__)
+bool rays_avx512() {
+    static const bool yes = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+                            __builtin_cpu_supports("avx512vl");
+    return yes && g_rays_simd >= 2;
+}
+
+bool rays_avx2() {
+    static const bool yes = __builtin_cpu_supports("avx2");
+    return yes && g_rays_simd >= 1;
+}
+#endif
+
 void bearing_bins(const double* dx, const double* dy, int32_t* k, double* r, size_t n, int32_t bins, float scale) {
 #if defined(__x86_64__)
-    static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
-                               __builtin_cpu_supports("avx512vl");
-    static const bool avx2 = __builtin_cpu_supports("avx2");
-    if (avx512) return bearing_bins_avx512(dx, dy, k, r, n, bins, scale);
-    if (avx2) return bearing_bins_avx2(dx, dy, k, r, n, bins, scale);
+    if (rays_avx512()) return bearing_bins_avx512(dx, dy, k, r, n, bins, scale);
+    if (rays_avx2()) return bearing_bins_avx2(dx, dy, k, r, n, bins, scale);
 #endif
     bearing_bins_plain(dx, dy, k, r, n, bins, scale);
 }
@@ -162,8 +175,7 @@ __attribute__((target("avx2"))) bool all_within_avx2(const double* v, size_t n) 
 
 bool all_within(const double* v, size_t n) {
 #if defined(__x86_64__)
-    static const bool avx2 = __builtin_cpu_supports("avx2");
-    if (avx2) return all_within_avx2(v, n);
+    if (rays_avx2()) return all_within_avx2(v, n);
 #endif
     return all_within_plain(v, n);
 }
@@ -283,6 +295,14 @@ void bind_rays(nb::module_& m) {
           nb::arg("bx"), nb::arg("by"), nb::arg("near"), nb::arg("origin"),
           nb::arg("yaw_errors"), nb::arg("head"), nb::arg("count"), nb::arg("step"), nb::arg("margin"),
           nb::arg("yaw_error"), nb::arg("tolerance"), nb::arg("window"), nb::arg("out"));
+    m.def(
+        "_rays_simd",
+        [](int level) {
+            const int was = g_rays_simd;
+            g_rays_simd = level;
+            return was;
+        },
+        nb::arg("level"), "Tests: the widest loop of rays_sweep (2 AVX-512, 1 AVX2, each where the CPU has it, 0 scalar); the old one.");
 }
 
 }  // namespace fmcwlog

@@ -31,9 +31,15 @@ def _select(kind):
 
 @pytest.fixture
 def use():
-    """Select kernels by name in a test; the environment is restored after it."""
+    """Select kernels by name in a test (returns the compiled module or None); the environment is
+    restored after it."""
     kind = os.environ.get(compiled.ENV)
-    yield _select
+
+    def select(name):
+        _select(name)
+        return compiled.core()
+
+    yield select
     if kind is None:
         os.environ.pop(compiled.ENV, None)
     else:
@@ -109,15 +115,19 @@ def _scene(rng, n, k, jitter=0.0):
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 1500), kept=st.integers(1, 12), step=st.integers(1, 4),
        window=st.integers(0, 3), margin=st.floats(0.0, 2.0), tolerance=st.floats(0.0, 0.5),
-       yaw=st.floats(0.0, 0.05), sweeps=st.integers(1, 16))
-def test_generated_sweeps_agree(use, seed, n, kept, step, window, margin, tolerance, yaw, sweeps):
-    use("compiled")
+       yaw=st.floats(0.0, 0.05), sweeps=st.integers(1, 16), level=st.sampled_from([2, 1, 0]))
+def test_generated_sweeps_agree(use, seed, n, kept, step, window, margin, tolerance, yaw, sweeps, level):
+    core = use("compiled")
     rng = np.random.default_rng(seed)
     data = []
     for k in range(sweeps):
         map_xy, t, ends = _scene(rng, n, k, jitter=0.01)
         data.append((map_xy, t, ends if n else None, float(yaw * rng.random())))
-    _run_both(data, step, margin, tolerance, window, kept)
+    was = core._rays_simd(level)  # the widest loop: AVX-512, AVX2 (each where the CPU has it), scalar
+    try:
+        _run_both(data, step, margin, tolerance, window, kept)
+    finally:
+        core._rays_simd(was)
 
 
 @needs_core
@@ -181,8 +191,17 @@ def recorded_sweeps():
 
 
 @needs_core
-def test_recorded_sweeps_agree(use, recorded_sweeps):
-    use("compiled")
+@pytest.mark.parametrize("level", [2, 1, 0])  # AVX-512, AVX2 (each where the CPU has it), scalar
+def test_recorded_sweeps_agree(use, recorded_sweeps, level):
+    core = use("compiled")
+    was = core._rays_simd(level)
+    try:
+        _recorded_agree(recorded_sweeps)
+    finally:
+        core._rays_simd(was)
+
+
+def _recorded_agree(recorded_sweeps):
     params = tracking.TrackingParams()
     assert len(recorded_sweeps) == 300
     fast = RecentRays(params.displacement_sweeps, params.displacement_window)

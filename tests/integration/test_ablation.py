@@ -67,8 +67,12 @@ def test_deskew_takes_out_the_sweeps_motion(ate):
 
 
 def test_huber_kernel_bounds_the_residuals(ate):
-    full, off = ate(CORRIDOR), ate(CORRIDOR, icp__use_huber=False)
-    assert off > 2 * full, (full, off)  # measured 1.1 -> 4.2 cm
+    # With point-to-point residuals: on this log, with the default point-to-line residuals, the kernel
+    # shows no effect (1.18 cm with it, 0.92 without): a residual along a wall's normal is not pulled
+    # by where along the wall the map's sample sits, which is most of what the kernel bounded here.
+    p2p = "point_to_point"
+    full, off = ate(CORRIDOR, icp__residual=p2p), ate(CORRIDOR, icp__residual=p2p, icp__use_huber=False)
+    assert off > 2 * full, (full, off)  # measured 0.89 -> 8.3 cm
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +139,8 @@ def test_gmmsc_rejects_clutter_the_kernel_cannot():
 
 def test_registration_without_source_thinning_still_runs(ate):
     """``frontend.source_voxel = 0`` registers every point of the sweep (no thinning): it still runs
-    and registers; on the corridor the thinned sweep is the better of the two (uniform density
-    weighs every wall alike instead of the near ones)."""
+    and registers. With point-to-point residuals the thinned sweep is the better of the two on the
+    corridor (uniform density weighs every wall alike instead of the near ones: 0.89 cm against
+    1.64); with point-to-line residuals (the default) the unthinned one is (0.49 cm against 1.18)."""
     full, off = ate(CORRIDOR), ate(CORRIDOR, source_voxel=0.0)
-    assert off < 0.035 and full < off, (full, off)  # measured 0.92 (10 cm voxels) and 1.62 cm
+    assert off < 0.01 and full < 0.024, (full, off)  # measured 1.18 (10 cm voxels) and 0.49 cm

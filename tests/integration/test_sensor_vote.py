@@ -163,9 +163,11 @@ def test_frozen_ticks_are_outvoted_while_frozen(runs):
 
 
 def test_without_the_vote_a_doubled_doppler_ruins_the_path(runs, clean):
-    """The ablation: the same log with ``sensor_checks.vote = false`` (the per-sweep check alone)."""
+    """The ablation: the same log with ``sensor_checks.vote = false`` (the per-sweep check alone).
+    Measured 4.5 cm against 0.6 with the vote: the point-to-line residuals hold the walls against the
+    doubled Doppler prior far better than point-to-point ones did (ten times the vote's then)."""
     _, ate = _run(clean.with_name("doppler_doubled.mcap"), ground_truth(clean), "sensor_checks.vote=false")
-    assert ate > 10 * max(runs["doppler_doubled"][1], 0.01), (ate, runs["doppler_doubled"][1])
+    assert ate > 0.025 and ate > 4 * runs["doppler_doubled"][1], (ate, runs["doppler_doubled"][1])
 
 
 def test_calibrate_refuses_what_scan_matching_contradicts(runs, clean, tmp_path):

@@ -3,7 +3,8 @@ whose every return is a no-return, while the wheel ticks go on. Built from the 3
 removing (or emptying) the sweeps of a window across its corner (the robot turns at 23-24 s), so that
 holding the last twist across the gap goes straight on where the robot turned.
 
-Measured (improved method, ATE RMSE, this sample): clean 0.9 cm; sweeps of 22-24, 21-25, 20-26 s
+Measured (improved method, ATE RMSE, this sample, point-to-point residuals): clean 0.9 cm (1.2 with
+the default point-to-line); sweeps of 22-24, 21-25, 20-26 s
 removed: 1.0, 1.0, 1.2 cm bridged (41, 204, 199 cm with the last twist held; 1.0, 2.2, 2.1 cm with
 the wheels' drift left in the bridge; 1.0, 3.3, 39 cm bridged but matching every point of the
 sweep after the gap; wheel odometry 16 cm); 60 empty sweeps (20-26 s): 1.2 cm. The target is twice
@@ -93,20 +94,33 @@ def test_without_the_bridge_the_last_twist_goes_astray(tmp_path):
     assert len(run["gaps"]) == 1
 
 
-def test_the_wheels_drift_left_in_the_bridge_turns_the_rest(tmp_path, clean_ate):
+# The two ablations below match point to point: with point-to-line residuals (the default) the scans
+# after the gap take out what either fault leaves on this sample (drift left in: 1.0 cm, every point
+# matched: 1.1 cm, clean 1.2), and the stages show where the scans cannot.
+POINT_TO_POINT = ("--set", "frontend.icp.residual=point_to_point")
+
+
+@pytest.fixture(scope="module")
+def clean_ate_point_to_point(tmp_path_factory) -> float:
+    return _run(SAMPLE, tmp_path_factory.mktemp("clean_p2p") / "out", *POINT_TO_POINT)[0]
+
+
+def test_the_wheels_drift_left_in_the_bridge_turns_the_rest(tmp_path, clean_ate_point_to_point):
     """The ablation of ``drift``: the wheels' radii turn their heading 4.4 mrad per metre; left in the
     bridge of the 6 s across the corner, 19 mrad of heading stays in every pose after it (measured
-    2.1 cm against 1.2, clean 0.9)."""
+    2.1 cm against 1.2, clean 0.9, point to point)."""
     log = _gapped(tmp_path / "gap.mcap", 20.0, 26.0)
-    ate, _ = _run(log, tmp_path / "out", "--set", "frontend.gaps.drift.enabled=false")
-    assert ate > 2 * clean_ate, f"ATE {100 * ate:.1f} cm (clean {100 * clean_ate:.1f} cm)"
+    ate, _ = _run(log, tmp_path / "out", "--set", "frontend.gaps.drift.enabled=false", *POINT_TO_POINT)
+    clean = clean_ate_point_to_point
+    assert ate > 2 * clean, f"ATE {100 * ate:.1f} cm (clean {100 * clean:.1f} cm)"
 
 
 def test_matching_every_point_after_a_gap_slides_back(tmp_path):
     """The ablation of ``seen_only``: the sweep after a 4 s gap at the corner, matched with the points
-    of the new corridor the map has not seen, slides back along it (measured 3.3 cm against 0.9)."""
+    of the new corridor the map has not seen, slides back along it (measured 3.3 cm against 0.9,
+    point to point)."""
     log = _gapped(tmp_path / "gap.mcap", 21.0, 25.0)
-    ate, _ = _run(log, tmp_path / "out", "--set", "frontend.gaps.seen_only=false")
+    ate, _ = _run(log, tmp_path / "out", "--set", "frontend.gaps.seen_only=false", *POINT_TO_POINT)
     assert ate > 0.025, f"ATE {100 * ate:.1f} cm"
 
 

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from helpers import needs_core
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
@@ -63,10 +63,10 @@ def test_normals_of_a_line_and_of_a_blob(use, kernels):
 
 
 @needs_core
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 1500), k=st.integers(1, 12),
        ratio=st.sampled_from([1.0, 4.0, 9.0, 100.0]), lattice=st.booleans())
-def test_compiled_normals_equal_numpy(seed, n, k, ratio, lattice):
+def test_compiled_normals_equal_numpy(use, seed, n, k, ratio, lattice):
     """The same neighbours (ties by index: the lattice has many), the same sums, the same eigenvectors:
     normals and flags equal bit for bit."""
     rng = np.random.default_rng(seed)
@@ -79,8 +79,7 @@ def test_compiled_normals_equal_numpy(seed, n, k, ratio, lattice):
         ends = rng.uniform(-5, 5, (4, 4))
         seg = rng.integers(0, 4, n)
         pts = ends[seg, :2] + t[:, None] * (ends[seg, 2:] - ends[seg, :2]) + rng.normal(0, 0.01, (n, 2))
-    module = compiled.core()
-    assert module is not None
+    module = use("compiled")
     fast_n, fast_f = np.empty((len(pts), 2)), np.empty(len(pts), bool)
     module.submap_normals(np.ascontiguousarray(pts), k, 1 / ratio, fast_n, fast_f)
     ref_n, ref_f = line_normals_numpy(pts, k, 1 / ratio, cKDTree(pts) if seed % 2 else None)

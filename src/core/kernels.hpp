@@ -21,5 +21,6 @@ void bind_submap(nanobind::module_& m);
 void bind_keyframe_map(nanobind::module_& m);
 void bind_transform(nanobind::module_& m);
 void bind_local_edges(nanobind::module_& m);
+void bind_rays(nanobind::module_& m);
 
 }  // namespace fmcwlog

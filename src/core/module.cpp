@@ -36,4 +36,5 @@ NB_MODULE(_core, m) {
     bind_keyframe_map(m);
     bind_transform(m);
     bind_local_edges(m);
+    bind_rays(m);
 }

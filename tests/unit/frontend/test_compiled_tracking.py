@@ -43,26 +43,37 @@ def _select(kind):
 
 def _both(segment, tracker, *args, **kw):
     """``segment`` (MoverTracker.segment) from the tracker's state with the numpy and the compiled
-    kernels: (mask, state) of each; the tracker is left in the numpy run's state."""
+    kernels: (mask, state) of each, the state with the recent rays' ring after; the tracker is left in
+    the numpy run's state."""
     before, runs = _state(tracker), {}
+    rays = tracker.rays.state()  # the sweeps' rays before this one
     for kind in ("compiled", "numpy"):
         _set_state(tracker, before)
+        near, origin, yaw_errors, tracker.rays.head, tracker.rays.count = rays
+        tracker.rays.near, tracker.rays.origin, tracker.rays.yaw_errors = near.copy(), origin.copy(), yaw_errors.copy()
         _select(kind)
-        runs[kind] = (segment(tracker, *args, **kw), _state(tracker))
+        mask = segment(tracker, *args, **kw)
+        near, origin, yaw_errors, head, count = tracker.rays.state()
+        runs[kind] = (mask, _state(tracker) + (near, origin, yaw_errors, np.array([head, count])))
     return runs["numpy"], runs["compiled"]
 
 
 def assert_same_tracks(fast, ref):
-    """Masks, track counts, hits and times exactly; states and covariances to 1e-9."""
+    """Masks, track counts, hits and times exactly; states and covariances to 1e-9 (and, where given,
+    the recent rays' ring to 1e-9, its slots exactly)."""
     (mask, state), (want_mask, want) = fast, ref
     assert mask.dtype == want_mask.dtype
     np.testing.assert_array_equal(mask, want_mask)
     assert state[0].shape == want[0].shape
     np.testing.assert_allclose(state[0], want[0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(state[1], want[1], rtol=0, atol=1e-9)
-    for got, expected in zip(state[2:], want[2:]):
+    for got, expected in zip(state[2:5], want[2:5]):
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got, expected)
+    if len(want) > 5:  # the recent rays' ring (from each kernel's de-skew: the same to rounding) and its slots
+        for got, expected in zip(state[5:8], want[5:8]):
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(state[8], want[8])
 
 
 @pytest.fixture(scope="module")
@@ -70,10 +81,10 @@ def recorded():
     """The two 30 s logs processed by the improved method, every sweep's tracking done with both
     kernels from the same state (the run goes on from the numpy one): "sweeps", the (numpy, compiled)
     results of each, and "segmentations", what the tracker gave DBSCAN on every third sweep
-    (xy, epsilon, params, seeds, seed_points)."""
+    (xy, epsilon, params, seeds, seed_points); "rays", how many sweeps' rays the tracker held after each."""
     from fmcwlog.api import ProcessOptions, process
 
-    sweeps, segmentations = [], []
+    sweeps, segmentations, rays = [], [], []
     original_segment, original_clusters = tracking.MoverTracker.segment, tracking.segment_clusters
 
     def clusters(xy, epsilon, params, seeds=None, seed_points=None):
@@ -83,6 +94,7 @@ def recorded():
     def segment(tracker, *args, **kw):
         ref, fast = _both(original_segment, tracker, *args, **kw)
         sweeps.append((ref, fast))
+        rays.append(tracker.rays.count)
         return ref[0]
 
     kind = os.environ.get(compiled.ENV)
@@ -99,7 +111,7 @@ def recorded():
         else:
             os.environ[compiled.ENV] = kind
         compiled._chosen = None
-    return {"sweeps": sweeps, "segmentations": segmentations[::3]}
+    return {"sweeps": sweeps, "segmentations": segmentations[::3], "rays": rays}
 
 
 @needs_core
@@ -110,6 +122,9 @@ def test_recorded_tracking_agrees(recorded):
         assert_same_tracks(fast, ref)
     assert sum(len(ref[1][0]) for ref, _ in sweeps) > 3000  # tracks were followed (crowd_30s holds movers)
     assert sum(int(ref[0].sum()) for ref, _ in sweeps) > 50_000
+    # each sweep's rays are kept once (both runs start from the same ones), up to displacement_sweeps
+    kept = recorded["rays"]
+    assert kept[:12] == [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 10, 10]
 
 
 @needs_core

@@ -31,6 +31,12 @@ import numpy as np
 if TYPE_CHECKING:
     import gtsam
 
+# The elimination order of LM's linear solves: METIS's nested dissection. A log that passes the same
+# places many times ties every pass to the ones before, and COLAMD's order then fills the factor far
+# more: on the 20-minute ten-lap corridor's last graphs (2,000 nodes, 11,000 factors) a solve takes
+# 0.33 against 0.46 s CPU, to the same optimum (poses within 1e-9 m).
+ORDERING = "METIS"
+
 
 def _gtsam():
     """gtsam, imported at the first solve (0.08 s of imports a run without a closure never needs)."""
@@ -183,6 +189,7 @@ class PoseGraph:
                 return
             self._isam = None  # its Bayes tree freed before LM builds its own (the peak); LM from here on
         params = gtsam.LevenbergMarquardtParams()
+        params.setOrderingType(ORDERING)
         params.setMaxIterations(max_iterations)
         if relative_tolerance is not None:
             params.setRelativeErrorTol(relative_tolerance)

@@ -104,6 +104,10 @@ class BackendParams(Checked):
         fraction of the full window's (the 20-minute ten-lap corridor: closure verification 4.3 -> 3.4 s
         for the improved method, 8.7 -> 7.2 s for the baseline; ATE 0.566 -> 0.565 cm and 0.199 -> 0.201
         m). ``tied_window`` 0: always ``search``'s.
+    tied_after_agreement: the same narrower search for a query right after one whose closures all
+        agreed with the estimate (each within ``optimize_gap``, :meth:`~.pipeline.PoseGraphBackend._disagrees`):
+        there the estimate is already within a gap of the earlier pass, as after a pull. False: only
+        after a pull.
     closure_pull: between re-solves, each accepted closure moves the query node, the newest, this
         share (0-1) of the way to where the closure puts it (in the directions the closure
         determines, weighed against ``optimize_gap``), and the nodes after it follow by odometry:
@@ -180,6 +184,7 @@ class BackendParams(Checked):
     tied_window: float = param(0.5, "m", ge=0.0, le=20.0)
     tied_window_deg: float = param(5.0, "deg", gt=0.0, le=180.0)
     closure_pull: float = param(0.0, "", ge=0.0, le=1.0)
+    tied_after_agreement: bool = True
     optimize_tolerance: float = param(1e-3, "", gt=0.0, le=1.0)
     optimize_share: float = param(0.05, "", ge=0.0, le=1.0)
     solver: str = param("batch", choices=("batch", "isam2"))

@@ -166,7 +166,8 @@ class PoseGraphBackend:
         self._last_wide_path = -np.inf
         self._last_closure_path = 0.0  # path at the last node that closed a loop (m)
         self._last_disagree_path = -np.inf  # path at the last node whose closure disagreed (m)
-        self._tied = False  # the last query added a closure that pulled the tail onto an earlier pass
+        self._tied = False  # the last query tied the tail to an earlier pass: the narrower search (_search_window)
+        self._agreed = False  # the last query added closures, each within the gaps of the estimate (_disagrees)
         self._tied_search = params.search if params.tied_window == 0.0 else dataclasses.replace(
             params.search, linear_window=min(params.tied_window, params.search.linear_window),
             angular_window_deg=min(params.tied_window_deg, params.search.angular_window_deg))
@@ -229,7 +230,8 @@ class PoseGraphBackend:
         if self._path_m - self._last_query_path >= self._query_every:
             self._last_query_path = self._path_m
             closed = self._close_loops(node.index)
-            self._tied = self._last_closure_path == self._path_m and self.p.closure_pull > 0.0
+            just_closed = self._last_closure_path == self._path_m
+            self._tied = just_closed and (self.p.closure_pull > 0.0 or self.p.tied_after_agreement and self._agreed)
             self._query_every = self.p.closure_every_closed if closed else self.p.closure_every
         if self._dirty and self._nodes_since_opt >= self._optimize_period():
             self._optimize()
@@ -251,7 +253,8 @@ class PoseGraphBackend:
         since = self.nodes[query].path_m - self._last_closure_path
         window = min(max(p.search.linear_window, p.drift_per_m * since), p.max_window)
         if window <= p.search.linear_window:
-            # right after a closure pulled the tail onto an earlier pass: the narrower window
+            # right after a closure pulled the tail onto an earlier pass, or closures that all agreed
+            # with the estimate: the narrower window
             return p.closure_radius, self._tied_search if self._tied else p.search
         if self.nodes[query].path_m - self._last_wide_path < p.wide_every:
             return None
@@ -270,6 +273,7 @@ class PoseGraphBackend:
             return False
         radius, search = window
         q, closed, agreed = None, False, True
+        self._agreed = False
         for cand in closure_candidates(query, self._estimates[:, :2], path, self.p, radius):
             self.proposed += 1
             prior = between(self._estimates[cand], self._estimates[query])
@@ -292,6 +296,7 @@ class PoseGraphBackend:
             self._pull_tail(edge, prior)
             self._last_closure_path = self.nodes[query].path_m
             closed, agreed = True, agreed and not disagrees
+        self._agreed = closed and agreed
         settled = self.nodes[query].path_m - self._last_disagree_path >= self.p.closure_settle
         return closed and agreed and settled
 

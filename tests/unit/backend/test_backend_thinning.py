@@ -127,3 +127,36 @@ def test_a_query_right_after_a_pulled_closure_searches_the_tied_window():
     backend = _backend(tied_window=0.0)
     backend.nodes, backend._last_closure_path, backend._tied = [SimpleNamespace(path_m=30.0)], 30.0, True
     assert backend._search_window(0)[1] == backend.p.search
+
+
+@pytest.mark.parametrize(("after_agreement", "offset", "narrowed"), [
+    (True, 0.0, True),     # every closure where the estimate put it: the next query searches the tied window
+    (True, 0.4, False),    # each 0.4 m off the estimate (beyond optimize_gap): the full window stays
+    (False, 0.0, False),   # switched off: only a pull narrows it
+])
+def test_a_query_right_after_closures_that_agreed_with_the_estimate_searches_the_tied_window(after_agreement, offset,
+                                                                                             narrowed, monkeypatch):
+    """A straight drive, a node every 0.5 m, each query closing on the nodes behind it: where every
+    closure lands within ``optimize_gap`` of the estimate the queries after the first search
+    ``tied_window``; where they land beyond it, or with ``tied_after_agreement`` off, ``search``'s."""
+    from fmcwlog.backend import pipeline
+
+    backend = _backend(closure_min_path=0.0, local_links=0, tied_window=0.5, tied_window_deg=5.0,
+                       tied_after_agreement=after_agreement, closure_every_closed=1.0)
+    windows: list[float] = []
+
+    def verify(q, submap, prior, p, search):
+        windows.append(search.linear_window)
+        return SimpleNamespace(accepted=True, relative=compose(prior, np.array([0.0, offset, 0.0])), covariance=TIGHT,
+                               score=1.0, second_score=0.0, inlier_fraction=1.0, free_directions=0, test="")
+
+    monkeypatch.setattr(pipeline, "verify", verify)
+    monkeypatch.setattr(pipeline, "voxel_downsample", lambda xy, v: xy)
+    monkeypatch.setattr(backend, "_submap", lambda cand: np.zeros((0, 2)))
+    monkeypatch.setattr(backend, "_optimize", lambda final=False: None)  # the estimate stays the odometry's
+    for k in range(30):
+        backend.add(SimpleNamespace(pose=np.array([0.5 * k, 0.0, 0.0]), keyframe=True, stamp_ns=k,
+                                    static_map_xy=np.zeros((0, 2)), pose_covariance=None, jump=None, jump_prior=None,
+                                    jump_back=0))
+    assert len(windows) > 10 and windows[0] == backend.p.search.linear_window
+    assert set(windows[2:]) == ({0.5} if narrowed else {backend.p.search.linear_window})

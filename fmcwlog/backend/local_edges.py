@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,7 @@ class LocalMatcher:
     _submaps: dict[int, Submap] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
     icp: LineICPParams = field(init=False)
-    _core: object = field(default=None, init=False, repr=False)  # the compiled core's LocalEdges, once used
+    _core: Any = field(default=None, init=False, repr=False)  # the compiled core's LocalEdges, once used
     _held: set[int] = field(default_factory=set, init=False, repr=False)  # the nodes it holds the points of
     iterations: list[int] = field(default_factory=list, init=False, repr=False)  # the core's last call: ICP
     # iterations of each match, node order (0: none ran)

@@ -94,11 +94,12 @@ class PoseTrack:
                 # the same counts again within a hold (module docstring)
                 return False
             x0, y0, th0 = self._p[self._n - 1].tolist()
-            pose = ticks_step(x0, y0, th0, int(left) - int(self._ticks[0]), int(right) - int(self._ticks[1]), calib)
-            if pose is None:  # counts beyond int64, or a pose not finite: the array functions' own cases
+            step = ticks_step(x0, y0, th0, int(left) - int(self._ticks[0]), int(right) - int(self._ticks[1]), calib)
+            if step is None:  # counts beyond int64, or a pose not finite: the array functions' own cases
                 ds, dth = body_increments(np.array([self._ticks[0], left]), np.array([self._ticks[1], right]), calib)
-                pose = integrate_arc(ds[0], dth[0], self._p[self._n - 1])
-            ok = self.add_pose(t, pose)
+                ok = self.add_pose(t, integrate_arc(ds[0], dth[0], self._p[self._n - 1]))
+            else:
+                ok = self.add_pose(t, step)
             self._ticks = (left, right)
         if ok:
             self._k[self._n - 1] = (left, right)

@@ -33,6 +33,7 @@ from ..config import Checked, param
 from ..geometry import wrap_angle
 from ..kernels import compiled
 from ..kernels.nearest import NearestPairs
+from ..kernels.normals import line_normals_numpy
 
 if TYPE_CHECKING:  # scipy.spatial (0.25 s of imports) only where a KD-tree is built
     from scipy.spatial import cKDTree
@@ -100,10 +101,9 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
     ``points`` (M, 2), m, in the submap's frame; the :class:`Submap` holds them, their unit
     normals and a KD-tree over them.
 
-    The neighbourhoods' means and covariances are summed one neighbour at a time, in the order
-    ``mean(axis=1)`` and ``einsum`` summed them (bit for bit the same), at half their cost.
-    The compiled core (``src/core/submap.cpp``) does the same sums; its normals agree to rounding,
-    up to their sign (which no residual's square, Jacobian product or information sees)."""
+    The compiled core (``src/core/normals.hpp``) computes them where it is selected, else
+    :func:`~fmcwlog.kernels.normals.line_normals_numpy`, its reference (the same neighbours, ties by
+    index, and the same arithmetic: bit for bit the same normals)."""
     module = compiled.core()
     if module is not None and len(points):
         points = np.ascontiguousarray(points, float)
@@ -117,23 +117,8 @@ def build_submap(points: np.ndarray, p: LineICPParams = LineICPParams()) -> Subm
         return Submap(points, normals, has_normal, near=near, reach=reach)
     from scipy.spatial import cKDTree  # here, not at import: scipy.spatial is 0.25 s of imports
     tree = cKDTree(points)
-    k = min(p.normal_neighbours, len(points))
-    _, idx = tree.query(points, k=k)
-    nb = points[np.atleast_2d(idx.T).T] if k > 1 else points[:, None, :]
-    centre = nb[:, 0].copy()
-    for i in range(1, k):
-        centre += nb[:, i]
-    d = nb - (centre / k)[:, None, :]
-    products = d[:, :, [0, 0, 1]] * d[:, :, [0, 1, 1]]  # (M, k, 3): xx, xy, yy
-    sums = products[:, 0] + 0.0  # einsum starts from +0: a lone -0 product reads +0
-    for i in range(1, k):
-        sums += products[:, i]
-    sums /= max(k, 1)
-    cov = sums[:, [0, 1, 1, 2]].reshape(-1, 2, 2)
-    w, v = np.linalg.eigh(cov)  # ascending eigenvalues
-    normals = v[:, :, 0]
-    planar = w[:, 0] <= p.min_planarity * np.maximum(w[:, 1], 1e-12)
-    return Submap(points, normals, planar & (k >= 3), tree)
+    normals, planar = line_normals_numpy(points, p.normal_neighbours, p.min_planarity, tree)
+    return Submap(points, normals, planar, tree)
 
 
 @dataclass
